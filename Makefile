@@ -1,0 +1,40 @@
+# Two entry points: `make demo` (the main job) and `make test` (the suite).
+# Each does its own idempotent set-up: Debian's libllvm19 for Mitsuba's LLVM
+# variant, a virtual environment, and this package with its dependencies.
+
+PYTHON ?= python3
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+
+.PHONY: demo test setup llvm lint clean
+
+demo: setup
+	$(PY) -m sparse_brdf.demo
+
+test: setup
+	$(VENV)/bin/ruff check sparse_brdf mitsuba_plugin tests benchmarks
+	$(PY) -m pytest -q tests
+
+setup: llvm $(STAMP)
+
+# Mitsuba's LLVM backend aborts with the stock libLLVM 15 ("Cannot select ... fminimum");
+# Dr.Jit picks the newest libLLVM*.so it finds, so installing libllvm19 is enough.
+llvm:
+	@if ! ls /usr/lib/*-linux-gnu/libLLVM-19.so* /usr/lib/*-linux-gnu/libLLVM.so.19* >/dev/null 2>&1; then \
+		echo "installing Debian's libllvm19 (needed by Mitsuba's LLVM variant)"; \
+		SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+		$$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq libllvm19 >/dev/null; \
+	fi
+
+$(STAMP): pyproject.toml
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e '.[test]'
+	@touch $(STAMP)
+
+lint: setup
+	$(VENV)/bin/ruff check sparse_brdf mitsuba_plugin tests benchmarks
+
+clean:
+	rm -rf $(VENV) build *.egg-info

@@ -1,0 +1,169 @@
+"""The ``sparse-brdf`` command line. Each subcommand is a thin wrapper of a library call."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+EPILOG = """examples:
+  sparse-brdf corpus list
+  sparse-brdf info mitsuba:au-ggx-0.08
+  sparse-brdf convert ../shared/data/nbrdf/merl/gold-metallic-paint.h5 gold.binary
+  sparse-brdf encode gold.binary -o gold.sbrdf --coeffs 262
+  sparse-brdf decode gold.sbrdf -o gold-decoded.binary
+  sparse-brdf train --corpus merl rgl -o my_ensemble.npz --checkpoint-dir ckpt/
+"""
+
+
+def _add_source_help(p: argparse.ArgumentParser) -> None:
+    p.epilog = ("A BRDF source is a MERL/DTU .binary file, a Neural-BRDF .h5 file, a .sbrdf "
+                "coefficient file, or mitsuba:<name> for a built-in material.")
+
+
+def cmd_corpus_list(args: argparse.Namespace) -> int:
+    from .corpora import get_corpus, list_corpora
+
+    if args.corpus:
+        c = get_corpus(args.corpus)
+        test = {m.name for m in c.split("test")}
+        for m in c.materials:
+            print(f"{m.name:40s} {'test' if m.name in test else 'train':5s} {m.source}")
+        return 0
+    for name, desc in list_corpora().items():
+        print(f"{name:8s} {desc}")
+    return 0
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    from .io import load_brdf
+
+    info = load_brdf(args.source).summary()
+    if args.json:
+        print(json.dumps(info, indent=2))
+        return 0
+    print(f"name        {info['name']}\nsource      {info['source']}")
+    print(f"shape       {tuple(info['shape'])}")
+    print(f"valid bins  {info['valid_bins']} of {info['total_bins']}")
+    for i, ch in enumerate("RGB"):
+        print(f"{ch}           min {info['min'][i]:.4g}  max {info['max'][i]:.4g}  "
+              f"mean {info['mean'][i]:.4g}  albedo {info['albedo'][i]:.3f}")
+    return 0
+
+
+def cmd_convert(args: argparse.Namespace) -> int:
+    from .io import load_brdf
+    from .merl import write_merl
+
+    out = Path(args.output)
+    if out.suffix != ".binary":
+        raise SystemExit(f"error: {out}: output must be a MERL .binary file")
+    write_merl(out, load_brdf(args.source))
+    print(f"wrote {out}")
+    return 0
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    from .corpora import get_corpus
+    from .dataset import training_tensors
+    from .ensemble import Ensemble, train_ensemble
+
+    materials = []
+    for name in args.corpus:
+        materials += get_corpus(name).split(args.split)
+    shape = tuple(args.grid)
+    t0 = time.perf_counter()
+    x, labels = training_tensors(materials, args.transform, shape)
+    load_s = time.perf_counter() - t0
+    meta = {
+        "data": [f"{m.corpus}/{m.name}" for m in materials],
+        "corpora": args.corpus, "split": args.split, "transforms": list(args.transform),
+        "grid": list(shape), "load_seconds": load_s,
+        "command": "sparse-brdf " + " ".join(sys.argv[1:]),
+        "created": time.strftime("%Y-%m-%d %H:%M:%S %Z"),
+    }
+    ens = train_ensemble(x, args.taus, args.dicts, args.iterations, seed=args.seed,
+                         checkpoint_dir=args.checkpoint_dir, meta=meta,
+                         reassign_every=args.reassign_every)
+    if args.extend:
+        ens = Ensemble.load(args.extend).union(ens)
+    ens.save(args.output)
+    print(f"wrote {args.output}: {ens.n_dicts} dictionaries, id {ens.id}, "
+          f"trained in {ens.meta.get('seconds', 0):.0f} s on {len(x)} tensors")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="sparse-brdf",
+        description="Measured BRDFs as sparse coefficients over a learned dictionary "
+                    "ensemble: convert, inspect, train, encode, decode and render.",
+        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    c = sub.add_parser("corpus", help="list corpora and their train/test split")
+    csub = c.add_subparsers(dest="corpus_command", required=True, metavar="ACTION")
+    cl = csub.add_parser("list", help="list corpora, or the materials of one corpus")
+    cl.add_argument("corpus", nargs="?", help="mitsuba, merl, rgl or a folder")
+    cl.set_defaults(func=cmd_corpus_list)
+
+    i = sub.add_parser("info", help="shape, valid bins, value range and albedo of a BRDF")
+    i.add_argument("source", help="BRDF source (see below)")
+    i.add_argument("--json", action="store_true", help="print JSON")
+    _add_source_help(i)
+    i.set_defaults(func=cmd_info)
+
+    v = sub.add_parser("convert", help="tabulate any BRDF source into a MERL .binary file")
+    v.add_argument("source", help="BRDF source (see below)")
+    v.add_argument("output", help="output .binary path (written atomically)")
+    _add_source_help(v)
+    v.set_defaults(func=cmd_convert)
+
+    t = sub.add_parser("train", help="train a dictionary ensemble (SPEC section 4)",
+                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    t.add_argument("--corpus", nargs="+", default=["merl", "rgl"],
+                   help="corpora to train on (names or folders)")
+    t.add_argument("--split", default="train", choices=["train", "test", "all"])
+    t.add_argument("--transform", nargs="+", default=["log-plus", "log-plus-cosine"],
+                   choices=["log-plus", "log-plus-cosine"])
+    t.add_argument("--taus", nargs="+", type=int, default=[32, 64, 128, 256],
+                   help="training sparsities; one set of dictionaries per value")
+    t.add_argument("--dicts", type=int, default=8, help="dictionaries per sparsity")
+    t.add_argument("--iterations", type=int, default=8)
+    t.add_argument("--reassign-every", type=int, default=3,
+                   help="cluster against every dictionary at every N-th iteration")
+    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--grid", nargs=3, type=int, default=[90, 90, 180],
+                   metavar=("N_H", "N_D", "N_P"))
+    t.add_argument("--checkpoint-dir", help="checkpoint every iteration here and resume")
+    t.add_argument("--extend", help="unite the new dictionaries with this ensemble")
+    t.add_argument("-o", "--output", required=True, help="output ensemble .npz")
+    t.set_defaults(func=cmd_train)
+    _add_codec_commands(sub)
+    return p
+
+
+def _add_codec_commands(sub) -> None:
+    try:
+        from . import cli_codec
+    except ImportError:  # pragma: no cover
+        return
+    cli_codec.add_commands(sub)
+
+
+def main(argv: list[str] | None = None) -> int:
+    from .errors import SparseBRDFError
+
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except (SparseBRDFError, FileNotFoundError, KeyError, ValueError) as exc:
+        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+        print(f"sparse-brdf: error: {msg}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

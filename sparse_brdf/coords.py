@@ -1,0 +1,136 @@
+"""Rusinkiewicz half/difference coordinates on the MERL grid (SPEC section 1).
+
+All angles are in radians; all functions are vectorised over leading array axes.
+The grid has ``shape = (n_h, n_d, n_p)`` bins, (90, 90, 180) for MERL; every function
+takes the shape so that tests can use small grids (e.g. 18x18x36) with the same formulas.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+MERL_SHAPE: tuple[int, int, int] = (90, 90, 180)
+HALF_PI = np.pi / 2
+
+
+def _normalize(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def dirs_to_angles(wi: np.ndarray, wo: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(wi, wo) unit vectors of shape (..., 3) in the local frame -> (theta_h, theta_d, phi_d).
+
+    phi_d is returned in (-pi, pi]; :func:`angles_to_bins` folds it by reciprocity.
+    """
+    wi = np.asarray(wi, dtype=np.float64)
+    wo = np.asarray(wo, dtype=np.float64)
+    h = _normalize(wi + wo)
+    theta_h = np.arccos(np.clip(h[..., 2], -1.0, 1.0))
+    phi_h = np.arctan2(h[..., 1], h[..., 0])
+    # d = R_y(-theta_h) R_z(-phi_h) wi
+    cp, sp = np.cos(phi_h), np.sin(phi_h)
+    x = cp * wi[..., 0] + sp * wi[..., 1]
+    y = -sp * wi[..., 0] + cp * wi[..., 1]
+    z = wi[..., 2]
+    ct, st = np.cos(theta_h), np.sin(theta_h)
+    dx = ct * x - st * z
+    dz = st * x + ct * z
+    theta_d = np.arccos(np.clip(dz, -1.0, 1.0))
+    phi_d = np.arctan2(y, dx)
+    return theta_h, theta_d, phi_d
+
+
+def angles_to_dirs(
+    theta_h: np.ndarray, theta_d: np.ndarray, phi_d: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(theta_h, theta_d, phi_d) -> (wi, wo), each of shape (..., 3), with phi_h = 0."""
+    theta_h, theta_d, phi_d = np.broadcast_arrays(
+        np.asarray(theta_h, dtype=np.float64),
+        np.asarray(theta_d, dtype=np.float64),
+        np.asarray(phi_d, dtype=np.float64),
+    )
+    h, d = half_diff_vectors(theta_h, theta_d, phi_d)
+    ct, st = np.cos(theta_h), np.sin(theta_h)
+    # wi = R_y(theta_h) d
+    wi = np.stack([ct * d[..., 0] + st * d[..., 2], d[..., 1], -st * d[..., 0] + ct * d[..., 2]], -1)
+    wo = 2.0 * np.sum(wi * h, axis=-1, keepdims=True) * h - wi
+    return wi, wo
+
+
+def half_diff_vectors(
+    theta_h: np.ndarray, theta_d: np.ndarray, phi_d: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Cartesian half vector h and difference vector d (phi_h = 0), each (..., 3)."""
+    h = np.stack([np.sin(theta_h), np.zeros_like(theta_h), np.cos(theta_h)], -1)
+    d = np.stack(
+        [np.sin(theta_d) * np.cos(phi_d), np.sin(theta_d) * np.sin(phi_d), np.cos(theta_d)], -1
+    )
+    return h, d
+
+
+def cos_io(
+    theta_h: np.ndarray, theta_d: np.ndarray, phi_d: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """cos(theta_i), cos(theta_o) of a direction pair given by its angles."""
+    a = np.cos(theta_d) * np.cos(theta_h)
+    b = np.sin(theta_d) * np.cos(phi_d) * np.sin(theta_h)
+    return a - b, a + b
+
+
+def angles_to_bins(
+    theta_h: np.ndarray,
+    theta_d: np.ndarray,
+    phi_d: np.ndarray,
+    shape: tuple[int, int, int] = MERL_SHAPE,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Angles -> integer bin indices (i_h, i_d, i_p), clamped; phi_d folded into [0, pi)."""
+    n_h, n_d, n_p = shape
+    th = np.maximum(np.asarray(theta_h, dtype=np.float64), 0.0)
+    i_h = np.floor(np.sqrt(th / HALF_PI) * n_h)
+    i_d = np.floor(np.asarray(theta_d, dtype=np.float64) / HALF_PI * n_d)
+    pd = np.asarray(phi_d, dtype=np.float64)
+    pd = np.where(pd < 0.0, pd + np.pi, pd)
+    i_p = np.floor(pd / np.pi * n_p)
+    return (
+        np.clip(i_h, 0, n_h - 1).astype(np.int64),
+        np.clip(i_d, 0, n_d - 1).astype(np.int64),
+        np.clip(i_p, 0, n_p - 1).astype(np.int64),
+    )
+
+
+def dirs_to_bins(
+    wi: np.ndarray, wo: np.ndarray, shape: tuple[int, int, int] = MERL_SHAPE
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(wi, wo) of shape (..., 3) -> bin indices (i_h, i_d, i_p)."""
+    return angles_to_bins(*dirs_to_angles(wi, wo), shape=shape)
+
+
+def bin_angles(
+    shape: tuple[int, int, int] = MERL_SHAPE,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Lower-edge angles of every bin, as three 1-D arrays (theta_h, theta_d, phi_d)."""
+    n_h, n_d, n_p = shape
+    theta_h = (np.arange(n_h) / n_h) ** 2 * HALF_PI
+    theta_d = np.arange(n_d) / n_d * HALF_PI
+    phi_d = np.arange(n_p) / n_p * np.pi
+    return theta_h, theta_d, phi_d
+
+
+def grid_angles(
+    shape: tuple[int, int, int] = MERL_SHAPE,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Bin angles broadcast to the full grid, each of shape ``shape``."""
+    th, td, pd = bin_angles(shape)
+    return np.meshgrid(th, td, pd, indexing="ij")
+
+
+def cosine_product(shape: tuple[int, int, int] = MERL_SHAPE) -> np.ndarray:
+    """cos(theta_i) * cos(theta_o) at every bin's angles, float64 array of ``shape``."""
+    ci, co = cos_io(*grid_angles(shape))
+    return ci * co
+
+
+def geometric_valid(shape: tuple[int, int, int] = MERL_SHAPE) -> np.ndarray:
+    """Bins whose two directions are both above the horizon, bool array of ``shape``."""
+    ci, co = cos_io(*grid_angles(shape))
+    return (ci > 0.0) & (co > 0.0)

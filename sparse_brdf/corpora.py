@@ -1,0 +1,192 @@
+"""Named corpora of materials and their deterministic train/test split.
+
+- ``mitsuba``: built into the package, always there: Mitsuba 3 BSDFs (measured-IOR
+  rough conductors, rough plastics, principled paints with clearcoat and sheen,
+  diffuse), tabulated through ``mi.BSDF.eval``.
+- ``merl``, ``rgl``: Neural-BRDF fits of measured MERL and RGL-EPFL materials, found in
+  ``../shared/data/nbrdf`` (or ``$SPARSE_BRDF_DATA/nbrdf``) when present.
+- any folder of ``.binary`` (MERL/DTU) or ``.h5`` (Neural-BRDF) files, given by path.
+
+Split: within a corpus, materials are ranked by sha256("<corpus>/<name>") and the first
+``round(0.15 * n)`` (at least 1) form the test split; the rest train. The rule depends
+only on names, so adding a material never moves another one across the split.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from .brdf import BRDF
+from .coords import MERL_SHAPE
+
+TEST_FRACTION = 0.15
+
+
+def shared_data_dir() -> Path | None:
+    """The shared data folder (``$SPARSE_BRDF_DATA`` or ``../shared/data``), or None."""
+    candidates = []
+    if os.environ.get("SPARSE_BRDF_DATA"):
+        candidates.append(Path(os.environ["SPARSE_BRDF_DATA"]))
+    candidates += [
+        Path(__file__).resolve().parents[2] / "shared" / "data",
+        Path.cwd().parent / "shared" / "data",
+    ]
+    for c in candidates:
+        if (c / "nbrdf").is_dir():
+            return c
+    return None
+
+
+def _conductors() -> dict[str, dict]:
+    out = {}
+    for mat, alphas in {
+        "Au": (0.08, 0.25), "Cu": (0.12, 0.35), "Cr": (0.05, 0.2), "TiN": (0.15, 0.3),
+        "Ag": (0.1, 0.4), "Al": (0.06, 0.3), "Ir": (0.18,), "W": (0.4,), "Mo": (0.22,),
+        "Ta": (0.1,),
+    }.items():
+        for a in alphas:
+            out[f"{mat.lower()}-ggx-{a:g}"] = {
+                "type": "roughconductor", "material": mat, "alpha": a, "distribution": "ggx"}
+    for mat, a in (("Au", 0.15), ("Cu", 0.07), ("Al", 0.2)):
+        out[f"{mat.lower()}-beckmann-{a:g}"] = {
+            "type": "roughconductor", "material": mat, "alpha": a, "distribution": "beckmann"}
+    return out
+
+
+def _rgb(c: tuple[float, float, float]) -> dict:
+    return {"type": "rgb", "value": list(c)}
+
+
+_COLOURS = {
+    "red": (0.6, 0.08, 0.05), "green": (0.1, 0.45, 0.12), "blue": (0.05, 0.12, 0.55),
+    "white": (0.8, 0.8, 0.78), "black": (0.02, 0.02, 0.025), "yellow": (0.7, 0.55, 0.08),
+    "orange": (0.8, 0.3, 0.05), "grey": (0.25, 0.25, 0.25), "purple": (0.3, 0.08, 0.4),
+}
+
+
+def _plastics() -> dict[str, dict]:
+    out = {}
+    for (col, a, dist) in (
+        ("red", 0.05, "ggx"), ("red", 0.3, "ggx"), ("green", 0.1, "ggx"), ("blue", 0.2, "ggx"),
+        ("white", 0.08, "ggx"), ("black", 0.04, "ggx"), ("yellow", 0.15, "beckmann"),
+        ("orange", 0.4, "ggx"), ("grey", 0.12, "beckmann"), ("purple", 0.25, "ggx"),
+        ("black", 0.2, "beckmann"), ("white", 0.35, "ggx"),
+    ):
+        out[f"plastic-{col}-{dist}-{a:g}"] = {
+            "type": "roughplastic", "diffuse_reflectance": _rgb(_COLOURS[col]),
+            "alpha": a, "distribution": dist, "int_ior": 1.49}
+    return out
+
+
+def _principled() -> dict[str, dict]:
+    out = {}
+    for col, rough, metallic, cc, sheen in (
+        ("red", 0.4, 0.0, 1.0, 0.0), ("blue", 0.3, 0.0, 0.7, 0.0), ("white", 0.5, 0.0, 1.0, 0.0),
+        ("yellow", 0.35, 0.9, 0.6, 0.0), ("green", 0.3, 0.8, 0.8, 0.0),
+        ("red", 0.9, 0.0, 0.0, 1.0), ("blue", 0.8, 0.0, 0.0, 1.0), ("white", 0.95, 0.0, 0.0, 0.8),
+        ("purple", 0.7, 0.0, 0.0, 1.0), ("grey", 0.6, 0.5, 0.0, 0.0),
+        ("orange", 0.25, 0.0, 0.0, 0.0), ("black", 0.2, 0.0, 1.0, 0.0),
+    ):
+        kind = "clearcoat" if cc else ("sheen" if sheen else "paint")
+        if metallic:
+            kind = "metallic-" + kind
+        out[f"principled-{kind}-{col}-{rough:g}"] = {
+            "type": "principled", "base_color": _rgb(_COLOURS[col]), "roughness": rough,
+            "metallic": metallic, "clearcoat": cc, "clearcoat_gloss": 0.8, "sheen": sheen,
+            "sheen_tint": 0.3, "specular": 0.5}
+    return out
+
+
+def _diffuse() -> dict[str, dict]:
+    return {f"diffuse-{c}": {"type": "diffuse", "reflectance": _rgb(_COLOURS[c])}
+            for c in ("white", "red", "grey", "green", "orange")}
+
+
+def mitsuba_catalog() -> dict[str, dict]:
+    """Name -> ``mi.load_dict`` dictionary of every built-in material (>= 40)."""
+    return {**_conductors(), **_plastics(), **_principled(), **_diffuse()}
+
+
+@dataclass(frozen=True)
+class Material:
+    """One named material of a corpus; ``load()`` tabulates it (cached)."""
+
+    name: str
+    corpus: str
+    source: str  # a file path or "mitsuba:<name>"
+
+    def load(self, shape: tuple[int, int, int] = MERL_SHAPE) -> BRDF:
+        from .io import load_brdf
+
+        brdf = load_brdf(self.source, shape=shape)
+        brdf.name = self.name
+        return brdf
+
+
+@dataclass(frozen=True)
+class Corpus:
+    name: str
+    description: str
+    materials: tuple[Material, ...]
+
+    def split(self, which: str = "all") -> list[Material]:
+        """``"train"``, ``"test"`` or ``"all"`` materials, in name order."""
+        if which == "all":
+            return list(self.materials)
+        if which not in ("train", "test"):
+            raise ValueError(f"split must be 'train', 'test' or 'all', got {which!r}")
+        test = set(test_names(self.name, [m.name for m in self.materials]))
+        return [m for m in self.materials if (m.name in test) == (which == "test")]
+
+
+def test_names(corpus: str, names: list[str]) -> list[str]:
+    """The test split of ``names``: round(15%) of them (>= 1), chosen by name hash."""
+    if not names:
+        return []
+    ranked = sorted(names, key=lambda n: hashlib.sha256(f"{corpus}/{n}".encode()).hexdigest())
+    n_test = max(1, round(TEST_FRACTION * len(names)))
+    return sorted(ranked[:n_test])
+
+
+def _folder_corpus(name: str, folder: Path, description: str) -> Corpus:
+    files = sorted(p for p in folder.iterdir() if p.suffix in (".binary", ".h5"))
+    mats = tuple(Material(p.stem, name, str(p)) for p in files)
+    return Corpus(name, description, mats)
+
+
+def list_corpora() -> dict[str, str]:
+    """Name -> description of every corpus available on this machine."""
+    out = {"mitsuba": f"built-in: {len(mitsuba_catalog())} Mitsuba 3 BSDFs tabulated on the grid"}
+    data = shared_data_dir()
+    for name in ("merl", "rgl"):
+        if data and (data / "nbrdf" / name).is_dir():
+            n = len(list((data / "nbrdf" / name).glob("*.h5")))
+            out[name] = f"{n} Neural-BRDF fits of measured {name.upper()} materials ({data})"
+        else:
+            out[name] = "unavailable: ../shared/data/nbrdf not found (set SPARSE_BRDF_DATA)"
+    return out
+
+
+def get_corpus(name: str) -> Corpus:
+    """A corpus by name (``mitsuba``, ``merl``, ``rgl``) or by folder path."""
+    if name == "mitsuba":
+        mats = tuple(Material(n, "mitsuba", f"mitsuba:{n}") for n in sorted(mitsuba_catalog()))
+        return Corpus("mitsuba", list_corpora()["mitsuba"], mats)
+    if name in ("merl", "rgl"):
+        data = shared_data_dir()
+        if data is None or not (data / "nbrdf" / name).is_dir():
+            raise FileNotFoundError(
+                f"corpus {name!r} needs ../shared/data/nbrdf/{name} (or SPARSE_BRDF_DATA); "
+                "it is not on this machine"
+            )
+        return _folder_corpus(name, data / "nbrdf" / name, list_corpora()[name])
+    folder = Path(name)
+    if folder.is_dir():
+        c = _folder_corpus(folder.name, folder, f"folder {folder}")
+        if not c.materials:
+            raise FileNotFoundError(f"{folder}: no .binary or .h5 files in this folder")
+        return c
+    raise ValueError(f"unknown corpus {name!r}: use mitsuba, merl, rgl or a folder path")

@@ -1,0 +1,73 @@
+"""MERL ``.binary`` files (also the DTU data set): read and write (SPEC section 1).
+
+Layout: three little-endian int32 dimensions (n_h, n_d, n_p), then 3 x n float64
+values, all red, then all green, then all blue, C order, phi_d fastest. A stored value
+times the channel scale is the BRDF; negative stored values mark unmeasured bins.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .brdf import BRDF
+from .coords import MERL_SHAPE, geometric_valid
+from .errors import BRDFFileError
+from .fileio import atomic_write, require_file
+
+#: Stored value x scale = linear BRDF, per channel (R, G, B).
+MERL_SCALE = np.array([1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0])
+_HEADER = 12
+_MAX_BINS = 10_000_000
+
+
+def read_merl(path: str | os.PathLike, name: str | None = None) -> BRDF:
+    """Read a MERL ``.binary`` file into a :class:`BRDF` (float32 linear RGB).
+
+    Raises FileNotFoundError for a missing file and :class:`BRDFFileError` for a wrong
+    header, a wrong or truncated size, or NaN/inf values, each naming the file.
+    """
+    path = require_file(path, "MERL file")
+    raw = path.read_bytes()
+    if len(raw) < _HEADER:
+        raise BRDFFileError(f"{path}: too short for a MERL header ({len(raw)} bytes)")
+    dims = tuple(int(x) for x in np.frombuffer(raw[:_HEADER], dtype="<i4"))
+    n = int(np.prod(dims, dtype=np.int64))
+    if any(d <= 0 for d in dims) or n > _MAX_BINS or dims[2] % 2:
+        raise BRDFFileError(f"{path}: not a MERL BRDF header (dimensions {dims})")
+    expected = _HEADER + 3 * n * 8
+    if len(raw) != expected:
+        what = "truncated" if len(raw) < expected else "has trailing bytes"
+        raise BRDFFileError(
+            f"{path}: {what}: {len(raw)} bytes, a {dims} MERL file has {expected}"
+        )
+    stored = np.frombuffer(raw[_HEADER:], dtype="<f8").reshape(3, *dims)
+    if not np.all(np.isfinite(stored)):
+        bad = int((~np.isfinite(stored)).sum())
+        raise BRDFFileError(f"{path}: {bad} values are NaN or inf")
+    measured = np.all(stored >= 0, axis=0)
+    valid = measured & geometric_valid(dims)
+    values = np.moveaxis(stored, 0, -1) * MERL_SCALE
+    return BRDF(
+        values=values.astype(np.float32),
+        valid=valid,
+        name=name or path.name.removesuffix(".binary"),
+        source=str(path),
+    )
+
+
+def write_merl(path: str | os.PathLike, brdf: BRDF) -> Path:
+    """Write ``brdf`` as a MERL ``.binary`` file (invalid bins as -1), atomically."""
+    path = Path(path)
+    stored = np.moveaxis(brdf.values.astype(np.float64), -1, 0) / MERL_SCALE[:, None, None, None]
+    stored = np.where(brdf.valid[None], stored, -1.0)
+    header = np.asarray(brdf.shape, dtype="<i4").tobytes()
+    with atomic_write(path) as f:
+        f.write(header)
+        f.write(np.ascontiguousarray(stored, dtype="<f8").tobytes())
+    return path
+
+
+__all__ = ["MERL_SCALE", "MERL_SHAPE", "read_merl", "write_merl"]

@@ -1,0 +1,76 @@
+"""Error metrics (SPEC section 7). One implementation each, shared by every caller."""
+
+from __future__ import annotations
+
+import numpy as np
+
+GAMMA = 2.0
+
+
+def render_snr(ref: np.ndarray, img: np.ndarray) -> float:
+    """Rendering SNR in dB: 10 log10(sum ref^2 / sum (ref - img)^2) over all pixels.
+
+    Identical images give ``inf``; a zero reference with a nonzero image gives ``-inf``.
+    Raises ValueError on a shape mismatch or non-finite pixels.
+    """
+    ref = np.asarray(ref, dtype=np.float64)
+    img = np.asarray(img, dtype=np.float64)
+    if ref.shape != img.shape:
+        raise ValueError(f"image shapes differ: reference {ref.shape}, image {img.shape}")
+    for what, a in (("reference", ref), ("image", img)):
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"{what} image holds {int((~np.isfinite(a)).sum())} NaN/inf values")
+    signal = float(np.sum(ref**2))
+    noise = float(np.sum((ref - img) ** 2))
+    if noise == 0.0:
+        return float("inf")
+    if signal == 0.0:
+        return float("-inf")
+    return 10.0 * np.log10(signal / noise)
+
+
+def rae(ref: np.ndarray, rec: np.ndarray, valid: np.ndarray | None = None) -> float:
+    """Relative absolute error sum |ref - rec| / sum |ref| over valid bins.
+
+    ``ref``/``rec``: linear BRDF values of equal shape, e.g. (n_h, n_d, n_p, 3);
+    ``valid``: bool mask over the leading grid axes (broadcast over channels).
+    """
+    ref, rec = _masked(ref, rec, valid)
+    den = float(np.sum(np.abs(ref)))
+    return float(np.sum(np.abs(ref - rec))) / den if den > 0 else float(np.sum(np.abs(rec)) > 0)
+
+
+def gamma_mse(ref: np.ndarray, rec: np.ndarray, valid: np.ndarray | None = None,
+              gamma: float = GAMMA) -> float:
+    """MSE of x ** (1 / gamma) of linear BRDF values over valid bins (gamma = 2)."""
+    ref, rec = _masked(ref, rec, valid)
+    g = 1.0 / gamma
+    return float(np.mean((np.maximum(ref, 0) ** g - np.maximum(rec, 0) ** g) ** 2))
+
+
+def mse(ref: np.ndarray, rec: np.ndarray, valid: np.ndarray | None = None) -> float:
+    """Plain MSE of linear BRDF values over valid bins."""
+    ref, rec = _masked(ref, rec, valid)
+    return float(np.mean((ref - rec) ** 2))
+
+
+def cosine_weighted_snr(ref: np.ndarray, rec: np.ndarray, valid: np.ndarray) -> float:
+    """BRDF-space SNR (dB) of rho * cos_i * cos_o over valid bins, arrays (n_h, n_d, n_p, 3)."""
+    from .coords import cosine_product
+
+    c = np.clip(cosine_product(ref.shape[:3]), 0, None)[..., None]
+    ref, rec = _masked(ref * c, rec * c, valid)
+    return render_snr(ref, rec)
+
+
+def _masked(ref: np.ndarray, rec: np.ndarray, valid: np.ndarray | None):
+    ref = np.asarray(ref, dtype=np.float64)
+    rec = np.asarray(rec, dtype=np.float64)
+    if ref.shape != rec.shape:
+        raise ValueError(f"shapes differ: reference {ref.shape}, reconstruction {rec.shape}")
+    if valid is None:
+        return ref.ravel(), rec.ravel()
+    valid = np.asarray(valid, dtype=bool)
+    if ref.ndim == valid.ndim + 1:
+        return ref[valid], rec[valid]
+    return ref[np.broadcast_to(valid, ref.shape)], rec[np.broadcast_to(valid, ref.shape)]

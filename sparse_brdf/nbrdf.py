@@ -1,0 +1,71 @@
+"""Neural-BRDF networks (Sztrajman et al. 2021) tabulated on the MERL grid.
+
+A Keras HDF5 file with dense layers 6 -> 21 -> 21 -> 3 (ReLU, ReLU, max(exp(x) - 1, 0)).
+The input is (hx, hy, hz, dx, dy, dz), the half and difference vectors with phi_h = 0;
+the output is the linear RGB BRDF value.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from .brdf import BRDF
+from .coords import MERL_SHAPE, geometric_valid, grid_angles, half_diff_vectors
+from .errors import BRDFFileError
+from .fileio import require_file
+
+_LAYERS = ("dense_1", "dense_2", "dense_3")
+
+
+def read_nbrdf_weights(path: str | os.PathLike) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The (kernel, bias) float32 pairs of the three dense layers of a Neural-BRDF file."""
+    import h5py
+
+    path = require_file(path, "Neural-BRDF file")
+    try:
+        with h5py.File(path, "r") as f:
+            layers = []
+            for name in _LAYERS:
+                g = f[name][name]
+                layers.append((np.asarray(g["kernel:0"], np.float32),
+                               np.asarray(g["bias:0"], np.float32)))
+    except (OSError, KeyError) as exc:
+        raise BRDFFileError(f"{path}: not a Neural-BRDF Keras HDF5 file ({exc})") from exc
+    shapes = [(k.shape, b.shape) for k, b in layers]
+    if (layers[0][0].shape[0] != 6 or layers[-1][0].shape[1] != 3
+            or any(k.shape[1] != b.shape[0] for k, b in layers)):
+        raise BRDFFileError(f"{path}: unexpected Neural-BRDF layer shapes {shapes}")
+    for k, b in layers:
+        if not (np.all(np.isfinite(k)) and np.all(np.isfinite(b))):
+            raise BRDFFileError(f"{path}: network weights contain NaN or inf")
+    return layers
+
+
+def eval_nbrdf(
+    layers: list[tuple[np.ndarray, np.ndarray]], x: np.ndarray, chunk: int = 1 << 18
+) -> np.ndarray:
+    """Evaluate the network on inputs ``x`` of shape (n, 6); returns (n, 3) float32."""
+    out = np.empty((x.shape[0], 3), np.float32)
+    for s in range(0, x.shape[0], chunk):
+        h = x[s : s + chunk].astype(np.float32)
+        for i, (k, b) in enumerate(layers):
+            h = h @ k + b
+            if i < len(layers) - 1:
+                np.maximum(h, 0.0, out=h)
+        out[s : s + chunk] = np.maximum(np.expm1(h), 0.0)
+    return out
+
+
+def tabulate_nbrdf(path: str | os.PathLike, shape: tuple[int, int, int] = MERL_SHAPE) -> BRDF:
+    """Load a Neural-BRDF ``.h5`` file and tabulate it at the bins' lower-edge angles."""
+    layers = read_nbrdf_weights(path)
+    valid = geometric_valid(shape)
+    th, td, pd = grid_angles(shape)
+    h, d = half_diff_vectors(th[valid], td[valid], pd[valid])
+    vals = eval_nbrdf(layers, np.concatenate([h, d], axis=-1))
+    values = np.zeros((*shape, 3), np.float32)
+    values[valid] = vals
+    name = os.path.basename(os.fspath(path)).removesuffix(".h5")
+    return BRDF(values=values, valid=valid, name=name, source=os.fspath(path))

@@ -1,0 +1,131 @@
+"""Tensor kernels shared by the trainer, the encoder and the decoders.
+
+Every BRDF channel is a 3-way tensor X of shape (n1, n2, n3). A dictionary is three
+orthonormal mode matrices (U1, U2, U3) of shapes (n1, n1), (n2, n2), (n3, n3);
+the coefficients are S = X x1 U1^T x2 U2^T x3 U3^T and X = S x1 U1 x2 U2 x3 U3.
+
+Batches of tensors are processed one tensor per task on a small thread pool with BLAS
+limited to one thread per task: measured here (2 cores, float32, 90x90x180) this is
+3.5x faster than letting OpenBLAS thread each of the small mode products.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ThreadPoolExecutor
+from typing import TypeVar
+
+import numpy as np
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+
+def n_threads() -> int:
+    """Worker threads: ``$SPARSE_BRDF_THREADS`` or the number of usable cores."""
+    env = os.environ.get("SPARSE_BRDF_THREADS")
+    if env:
+        return max(1, int(env))
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not Linux
+        return os.cpu_count() or 1
+
+
+def parallel_map(fn: Callable[[T], R], items: Iterable[T]) -> Iterator[R]:
+    """``map(fn, items)`` on worker threads, results in input order, BLAS single-threaded."""
+    from threadpoolctl import threadpool_limits
+
+    workers = n_threads()
+    with threadpool_limits(limits=1, user_api="blas"):
+        if workers == 1:
+            yield from map(fn, items)
+            return
+        with ThreadPoolExecutor(workers) as ex:
+            yield from ex.map(fn, items)
+
+
+def project(x: np.ndarray, u1: np.ndarray, u2: np.ndarray, u3: np.ndarray) -> np.ndarray:
+    """Coefficients of one tensor x (n1, n2, n3): x x1 U1^T x2 U2^T x3 U3^T, float32."""
+    n1, n2, n3 = x.shape
+    t = x.reshape(n1 * n2, n3) @ u3
+    t = (u1.T @ t.reshape(n1, n2 * n3)).reshape(n1, n2, n3)
+    return np.matmul(u2.T, t)
+
+
+def reconstruct(s: np.ndarray, u1: np.ndarray, u2: np.ndarray, u3: np.ndarray) -> np.ndarray:
+    """Tensor from dense coefficients s (n1, n2, n3): s x1 U1 x2 U2 x3 U3."""
+    return project(s, u1.T, u2.T, u3.T)
+
+
+def top_k(values: np.ndarray, k: int) -> np.ndarray:
+    """Flat indices of the k largest entries of a non-negative 1-D array, largest first.
+
+    Exact: the k-th largest entry of a strided subsample is a lower bound of the k-th
+    largest overall, so every winner passes that threshold; only the survivors are
+    partitioned (about 4x faster than ``argpartition`` on 1.4 M entries).
+    """
+    n = values.size
+    k = min(k, n)
+    if k <= 0:
+        return np.zeros(0, np.int64)
+    stride = max(1, min(64, n // (4 * k)))
+    if stride > 1:
+        sub = values[::stride]
+        thr = np.partition(sub, sub.size - k)[sub.size - k]
+        cand = np.flatnonzero(values >= thr)
+    else:
+        cand = np.arange(n)
+    if cand.size > k:
+        cand = cand[np.argpartition(values[cand], cand.size - k)[cand.size - k:]]
+    order = np.lexsort((cand, -values[cand]))  # largest first, ties by index
+    return cand[order]
+
+
+def unravel(flat: np.ndarray, shape: tuple[int, int, int]) -> tuple[np.ndarray, ...]:
+    """Flat coefficient indices -> (a, b, c) per mode."""
+    return np.unravel_index(flat, shape)
+
+
+def sparse_to_dense(
+    flat: np.ndarray, values: np.ndarray, shape: tuple[int, int, int]
+) -> np.ndarray:
+    """Dense float32 coefficient tensor of ``shape`` from flat indices and values."""
+    s = np.zeros(int(np.prod(shape)), np.float32)
+    np.add.at(s, flat, values.astype(np.float32))
+    return s.reshape(shape)
+
+
+def procrustes(z: np.ndarray) -> np.ndarray:
+    """The orthonormal U maximising trace(U^T Z): U = P Q^T for Z = P Sigma Q^T."""
+    p, _, qt = np.linalg.svd(z.astype(np.float64))
+    return (p @ qt).astype(np.float32)
+
+
+def hosvd_factors(grams: tuple[np.ndarray, np.ndarray, np.ndarray]) -> list[np.ndarray]:
+    """Left singular vectors of each mode from its Gram matrix sum X_(n) X_(n)^T.
+
+    Columns sorted by decreasing singular value; signs fixed so that each column's
+    largest-magnitude entry is positive (deterministic across BLAS builds).
+    """
+    out = []
+    for g in grams:
+        w, v = np.linalg.eigh(g.astype(np.float64))
+        v = v[:, np.argsort(w)[::-1]]
+        sign = np.sign(v[np.abs(v).argmax(axis=0), np.arange(v.shape[1])])
+        out.append((v * np.where(sign == 0, 1, sign)).astype(np.float32))
+    return out
+
+
+def mode_grams(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Gram matrices X_(n) X_(n)^T of a tensor (n1, n2, n3) for n = 1, 2, 3 (float64)."""
+    n1, n2, n3 = x.shape
+    x1 = x.reshape(n1, n2 * n3)
+    x2 = np.ascontiguousarray(x.transpose(1, 0, 2)).reshape(n2, n1 * n3)
+    x3 = x.reshape(n1 * n2, n3)
+    return (
+        (x1 @ x1.T).astype(np.float64),
+        (x2 @ x2.T).astype(np.float64),
+        (x3.T @ x3).astype(np.float64),
+    )
