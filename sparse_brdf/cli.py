@@ -95,6 +95,44 @@ def cmd_train(args: argparse.Namespace) -> int:
     return 0
 
 
+def _ensemble(path: str | None):
+    from .ensemble import Ensemble
+
+    return Ensemble.load(path) if path else Ensemble.default()
+
+
+def cmd_encode(args: argparse.Namespace) -> int:
+    from .encode import encode
+    from .io import load_brdf
+    from .sbrdf import save_sbrdf
+
+    t0 = time.perf_counter()
+    model = encode(load_brdf(args.source), _ensemble(args.ensemble), args.coeffs,
+                   args.max_error, args.transform)
+    seconds = time.perf_counter() - t0
+    path = save_sbrdf(args.output, model)
+    info = {"output": str(path), "bytes": path.stat().st_size, "seconds": seconds,
+            "transform": model.transform, "coefficients": model.n_coeffs.tolist(),
+            "dictionaries": model.dict_index.tolist(), **model.stats}
+    if args.json:
+        print(json.dumps(info, indent=2))
+        return 0
+    st = model.stats["transforms"][model.transform]
+    print(f"wrote {path} ({info['bytes']} bytes): {model.transform}, coefficients "
+          f"{info['coefficients']}, dictionaries {info['dictionaries']}, "
+          f"RAE {st['rae']:.4f}, gamma-MSE {st['gamma_mse']:.3g}, {seconds:.2f} s")
+    return 0
+
+
+def cmd_decode(args: argparse.Namespace) -> int:
+    from .decode import decode_file
+    from .merl import write_merl
+
+    write_merl(args.output, decode_file(args.source, _ensemble(args.ensemble)))
+    print(f"wrote {args.output}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="sparse-brdf",
@@ -141,16 +179,29 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--extend", help="unite the new dictionaries with this ensemble")
     t.add_argument("-o", "--output", required=True, help="output ensemble .npz")
     t.set_defaults(func=cmd_train)
-    _add_codec_commands(sub)
+
+    e = sub.add_parser("encode", help="encode a BRDF as sparse coefficients (.sbrdf)",
+                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    e.add_argument("source", help="BRDF source (see below)")
+    e.add_argument("-o", "--output", required=True, help="output .sbrdf path")
+    e.add_argument("--coeffs", type=int, default=262, help="max coefficients per channel")
+    e.add_argument("--max-error", type=float, default=None,
+                   help="stop adding coefficients once the relative squared residual in the "
+                        "transformed domain is below this (e.g. 1e-4)")
+    e.add_argument("--transform", default="auto",
+                   choices=["auto", "log-plus", "log-plus-cosine"],
+                   help="auto: the one with the smaller gamma-mapped MSE")
+    e.add_argument("--ensemble", help="ensemble .npz (default: the shipped one)")
+    e.add_argument("--json", action="store_true", help="print the encoding statistics as JSON")
+    _add_source_help(e)
+    e.set_defaults(func=cmd_encode)
+
+    d = sub.add_parser("decode", help="decode a .sbrdf file to a MERL .binary file")
+    d.add_argument("source", help=".sbrdf file")
+    d.add_argument("-o", "--output", required=True, help="output .binary path")
+    d.add_argument("--ensemble", help="ensemble .npz (default: the shipped one)")
+    d.set_defaults(func=cmd_decode)
     return p
-
-
-def _add_codec_commands(sub) -> None:
-    try:
-        from . import cli_codec
-    except ImportError:  # pragma: no cover
-        return
-    cli_codec.add_commands(sub)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -52,7 +52,8 @@ def angles_to_dirs(
     h, d = half_diff_vectors(theta_h, theta_d, phi_d)
     ct, st = np.cos(theta_h), np.sin(theta_h)
     # wi = R_y(theta_h) d
-    wi = np.stack([ct * d[..., 0] + st * d[..., 2], d[..., 1], -st * d[..., 0] + ct * d[..., 2]], -1)
+    dx, dy, dz = d[..., 0], d[..., 1], d[..., 2]
+    wi = np.stack([ct * dx + st * dz, dy, -st * dx + ct * dz], -1)
     wo = 2.0 * np.sum(wi * h, axis=-1, keepdims=True) * h - wi
     return wi, wo
 

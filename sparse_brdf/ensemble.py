@@ -20,6 +20,7 @@ import hashlib
 import json
 import os
 import time
+import zipfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -132,7 +133,7 @@ class Ensemble:
             with np.load(path, allow_pickle=False) as z:
                 ens = cls(z["u1"], z["u2"], z["u3"], z["taus"], json.loads(str(z["meta"])))
                 stored_id = str(z["id"])
-        except (OSError, KeyError, ValueError) as exc:
+        except (OSError, KeyError, ValueError, zipfile.BadZipFile) as exc:
             raise BRDFFileError(f"{path}: not a sparse-brdf ensemble file ({exc})") from exc
         if stored_id != ens.id:
             raise BRDFFileError(f"{path}: ensemble content does not match its hash (corrupt)")

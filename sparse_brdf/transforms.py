@@ -49,5 +49,16 @@ def forward(rho: np.ndarray, name: str, valid: np.ndarray | None = None) -> np.n
 def inverse(t: np.ndarray, name: str) -> np.ndarray:
     """Inverse transform: (..., n_h, n_d, n_p) -> linear BRDF values, clamped to >= 0."""
     t = np.asarray(t)
-    rho = np.expm1(t) / _weight(name, t.shape[-3:])
-    return np.maximum(rho, 0.0).astype(np.float32)
+    return _inverse(t, _weight(name, t.shape[-3:]))
+
+
+def inverse_at_bins(
+    t: np.ndarray, name: str, bins: tuple[np.ndarray, ...], shape: tuple[int, int, int]
+) -> np.ndarray:
+    """Inverse transform of values ``t`` (..., ) that belong to the bins ``(i, j, k)``."""
+    w = _weight(name, shape)
+    return _inverse(np.asarray(t), w[bins] if isinstance(w, np.ndarray) else w)
+
+
+def _inverse(t: np.ndarray, weight: np.ndarray | float) -> np.ndarray:
+    return np.maximum(np.expm1(t) / weight, 0.0).astype(np.float32)

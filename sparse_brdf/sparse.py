@@ -1,0 +1,123 @@
+"""The sparse model of one BRDF: per channel, a dictionary index and nonzero coefficients."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .brdf import BRDF
+from .coords import MERL_SHAPE, dirs_to_bins, geometric_valid
+from .ensemble import Ensemble
+from .errors import EnsembleMismatchError
+from .tensor import reconstruct, sparse_to_dense
+from .transforms import check_transform, inverse, inverse_at_bins
+
+
+@dataclass
+class SparseBRDF:
+    """A BRDF encoded over an ensemble (SPEC section 3).
+
+    Attributes
+    ----------
+    transform : "log-plus" or "log-plus-cosine"
+    shape : grid shape (n1, n2, n3)
+    ensemble_id : content hash of the ensemble the coefficients refer to
+    dict_index : ndarray of shape (3,), int
+        Dictionary of each colour channel (R, G, B).
+    locations : list of 3 int64 arrays of shape (T_c,)
+        Flat coefficient indices a * n2 * n3 + b * n3 + c, sorted by decreasing |value|.
+    values : list of 3 float32 arrays of shape (T_c,)
+    name : material name
+    stats : encoding statistics (errors per transform); not stored in files
+    """
+
+    transform: str
+    shape: tuple[int, int, int]
+    ensemble_id: str
+    dict_index: np.ndarray
+    locations: list[np.ndarray]
+    values: list[np.ndarray]
+    name: str = "brdf"
+    stats: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        check_transform(self.transform)
+        self.shape = tuple(int(n) for n in self.shape)  # type: ignore[assignment]
+        self.dict_index = np.asarray(self.dict_index, np.int64).reshape(3)
+        self.locations = [np.asarray(a, np.int64).reshape(-1) for a in self.locations]
+        self.values = [np.asarray(v, np.float32).reshape(-1) for v in self.values]
+        size = int(np.prod(self.shape))
+        for c, (a, v) in enumerate(zip(self.locations, self.values, strict=True)):
+            if a.shape != v.shape:
+                raise ValueError(f"{self.name}: channel {c} has {a.size} locations and "
+                                 f"{v.size} values")
+            if a.size and (a.min() < 0 or a.max() >= size):
+                raise ValueError(f"{self.name}: channel {c} has coefficient locations outside "
+                                 f"the {self.shape} grid")
+            if not np.all(np.isfinite(v)):
+                raise ValueError(f"{self.name}: channel {c} has NaN/inf coefficients")
+
+    @property
+    def n_coeffs(self) -> np.ndarray:
+        """Nonzero coefficients per channel, shape (3,)."""
+        return np.array([a.size for a in self.locations])
+
+    def modes(self, c: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per-mode atom indices (a_t, b_t, c_t) of channel c's coefficients."""
+        return np.unravel_index(self.locations[c], self.shape)
+
+    def check_ensemble(self, ensemble: Ensemble) -> None:
+        """Raise :class:`EnsembleMismatchError` unless ``ensemble`` is the encoding one."""
+        if ensemble.id != self.ensemble_id:
+            raise EnsembleMismatchError(
+                f"{self.name}: encoded with ensemble {self.ensemble_id}, "
+                f"but ensemble {ensemble.id} was given"
+            )
+        if int(self.dict_index.max()) >= ensemble.n_dicts:
+            raise EnsembleMismatchError(f"{self.name}: dictionary index out of range")
+
+    def transformed(self, ensemble: Ensemble) -> np.ndarray:
+        """The transformed tensor, shape (3, n1, n2, n3), float32 (full decode)."""
+        self.check_ensemble(ensemble)
+        out = np.empty((3, *self.shape), np.float32)
+        for c in range(3):
+            s = sparse_to_dense(self.locations[c], self.values[c], self.shape)
+            out[c] = reconstruct(s, *ensemble.dictionary(int(self.dict_index[c])))
+        return out
+
+    def decode(self, ensemble: Ensemble, valid: np.ndarray | None = None) -> BRDF:
+        """Full linear-RGB BRDF on the grid (invalid bins: geometric, or ``valid``)."""
+        rho = inverse(self.transformed(ensemble), self.transform)
+        mask = geometric_valid(self.shape) if valid is None else valid
+        return BRDF(np.moveaxis(rho, 0, -1), mask, name=self.name, source="sparse")
+
+    def eval(self, ensemble: Ensemble, wi: np.ndarray, wo: np.ndarray,
+             chunk: int = 8192) -> np.ndarray:
+        """BRDF values (1/sr) at direction pairs wi, wo of shape (N, 3); returns (N, 3).
+
+        Evaluates sum_t s_t U1[i, a_t] U2[j, b_t] U3[k, c_t] from the nonzero terms only,
+        at the bins of the pairs (the same lookup as the tabulated BRDF); pairs with a
+        direction below the horizon give 0.
+        """
+        self.check_ensemble(ensemble)
+        wi = np.asarray(wi, np.float64).reshape(-1, 3)
+        wo = np.asarray(wo, np.float64).reshape(-1, 3)
+        above = (wi[:, 2] > 0) & (wo[:, 2] > 0)
+        up = np.array([0.0, 0.0, 1.0])
+        bins = dirs_to_bins(np.where(above[:, None], wi, up), np.where(above[:, None], wo, up),
+                            self.shape)
+        out = np.zeros((wi.shape[0], 3), np.float32)
+        for c in range(3):
+            u1, u2, u3 = ensemble.dictionary(int(self.dict_index[c]))
+            a, b, k = self.modes(c)
+            s = self.values[c]
+            for lo in range(0, wi.shape[0], chunk):
+                sl = slice(lo, lo + chunk)
+                g = u1[bins[0][sl]][:, a] * u2[bins[1][sl]][:, b] * u3[bins[2][sl]][:, k]
+                out[sl, c] = g @ s
+        rho = inverse_at_bins(out, self.transform, tuple(b[:, None] for b in bins), self.shape)
+        return np.where(above[:, None], rho, 0.0).astype(np.float32)
+
+
+__all__ = ["SparseBRDF", "MERL_SHAPE"]

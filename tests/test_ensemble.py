@@ -1,0 +1,87 @@
+"""Training: objective, orthonormality, determinism, resume, empty clusters, union."""
+
+import numpy as np
+import pytest
+
+from sparse_brdf.ensemble import Ensemble, train_dictionaries, train_ensemble
+from sparse_brdf.errors import BRDFFileError
+
+
+def test_objective_never_increases(small_training):
+    st = train_dictionaries(small_training, 32, n_dicts=3, n_iter=6, reassign_every=2,
+                            tol=0, seed=0, progress=False)
+    objs = [h["objective"] for h in st.history]
+    before = [h["objective_before_update"] for h in st.history]
+    assert len(objs) == 6
+    for prev, cur, pre in zip(objs, objs[1:], before[1:], strict=False):
+        assert pre <= prev * (1 + 1e-5)  # re-coding / re-clustering
+        assert cur <= pre * (1 + 1e-5)  # Procrustes updates
+    assert objs[-1] < objs[0]
+
+
+def test_mode_matrices_orthonormal(small_ensemble):
+    assert small_ensemble.n_dicts == 6
+    assert small_ensemble.orthonormality_error() < 1e-5
+    assert small_ensemble.taus.tolist() == [16, 16, 16, 64, 64, 64]
+
+
+def test_same_seed_same_result(small_training):
+    a = train_dictionaries(small_training, 16, n_dicts=2, n_iter=2, seed=5, progress=False)
+    b = train_dictionaries(small_training, 16, n_dicts=2, n_iter=2, seed=5, progress=False)
+    np.testing.assert_array_equal(a.u1, b.u1)
+    np.testing.assert_array_equal(a.u3, b.u3)
+    np.testing.assert_array_equal(a.labels, b.labels)
+
+
+def test_resume_from_checkpoint_matches_uninterrupted(small_training, tmp_path):
+    ck = tmp_path / "ck.npz"
+    full = train_dictionaries(small_training, 16, n_dicts=2, n_iter=4, seed=2, tol=0,
+                              progress=False)
+    train_dictionaries(small_training, 16, n_dicts=2, n_iter=4, seed=2, tol=0,
+                       checkpoint=ck, progress=False, callback=lambda s: s.iteration == 2)
+    resumed = train_dictionaries(small_training, 16, n_dicts=2, n_iter=4, seed=2, tol=0,
+                                 checkpoint=ck, progress=False)
+    assert resumed.iteration == 4 and len(resumed.history) == 4
+    np.testing.assert_allclose(resumed.u1, full.u1, atol=1e-6)
+    with pytest.raises(ValueError, match="another training run"):
+        train_dictionaries(small_training, 16, n_dicts=2, n_iter=4, seed=3, checkpoint=ck,
+                           progress=False)
+
+
+def test_empty_clusters_are_reseeded():
+    # three identical tensors and one other: K = 3 leaves a cluster empty after assignment
+    rng = np.random.default_rng(0)
+    a = rng.random((6, 6, 12)).astype(np.float32)
+    x = np.stack([a, a, a, rng.random((6, 6, 12)).astype(np.float32)])
+    st = train_dictionaries(x, 4, n_dicts=3, n_iter=3, seed=0, progress=False)
+    assert sum(h["reseeded"] for h in st.history) >= 1
+    assert np.all(np.isfinite(st.u1))
+    assert len(np.unique(st.labels)) >= 2
+
+
+def test_bad_training_arguments(small_training):
+    with pytest.raises(ValueError, match="tau must be"):
+        train_dictionaries(small_training, 0, progress=False)
+    with pytest.raises(ValueError, match="n_dicts"):
+        train_dictionaries(small_training[:2], 4, n_dicts=3, progress=False)
+    with pytest.raises(ValueError, match="shape"):
+        train_dictionaries(small_training[0], 4, progress=False)
+
+
+def test_union_save_load(small_ensemble, tmp_path):
+    u = small_ensemble.union(small_ensemble)
+    assert u.n_dicts == 12 and u.id != small_ensemble.id
+    p = u.save(tmp_path / "e.npz")
+    v = Ensemble.load(p)
+    assert v.id == u.id and v.taus.tolist() == u.taus.tolist()
+    p.write_bytes(p.read_bytes()[:1000])
+    with pytest.raises(BRDFFileError, match="e.npz"):
+        Ensemble.load(p)
+
+
+def test_extend_with_new_transform(small_training):
+    a = train_ensemble(small_training[:36], taus=(16,), n_dicts=2, n_iter=1, progress=False)
+    b = train_ensemble(small_training[36:], taus=(8,), n_dicts=2, n_iter=1, progress=False)
+    u = a.union(b)
+    assert u.n_dicts == 4 and u.taus.tolist() == [16, 16, 8, 8]
+    assert "history" in u.meta["parts"][0]

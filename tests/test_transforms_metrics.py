@@ -1,0 +1,63 @@
+import numpy as np
+import pytest
+
+from sparse_brdf.coords import cosine_product, geometric_valid
+from sparse_brdf.metrics import cosine_weighted_snr, gamma_mse, rae, render_snr
+from sparse_brdf.transforms import TRANSFORMS, cosine_weight, forward, inverse
+
+SHAPE = (18, 18, 36)
+
+
+@pytest.mark.parametrize("name", TRANSFORMS)
+def test_inverse_of_forward_is_identity_on_valid_bins(name):
+    rng = np.random.default_rng(0)
+    valid = geometric_valid(SHAPE)
+    rho = (rng.random((3, *SHAPE)) ** 4 * 50).astype(np.float32)
+    back = inverse(forward(rho, name, valid), name)
+    np.testing.assert_allclose(back[:, valid], rho[:, valid], rtol=2e-6, atol=1e-7)
+    assert np.all(back[:, ~valid] == 0)  # invalid bins are set to 0 first
+
+
+def test_transform_formulas():
+    rho = np.full((1, *SHAPE), 2.0, np.float32)
+    np.testing.assert_allclose(forward(rho, "log-plus"), np.log(3.0), rtol=1e-6)
+    c = np.clip(cosine_product(SHAPE), 0.01, 1)
+    np.testing.assert_allclose(forward(rho, "log-plus-cosine")[0], np.log(2 * c + 1), rtol=1e-5)
+    assert cosine_weight(SHAPE).min() == np.float32(0.01)
+
+
+def test_inverse_clamps_negative():
+    t = np.full((1, *SHAPE), -0.5, np.float32)
+    assert inverse(t, "log-plus").min() == 0
+
+
+def test_unknown_transform():
+    with pytest.raises(ValueError, match="unknown transform 'log'"):
+        forward(np.zeros((1, *SHAPE)), "log")
+
+
+def test_snr_identical_images_is_infinite():
+    img = np.random.default_rng(0).random((4, 4, 3))
+    assert render_snr(img, img) == float("inf")
+    assert render_snr(np.zeros((2, 2)), np.zeros((2, 2))) == float("inf")
+    assert render_snr(np.zeros((2, 2)), np.ones((2, 2))) == float("-inf")
+
+
+def test_snr_value():
+    ref = np.ones((10, 10))
+    img = ref + 0.1  # noise energy 1e-2 per pixel -> 20 dB
+    assert render_snr(ref, img) == pytest.approx(20.0)
+    with pytest.raises(ValueError, match="shapes differ"):
+        render_snr(ref, ref[:5])
+    with pytest.raises(ValueError, match="NaN"):
+        render_snr(ref, np.full((10, 10), np.nan))
+
+
+def test_rae_and_gamma_mse_use_valid_bins_only():
+    valid = geometric_valid(SHAPE)
+    ref = np.ones((*SHAPE, 3))
+    rec = ref * 1.1
+    rec[~valid] = 100  # ignored
+    assert rae(ref, rec, valid) == pytest.approx(0.1)
+    assert gamma_mse(ref, ref * 4, valid) == pytest.approx(1.0)  # sqrt(4) - sqrt(1) = 1
+    assert cosine_weighted_snr(ref, rec, valid) == pytest.approx(20.0)
