@@ -1,0 +1,38 @@
+"""sparse-brdf: measured BRDFs as sparse coefficients over a learned dictionary ensemble.
+
+An implementation of Tongbuasirilai et al., "A Sparse Non-parametric BRDF Model"
+(ACM TOG 2022). Data flows one way: load -> transform -> train/encode -> store ->
+decode/render -> evaluate.
+
+>>> import sparse_brdf as sb
+>>> brdf = sb.load_brdf("mitsuba:au-ggx-0.25")          # (90, 90, 180, 3) linear RGB
+>>> model = sb.encode(brdf, n_coeffs=262)                # shipped ensemble
+>>> sb.save_sbrdf("gold.sbrdf", model)                   # 6.3 kB
+>>> rec = model.decode(sb.Ensemble.default())            # back to a BRDF
+"""
+
+from .brdf import BRDF
+from .corpora import Corpus, Material, get_corpus, list_corpora, mitsuba_catalog
+from .decode import decode_file
+from .encode import DEFAULT_N_COEFFS, encode
+from .ensemble import Ensemble, train_dictionaries, train_ensemble
+from .errors import BRDFFileError, EnsembleMismatchError, InvalidBRDFError, SparseBRDFError
+from .io import load_brdf
+from .merl import read_merl, write_merl
+from .metrics import cosine_weighted_snr, gamma_mse, rae, render_snr
+from .sbrdf import load_sbrdf, save_sbrdf
+from .sparse import SparseBRDF
+from .transforms import TRANSFORMS
+from .transforms import forward as transform
+from .transforms import inverse as inverse_transform
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "BRDF", "BRDFFileError", "Corpus", "DEFAULT_N_COEFFS", "Ensemble", "EnsembleMismatchError",
+    "InvalidBRDFError", "Material", "SparseBRDF", "SparseBRDFError", "TRANSFORMS",
+    "cosine_weighted_snr", "decode_file", "encode", "gamma_mse", "get_corpus",
+    "inverse_transform", "list_corpora", "load_brdf", "load_sbrdf", "mitsuba_catalog", "rae",
+    "read_merl", "render_snr", "save_sbrdf", "train_dictionaries", "train_ensemble",
+    "transform", "write_merl",
+]

@@ -59,7 +59,7 @@ def cmd_convert(args: argparse.Namespace) -> int:
 
     out = Path(args.output)
     if out.suffix != ".binary":
-        raise SystemExit(f"error: {out}: output must be a MERL .binary file")
+        raise ValueError(f"{out}: output must be a MERL .binary file")
     write_merl(out, load_brdf(args.source))
     print(f"wrote {out}")
     return 0

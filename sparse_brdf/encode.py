@@ -10,6 +10,8 @@ the smaller gamma-mapped MSE against the BRDF, unless forced.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from .brdf import BRDF
@@ -22,33 +24,93 @@ from .transforms import TRANSFORMS, check_transform, forward
 DEFAULT_N_COEFFS = 262
 
 
-def _select(y: np.ndarray, ens: Ensemble, n_coeffs: int, max_error: float | None):
-    """Best dictionary and coefficients for each channel of y (3, n1, n2, n3)."""
-    norms = [float(np.dot(ch.ravel(), ch.ravel())) for ch in y]
+@dataclass
+class Projections:
+    """The largest coefficients of each channel on each dictionary, for one transform.
+
+    ``idx[c][k]``/``val[c][k]``: flat indices and values of the ``max_coeffs`` largest |s|
+    of channel c on dictionary k, largest first; ``residual[c, k, m]``: squared residual
+    after keeping the first m + 1 of them; ``norms[c]``: ||Y_c||^2.
+    """
+
+    transform: str
+    shape: tuple[int, int, int]
+    ensemble_id: str
+    idx: list[list[np.ndarray]]
+    val: list[list[np.ndarray]]
+    residual: np.ndarray
+    norms: np.ndarray
+
+
+def project_all(brdf: BRDF, ens: Ensemble, transform: str, max_coeffs: int) -> Projections:
+    """Transform ``brdf`` and project each channel on every dictionary (3 K projections)."""
+    y = forward(brdf.channel_first(), check_transform(transform), brdf.valid)
+    norms = np.array([float(np.dot(ch.ravel(), ch.ravel())) for ch in y])
     tasks = [(c, k) for c in range(3) for k in range(ens.n_dicts)]
 
     def one(task):
         c, k = task
         s = project(y[c], *ens.dictionary(k)).ravel()
         e = s * s
-        idx = top_k(e, n_coeffs)
-        residual = norms[c] - np.cumsum(e[idx], dtype=np.float64)  # after keeping 1..m
-        need = idx.size
-        if max_error is not None and norms[c] > 0:
-            ok = np.flatnonzero(residual <= max_error * norms[c])
-            if ok.size:
-                need = int(ok[0]) + 1
-        if norms[c] == 0:
-            need = 0
-        res = float(residual[need - 1]) if need else norms[c]
-        return c, k, need, max(res, 0.0), idx[:need], s[idx[:need]]
+        idx = top_k(e, max_coeffs)
+        return idx, s[idx], norms[c] - np.cumsum(e[idx], dtype=np.float64)
 
-    best: list = [None, None, None]
-    for c, k, need, res, idx, val in parallel_map(one, tasks):
-        key = (need, res, k)
-        if best[c] is None or key < best[c][0]:
-            best[c] = (key, idx, val)
-    return best, norms
+    res = list(parallel_map(one, tasks))
+    k = ens.n_dicts
+    return Projections(
+        transform, brdf.shape, ens.id,
+        idx=[[res[c * k + j][0] for j in range(k)] for c in range(3)],
+        val=[[res[c * k + j][1] for j in range(k)] for c in range(3)],
+        residual=np.array([[res[c * k + j][2] for j in range(k)] for c in range(3)]),
+        norms=norms)
+
+
+def select(p: Projections, n_coeffs: int, max_error: float | None = None,
+           name: str = "brdf") -> SparseBRDF:
+    """Per channel, the dictionary needing fewest coefficients, then least residual, then
+    lowest index; coefficients kept up to ``n_coeffs`` or a relative residual ``max_error``."""
+    n_coeffs = min(n_coeffs, p.residual.shape[2])
+    dicts, locs, vals, rel = [], [], [], []
+    for c in range(3):
+        norm = p.norms[c]
+        best = None
+        for k in range(p.residual.shape[1]):
+            res = p.residual[c, k, :n_coeffs]
+            need = n_coeffs
+            if norm == 0:
+                need = 0
+            elif max_error is not None:
+                ok = np.flatnonzero(res <= max_error * norm)
+                if ok.size:
+                    need = int(ok[0]) + 1
+            r = max(float(res[need - 1]), 0.0) if need else float(norm)
+            if best is None or (need, r, k) < best:
+                best = (need, r, k)
+        need, r, k = best
+        dicts.append(k)
+        locs.append(p.idx[c][k][:need])
+        vals.append(p.val[c][k][:need])
+        rel.append(r / norm if norm > 0 else 0.0)
+    model = SparseBRDF(p.transform, p.shape, p.ensemble_id, dicts, locs, vals, name=name)
+    model.stats = {"relative_residual": rel}
+    return model
+
+
+def choose_transform(brdf: BRDF, models: dict[str, SparseBRDF], ens: Ensemble) -> SparseBRDF:
+    """The model with the smaller gamma-mapped MSE; ``stats`` gets every model's errors."""
+    stats = {}
+    for name, model in models.items():
+        rec = model.decode(ens).values
+        stats[name] = {
+            "gamma_mse": gamma_mse(brdf.values, rec, brdf.valid),
+            "mse": mse(brdf.values, rec, brdf.valid),
+            "rae": rae(brdf.values, rec, brdf.valid),
+            "relative_residual": model.stats["relative_residual"],
+        }
+    chosen = min(models, key=lambda n: stats[n]["gamma_mse"])
+    model = models[chosen]
+    model.stats = {"transforms": stats, "chosen": chosen}
+    return model
 
 
 def encode(
@@ -79,25 +141,6 @@ def encode(
     if max_error is not None and not (0 <= max_error < 1):
         raise ValueError(f"max_error must be in [0, 1), got {max_error}")
     names = TRANSFORMS if transform == "auto" else (check_transform(transform),)
-    rho = brdf.channel_first()
-    candidates, stats = {}, {}
-    for name in names:
-        y = forward(rho, name, brdf.valid)
-        best, norms = _select(y, ens, n_coeffs, max_error)
-        model = SparseBRDF(
-            transform=name, shape=brdf.shape, ensemble_id=ens.id,
-            dict_index=[b[0][2] for b in best], locations=[b[1] for b in best],
-            values=[b[2] for b in best], name=brdf.name)
-        rec = model.decode(ens).values
-        stats[name] = {
-            "gamma_mse": gamma_mse(brdf.values, rec, brdf.valid),
-            "mse": mse(brdf.values, rec, brdf.valid),
-            "rae": rae(brdf.values, rec, brdf.valid),
-            "relative_residual": [b[0][1] / n if n > 0 else 0.0
-                                  for b, n in zip(best, norms, strict=True)],
-        }
-        candidates[name] = model
-    chosen = min(names, key=lambda n: stats[n]["gamma_mse"])
-    model = candidates[chosen]
-    model.stats = {"transforms": stats, "chosen": chosen}
-    return model
+    models = {t: select(project_all(brdf, ens, t, n_coeffs), n_coeffs, max_error, brdf.name)
+              for t in names}
+    return choose_transform(brdf, models, ens)

@@ -422,6 +422,19 @@ def train_ensemble(
     return ens
 
 
+def hosvd_ensemble(x: np.ndarray, progress: bool = True) -> Ensemble:
+    """One dictionary: the HOSVD of all tensors ``x`` (N, n1, n2, n3) (a baseline)."""
+    n1, n2, n3 = x.shape[1:]
+    grams = [np.zeros((m, m)) for m in (n1, n2, n3)]
+    for g in _progress(parallel_map(lambda i: mode_grams(x[i]), range(len(x))), len(x),
+                       progress, "hosvd"):
+        for m in range(3):
+            grams[m] += g[m]
+    f = hosvd_factors(tuple(grams))
+    return Ensemble(f[0][None], f[1][None], f[2][None], np.zeros(1),
+                    {"kind": "hosvd", "n_tensors": int(len(x))})
+
+
 # ----------------------------------------------------------------------- helpers
 
 

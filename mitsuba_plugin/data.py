@@ -1,0 +1,248 @@
+"""Per-material data of the two BSDFs, prepared with numpy at scene-load time.
+
+Nothing here depends on Mitsuba: the arrays built here are uploaded to Dr.Jit by
+:mod:`mitsuba_plugin.bsdfs`, and the small numpy evaluators below (``grouped_eval``,
+``strict_eval``) mirror the Dr.Jit kernels so the decoders can be checked without a
+renderer.
+
+Sparse model of one channel (SPEC section 3)::
+
+    X[i, j, k] = sum_t s_t U1[i, a_t] U2[j, b_t] U3[k, c_t]
+    rho        = max((exp(X) - 1) / w, 0)
+
+with w = 1 (log-plus) or w = clip(cos_i cos_o, 0.01, 1) at the bin's lower-edge angles
+(log-plus-cosine). Neither decoder ever builds the (n1, n2, n3) tensor:
+
+- **grouped**: the terms are grouped by the atom of one mode ``g`` (the mode with the
+  fewest distinct atoms; ties: the smaller table). The two other modes ``p < q`` are
+  contracted at load time into ``table[ip * nq + iq, G] = sum_{t in G} s_t Up[ip, p_t]
+  Uq[iq, q_t]`` (shape (np * nq, K), K = distinct atoms of mode g), and the K atom
+  columns of mode g are kept as rows ``V[G, :]``. A lookup is
+  ``X = sum_G table[(ip, iq), G] * V[G, ig]``: K fused multiply-adds and 2K gathers.
+- **strict**: keeps the nonzero terms (s_t and the packed indices of its three atoms
+  among the distinct atoms of each mode) and the distinct atom columns of each mode;
+  a lookup loops over the T terms with 5 gathers each. Least memory, slowest.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sparse_brdf.coords import bin_angles, cos_io
+from sparse_brdf.transforms import COS_CLIP
+
+#: ``decoder="auto"`` uses "grouped" unless its tables would take more than this many
+#: bytes (all three channels), then "strict". 8 MiB is about half the dense float32
+#: table of a MERL BRDF (90 * 90 * 180 * 3 * 4 bytes = 16.7 MiB); a 262-coefficient
+#: material grouped on mode 3 typically needs 2-6 MiB.
+AUTO_GROUPED_MAX_BYTES = 8 * 1024 * 1024
+
+#: Bits per atom index in the strict decoder's packed term indices (3 x 10 bits).
+PACK_BITS = 10
+
+
+@dataclass
+class GroupedChannel:
+    """The grouped decoder's data of one colour channel (see module docstring)."""
+
+    mode_p: int  # first contracted mode
+    mode_q: int  # second contracted mode
+    mode_g: int  # grouped mode
+    n_q: int  # size of mode q (the table's row stride)
+    table: np.ndarray  # (n_p * n_q, K) float32, row-major
+    rows: np.ndarray  # (K, n_g) float32: the K distinct atom columns of mode g
+
+    @property
+    def k(self) -> int:
+        return int(self.rows.shape[0])
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.table.nbytes + self.rows.nbytes)
+
+
+@dataclass
+class StrictChannel:
+    """The strict decoder's data of one colour channel."""
+
+    values: np.ndarray  # (T,) float32
+    packed: np.ndarray  # (T,) uint32: ia | ib << 10 | ic << 20 (indices into rows)
+    rows: tuple[np.ndarray, np.ndarray, np.ndarray]  # (K_n, n_n) distinct atom columns
+
+    @property
+    def n_terms(self) -> int:
+        return int(self.values.size)
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.values.nbytes + self.packed.nbytes + sum(r.nbytes for r in self.rows))
+
+
+def channel_terms(model, ensemble, c: int):
+    """(s, (a, b, k), (U1, U2, U3)) of channel ``c`` of a SparseBRDF."""
+    us = ensemble.dictionary(int(model.dict_index[c]))
+    modes = tuple(np.asarray(m, np.int64) for m in model.modes(c))
+    return np.asarray(model.values[c], np.float32), modes, us
+
+
+def grouped_channel(s, modes, us, mode_g: int | None = None) -> GroupedChannel:
+    """Build the grouped table of one channel (optionally forcing the grouped mode)."""
+    shape = tuple(u.shape[0] for u in us)
+    if mode_g is None:
+        def cost(g):
+            p, q = (m for m in range(3) if m != g)
+            k = np.unique(modes[g]).size
+            return (k, shape[p] * shape[q] * k + k * shape[g])
+
+        mode_g = min(range(3), key=cost)
+    p, q = (m for m in range(3) if m != mode_g)
+    atoms, group = np.unique(modes[mode_g], return_inverse=True)
+    k = atoms.size
+    table = np.zeros((shape[p] * shape[q], max(k, 1)), np.float64)
+    up, uq = us[p].astype(np.float64), us[q].astype(np.float64)
+    for g in range(k):
+        sel = group == g
+        # sum_t s_t Up[:, p_t] Uq[:, q_t]^T, an (n_p, n_q) matrix
+        m = (up[:, modes[p][sel]] * s[sel].astype(np.float64)) @ uq[:, modes[q][sel]].T
+        table[:, g] = m.ravel()
+    rows = us[mode_g][:, atoms].T.astype(np.float32) if k else np.zeros((1, shape[mode_g]),
+                                                                        np.float32)
+    return GroupedChannel(p, q, mode_g, shape[q], np.ascontiguousarray(table, np.float32),
+                          np.ascontiguousarray(rows))
+
+
+def strict_channel(s, modes, us) -> StrictChannel:
+    """Build the strict decoder's data of one channel."""
+    idx, rows = [], []
+    for m in range(3):
+        atoms, inv = np.unique(modes[m], return_inverse=True)
+        if atoms.size >= 1 << PACK_BITS:
+            raise ValueError(f"mode {m + 1} has {atoms.size} distinct atoms; the strict "
+                             f"decoder packs at most {(1 << PACK_BITS) - 1}")
+        idx.append(inv.astype(np.uint32))
+        r = us[m][:, atoms].T if atoms.size else np.zeros((1, us[m].shape[0]))
+        rows.append(np.ascontiguousarray(r, np.float32))
+    packed = idx[0] | (idx[1] << PACK_BITS) | (idx[2] << (2 * PACK_BITS))
+    return StrictChannel(np.asarray(s, np.float32), packed.astype(np.uint32), tuple(rows))
+
+
+def grouped_bytes(model, ensemble) -> int:
+    """Bytes the grouped decoder would hold for ``model`` (without building the tables)."""
+    total = 0
+    for c in range(3):
+        _, modes, us = channel_terms(model, ensemble, c)
+        shape = tuple(u.shape[0] for u in us)
+        best = None
+        for g in range(3):
+            p, q = (m for m in range(3) if m != g)
+            k = max(np.unique(modes[g]).size, 1)
+            key = (k, (shape[p] * shape[q] * k + k * shape[g]) * 4)
+            best = key if best is None or key < best else best
+        total += best[1]
+    return int(total)
+
+
+def choose_decoder(decoder: str, model, ensemble,
+                   max_bytes: int = AUTO_GROUPED_MAX_BYTES) -> str:
+    """Resolve ``"auto"`` to "grouped" or "strict"; check the name."""
+    if decoder not in ("grouped", "strict", "auto"):
+        raise ValueError(f"unknown decoder {decoder!r}: expected grouped, strict or auto")
+    if decoder != "auto":
+        return decoder
+    return "grouped" if grouped_bytes(model, ensemble) <= max_bytes else "strict"
+
+
+# ----------------------------------------------------------------------- numpy mirrors
+
+
+def bin_weight(i, j, k, shape, use_cos: bool) -> np.ndarray:
+    """The transform's weight w at integer bins (1 for log-plus)."""
+    if not use_cos:
+        return np.ones(np.broadcast(i, j, k).shape, np.float32)
+    th, td, pd = bin_angles(shape)
+    ci, co = cos_io(th[i], td[j], pd[k])
+    return np.clip(ci * co, *COS_CLIP).astype(np.float32)
+
+
+def grouped_eval(ch: GroupedChannel, bins) -> np.ndarray:
+    """X at integer bins (i, j, k) from a grouped channel (numpy mirror of the kernel)."""
+    pair = bins[ch.mode_p] * ch.n_q + bins[ch.mode_q]
+    return np.einsum("ng,gn->n", ch.table[pair], ch.rows[:, bins[ch.mode_g]])
+
+
+def strict_eval(ch: StrictChannel, bins) -> np.ndarray:
+    """X at integer bins from a strict channel (numpy mirror of the kernel)."""
+    mask = (1 << PACK_BITS) - 1
+    ia = ch.packed & mask
+    ib = (ch.packed >> PACK_BITS) & mask
+    ic = ch.packed >> (2 * PACK_BITS)
+    r1, r2, r3 = ch.rows
+    g = r1[ia][:, bins[0]] * r2[ib][:, bins[1]] * r3[ic][:, bins[2]]  # (T, N)
+    return ch.values @ g
+
+
+# ---------------------------------------------------------------------- sampling lobe
+
+
+def fit_lobe(profile: np.ndarray, shape: tuple[int, int, int]) -> tuple[float, float]:
+    """Fit the glossy sampling lobe to a theta_h profile of the BRDF.
+
+    ``profile[i]`` is the mean BRDF value (over channels, phi_d and the first theta_d
+    bins) at theta_h bin i. Model: ``base + peak * cos(theta_h)^n``; n comes from the
+    half-width at half maximum of ``profile - base``. The lobe's share of the mixture is
+    its albedo share, ``8 pi peak / (n + 2)`` (a normalised Blinn lobe) against
+    ``pi * base``, clipped to [0.05, 0.95] so the cosine part always covers the
+    hemisphere. Returns (exponent n in [1, 1e4], lobe probability); a flat profile gives
+    (1, 0.05).
+    """
+    th = bin_angles(shape)[0]
+    use = th < np.radians(80.0)
+    p = np.asarray(profile, np.float64)[use]
+    t = th[use]
+    if p.size < 2 or not np.all(np.isfinite(p)):
+        return 1.0, 0.05
+    base = max(float(p.min()), 0.0)
+    spike = p - base
+    peak = float(spike[0])
+    if peak <= 1e-3 * max(base, 1e-6):
+        return 1.0, 0.05
+    below = np.flatnonzero(spike < 0.5 * peak)
+    if below.size == 0:
+        return 1.0, 0.05
+    i = int(below[0])
+    # linear interpolation of the half-maximum crossing between bins i - 1 and i
+    s0, s1 = spike[i - 1], spike[i]
+    f = (s0 - 0.5 * peak) / max(s0 - s1, 1e-30)
+    t_half = t[i - 1] + f * (t[i] - t[i - 1])
+    n = float(np.log(0.5) / np.log(max(np.cos(t_half), 1e-6)))
+    n = float(np.clip(n, 1.0, 1e4))
+    spec = 8.0 * np.pi * peak / (n + 2.0)
+    diff = np.pi * base
+    prob = float(np.clip(spec / max(spec + diff, 1e-30), 0.05, 0.95))
+    return n, prob
+
+
+def sparse_profile(model, ensemble, n_d: int = 3) -> np.ndarray:
+    """theta_h profile of a sparse model for :func:`fit_lobe` (no full decode).
+
+    Mean over channels, phi_d and the first ``n_d`` theta_d bins of the model's BRDF.
+    """
+    n1, n2, n3 = model.shape
+    use_cos = model.transform == "log-plus-cosine"
+    ii, kk = np.arange(n1)[:, None], np.arange(n3)[None, :]
+    acc = np.zeros(n1)
+    js = range(min(n_d, n2))
+    for c in range(3):
+        s, (a, b, k), (u1, u2, u3) = channel_terms(model, ensemble, c)
+        for j in js:
+            x = (u1[:, a] * (s * u2[j, b])) @ u3[:, k].T  # (n1, n3)
+            w = bin_weight(ii, np.full_like(ii, j), kk, model.shape, use_cos)
+            acc += np.maximum(np.expm1(x) / w, 0.0).mean(axis=1)
+    return acc / (3 * len(js))
+
+
+def table_profile(values: np.ndarray, n_d: int = 3) -> np.ndarray:
+    """theta_h profile of tabulated values (n1, n2, n3, 3) for :func:`fit_lobe`."""
+    return np.asarray(values[:, :n_d], np.float64).mean(axis=(1, 2, 3))

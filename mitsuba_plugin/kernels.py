@@ -1,0 +1,240 @@
+"""Dr.Jit building blocks shared by the two BSDFs, written once for every variant.
+
+Each function takes an :class:`Ops` bound to one Mitsuba variant module. In JIT variants
+(``llvm_*``) buffers are ``Float``/``UInt32`` arrays and gathers are ``dr.gather``; in
+scalar variants buffers are numpy arrays indexed with Python ints, so the same code
+serves both. Everything here is traced once into a kernel: no Python ``if`` on arrays,
+and per-material numbers only as buffers or ``dr.opaque`` scalars (see :meth:`Ops.u`,
+:meth:`Ops.f`), never as Python constants.
+"""
+
+from __future__ import annotations
+
+import math
+
+import drjit as dr
+import numpy as np
+
+HALF_PI = math.pi / 2
+
+
+class VariantNamespace:
+    """Attribute access to one variant module, falling back to variant-independent names
+    (``BSDFFlags``, ``BSDFContext``, ...), which live in ``mitsuba.mitsuba_ext``."""
+
+    def __init__(self, module) -> None:
+        from mitsuba import mitsuba_ext
+
+        self._module = module
+        self._ext = mitsuba_ext
+        self.name = module.__name__.rsplit(".", 1)[-1]
+
+    def __getattr__(self, name: str):
+        try:
+            return getattr(self._module, name)
+        except AttributeError:
+            return getattr(self._ext, name)
+
+
+class Ops:
+    """Storage and gathers for one variant module ``m`` (e.g. ``mitsuba.llvm_ad_rgb``)."""
+
+    def __init__(self, m) -> None:
+        self.m = m
+        self.jit = bool(dr.is_jit_v(m.Float))
+
+    # buffers and opaque scalars ------------------------------------------------------
+    def floats(self, a: np.ndarray):
+        a = np.ascontiguousarray(np.asarray(a, np.float32).ravel())
+        return self.m.Float(a) if self.jit else a
+
+    def uints(self, a: np.ndarray):
+        a = np.ascontiguousarray(np.asarray(a, np.uint32).ravel())
+        return self.m.UInt32(a) if self.jit else a
+
+    def u(self, v: int):
+        """A per-material unsigned integer that is a kernel input, not a literal."""
+        return dr.opaque(self.m.UInt32, int(v)) if self.jit else int(v)
+
+    def f(self, v: float):
+        """A per-material float that is a kernel input, not a literal."""
+        return dr.opaque(self.m.Float, float(v)) if self.jit else float(v)
+
+    def nbytes(self, buf) -> int:
+        return int(dr.width(buf) * 4) if self.jit else int(buf.nbytes)
+
+    # gathers -------------------------------------------------------------------------
+    def gather(self, buf, idx, active=True):
+        if self.jit:
+            return dr.gather(self.m.Float, buf, idx, active)
+        return float(buf[int(idx)]) if active else 0.0
+
+    def gather_u(self, buf, idx, active=True):
+        if self.jit:
+            return dr.gather(self.m.UInt32, buf, idx, active)
+        return int(buf[int(idx)]) if active else 0
+
+    def gather3(self, buf, idx, active=True):
+        """Three consecutive floats buf[3 idx + (0, 1, 2)] as a Color3f."""
+        if self.jit:
+            return dr.gather(self.m.Color3f, buf, idx, active)
+        if not active:
+            return self.m.Color3f(0.0)
+        i = 3 * int(idx)
+        return self.m.Color3f(float(buf[i]), float(buf[i + 1]), float(buf[i + 2]))
+
+    def to_u(self, x):
+        """Non-negative float -> UInt32 (truncation)."""
+        return self.m.UInt32(x) if self.jit else int(x)
+
+    def loop(self, n, body, init):
+        """acc = init; for g in range(n): acc = body(g, acc) -- a Dr.Jit loop over an
+        opaque count, so one kernel serves any n."""
+        m = self.m
+        _, acc = dr.while_loop(
+            state=(m.UInt32(0), init),
+            cond=lambda g, acc: g < n,
+            body=lambda g, acc: (g + 1, body(g, acc)),
+        )
+        return acc
+
+
+def expm1(x):
+    """exp(x) - 1 without cancellation for small x (Kahan's trick)."""
+    u = dr.exp(x)
+    um1 = u - 1.0
+    lg = dr.log(u)
+    return dr.select(um1 == 0.0, x, dr.select(dr.isinf(u), u, um1 * x / dr.select(lg == 0.0,
+                                                                               1.0, lg)))
+
+
+class Shape:
+    """A material's grid shape as opaque scalars (plus its Python values)."""
+
+    def __init__(self, ops: Ops, shape) -> None:
+        self.py = tuple(int(n) for n in shape)
+        self.n = tuple(ops.u(n) for n in self.py)
+        self.nf = tuple(ops.f(n) for n in self.py)
+
+
+def angle_coords(ops: Ops, shape: Shape, wi, wo):
+    """Continuous grid coordinates (x_h, x_d, x_p) of a direction pair (SPEC section 1).
+
+    x_h = sqrt(theta_h / (pi/2)) n1, x_d = theta_d / (pi/2) n2, x_p = phi_d / pi n3 with
+    phi_d folded into [0, pi); floor(x) is the bin, x itself the position between the
+    bins' lower-edge samples (for interpolation). Angles use atan2 rather than acos so
+    that small theta_h keeps its precision in float32.
+    """
+    h = dr.normalize(wi + wo)
+    st = dr.sqrt(dr.maximum(h.x * h.x + h.y * h.y, 0.0))
+    ct = h.z
+    has = st > 0.0
+    inv = dr.rcp(dr.maximum(st, 1e-30))
+    cp = dr.select(has, h.x * inv, 1.0)
+    sp = dr.select(has, h.y * inv, 0.0)
+    theta_h = dr.atan2(st, ct)
+    # d = R_y(-theta_h) R_z(-phi_h) wi
+    x = cp * wi.x + sp * wi.y
+    y = cp * wi.y - sp * wi.x
+    z = wi.z
+    dx = ct * x - st * z
+    dz = st * x + ct * z
+    theta_d = dr.atan2(dr.sqrt(dx * dx + y * y), dz)
+    phi_d = dr.atan2(y, dx)
+    phi_d = dr.select(phi_d < 0.0, phi_d + math.pi, phi_d)
+    n1, n2, n3 = shape.nf
+    x_h = dr.sqrt(dr.maximum(theta_h, 0.0) * (1.0 / HALF_PI)) * n1
+    x_d = theta_d * (1.0 / HALF_PI) * n2
+    x_p = phi_d * (1.0 / math.pi) * n3
+    return x_h, x_d, x_p
+
+
+def nearest_bins(ops: Ops, shape: Shape, coords):
+    """Integer bins (i, j, k), clamped to the grid."""
+    out = []
+    for x, nf in zip(coords, shape.nf, strict=True):
+        out.append(ops.to_u(dr.clip(dr.floor(x), 0.0, nf - 1.0)))
+    return tuple(out)
+
+
+def linear_bins(ops: Ops, shape: Shape, coords):
+    """Per mode (i0, i1, t): the two neighbouring lower-edge samples and the weight of i1.
+
+    theta_h and theta_d clamp at the grid's ends; phi_d wraps around (period pi).
+    """
+    out = []
+    for mode, (x, nf, n) in enumerate(zip(coords, shape.nf, shape.n, strict=True)):
+        if mode < 2:
+            xc = dr.clip(x, 0.0, nf - 1.0)
+            f0 = dr.minimum(dr.floor(xc), dr.maximum(nf - 2.0, 0.0))
+            t = dr.clip(xc - f0, 0.0, 1.0)
+            i0 = ops.to_u(f0)
+            i1 = dr.minimum(i0 + 1, n - 1)
+        else:
+            xc = dr.clip(x, 0.0, nf)
+            f0 = dr.floor(xc)
+            t = xc - f0
+            i0 = ops.to_u(dr.minimum(f0, nf - 1.0))
+            i1 = i0 + 1
+            i1 = dr.select(i1 >= n, i1 - n, i1)
+            t = dr.select(f0 >= nf, 1.0, t)  # x = n3 is the sample at 0
+        out.append((i0, i1, t))
+    return tuple(out)
+
+
+def _cos_terms(ops: Ops, shape: Shape, i, j, k):
+    """cos(theta_i) cos(theta_o) at the lower-edge angles of bin (i, j, k)."""
+    n1, n2, n3 = shape.nf
+    m = ops.m
+    fi = m.Float(i) if ops.jit else float(i)
+    fj = m.Float(j) if ops.jit else float(j)
+    fk = m.Float(k) if ops.jit else float(k)
+    r = fi / n1
+    th = r * r * HALF_PI
+    td = fj / n2 * HALF_PI
+    pd = fk / n3 * math.pi
+    a = dr.cos(td) * dr.cos(th)
+    b = dr.sin(td) * dr.cos(pd) * dr.sin(th)
+    return (a - b) * (a + b)
+
+
+def bin_weight(ops: Ops, shape: Shape, i, j, k, use_cos):
+    """The transform weight w of bin (i, j, k): clip(cos_i cos_o, 0.01, 1) or 1."""
+    w = dr.clip(_cos_terms(ops, shape, i, j, k), 0.01, 1.0)
+    return dr.select(use_cos > 0.5, w, 1.0)
+
+
+def interp_weight(ops: Ops, shape: Shape, lin, use_cos):
+    """Trilinear interpolation of the bins' weights w (the grid samples of w)."""
+    (i0, i1, ti), (j0, j1, tj), (k0, k1, tk) = lin
+    acc = 0.0
+    for ei, wi in ((i0, 1.0 - ti), (i1, ti)):
+        for ej, wj in ((j0, 1.0 - tj), (j1, tj)):
+            for ek, wk in ((k0, 1.0 - tk), (k1, tk)):
+                acc = acc + wi * wj * wk * dr.clip(_cos_terms(ops, shape, ei, ej, ek),
+                                                   0.01, 1.0)
+    return dr.select(use_cos > 0.5, acc, 1.0)
+
+
+# ------------------------------------------------------------------------- sampling
+
+
+def power_cosine_sample(ops: Ops, u, exponent):
+    """A unit vector around +z with density (n + 1) / (2 pi) cos^n(theta)."""
+    m = ops.m
+    cos_t = dr.power(dr.maximum(u.x, 1e-30), dr.rcp(exponent + 1.0))
+    sin_t = dr.safe_sqrt(1.0 - cos_t * cos_t)
+    s, c = dr.sincos(2.0 * math.pi * u.y)
+    return m.Vector3f(c * sin_t, s * sin_t, cos_t)
+
+
+def power_cosine_pdf(cos_t, exponent):
+    return (exponent + 1.0) * (0.5 / math.pi) * dr.power(dr.maximum(cos_t, 0.0), exponent)
+
+
+def lobe_pdf(ops: Ops, wi, wo, exponent):
+    """Density (solid angle of wo) of the half-vector power-cosine lobe."""
+    h = dr.normalize(wi + wo)
+    d = dr.abs(dr.dot(wo, h))
+    p = power_cosine_pdf(h.z, exponent) * dr.rcp(4.0 * dr.maximum(d, 1e-12))
+    return dr.select((d > 0.0) & (h.z > 0.0), p, 0.0)

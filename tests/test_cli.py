@@ -1,0 +1,74 @@
+"""The command line: help, corpus listing, info, convert, train, encode, decode, errors."""
+
+import json
+
+import numpy as np
+import pytest
+
+from sparse_brdf.cli import main
+from sparse_brdf.merl import read_merl
+
+
+def test_help_lists_commands(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["--help"])
+    assert e.value.code == 0
+    out = capsys.readouterr().out
+    for cmd in ("corpus", "info", "convert", "train", "encode", "decode"):
+        assert cmd in out
+
+
+def test_corpus_list(capsys):
+    assert main(["corpus", "list"]) == 0
+    assert "mitsuba" in capsys.readouterr().out
+    assert main(["corpus", "list", "mitsuba"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) >= 40 and any(" test " in ln for ln in lines)
+
+
+def test_info_json(capsys):
+    assert main(["info", "mitsuba:diffuse-white", "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["shape"] == [90, 90, 180]
+    assert info["albedo"] == pytest.approx([0.8, 0.8, 0.78], rel=0.03)
+    assert info["valid_bins"] < info["total_bins"]
+
+
+def test_convert_then_read(tmp_path, capsys):
+    out = tmp_path / "w.binary"
+    assert main(["convert", "mitsuba:diffuse-red", str(out)]) == 0
+    b = read_merl(out)
+    np.testing.assert_allclose(b.values[b.valid][:, 0], 0.6 / np.pi, rtol=1e-3)
+    assert main(["convert", "mitsuba:diffuse-red", str(tmp_path / "w.png")]) != 0
+
+
+def test_errors_are_one_line_and_name_the_file(tmp_path, capsys):
+    assert main(["info", str(tmp_path / "missing.binary")]) == 2
+    err = capsys.readouterr().err
+    assert "missing.binary" in err and "Traceback" not in err
+    bad = tmp_path / "bad.binary"
+    bad.write_bytes(b"\x5a\0\0\0" * 3 + b"\0" * 100)
+    assert main(["info", str(bad)]) == 2
+    assert "truncated" in capsys.readouterr().err
+
+
+def test_train_encode_decode_round_trip(tmp_path, capsys):
+    ens = tmp_path / "e.npz"
+    assert main(["train", "--corpus", "mitsuba", "--grid", "18", "18", "36", "--taus", "16",
+                 "--dicts", "2", "--iterations", "2", "-o", str(ens),
+                 "--checkpoint-dir", str(tmp_path / "ck")]) == 0
+    assert (tmp_path / "ck" / "tau-16.npz").is_file()
+    src = tmp_path / "src.binary"
+    from sparse_brdf.io import load_brdf
+    from sparse_brdf.merl import write_merl
+
+    write_merl(src, load_brdf("mitsuba:cu-ggx-0.35", shape=(18, 18, 36)))
+    sb = tmp_path / "m.sbrdf"
+    capsys.readouterr()
+    assert main(["encode", str(src), "-o", str(sb), "--coeffs", "30", "--ensemble", str(ens),
+                 "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["coefficients"] == [30, 30, 30] and info["bytes"] == sb.stat().st_size
+    out = tmp_path / "d.binary"
+    assert main(["decode", str(sb), "-o", str(out), "--ensemble", str(ens)]) == 0
+    assert read_merl(out).shape == (18, 18, 36)
