@@ -74,7 +74,7 @@ class SparseModel(BRDFModel):
         self.ensemble = Ensemble.default() if ensemble is None else ensemble
         self.n_coeffs = n_coeffs
         self.transform = transform
-        self.name = f"sparse-{n_coeffs}"
+        self.name = f"sparse-{n_coeffs}" + ("" if transform == "auto" else f"-{transform}")
 
     def fit(self, brdf: BRDF) -> Compact:
         from .encode import encode

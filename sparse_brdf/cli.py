@@ -133,6 +133,19 @@ def cmd_decode(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_bench(args: argparse.Namespace) -> int:
+    from .bench import Bench, BenchConfig
+
+    cfg = BenchConfig.load(args.config)
+    if args.out:
+        cfg.out = args.out
+    if args.no_render:
+        cfg.render = False
+    Bench(cfg).run()
+    print(f"wrote {cfg.out}/report.md, results.csv, results.json")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="sparse-brdf",
@@ -201,6 +214,14 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("-o", "--output", required=True, help="output .binary path")
     d.add_argument("--ensemble", help="ensemble .npz (default: the shipped one)")
     d.set_defaults(func=cmd_decode)
+
+    b = sub.add_parser("bench", help="compare models: tables, figures, speed-vs-accuracy chart",
+                       description="Run a bench suite (see benchmarks/*.toml for configs); "
+                                   "finished cells are skipped on a re-run.")
+    b.add_argument("config", nargs="?", help="TOML config (default: built-in small suite)")
+    b.add_argument("--out", help="output folder (overrides the config's)")
+    b.add_argument("--no-render", action="store_true", help="BRDF-space metrics only")
+    b.set_defaults(func=cmd_bench)
     return p
 
 
