@@ -17,6 +17,7 @@ from .decode import decode_file
 from .encode import DEFAULT_N_COEFFS, encode
 from .ensemble import Ensemble, train_dictionaries, train_ensemble
 from .errors import BRDFFileError, EnsembleMismatchError, InvalidBRDFError, SparseBRDFError
+from .interpolate import interpolate
 from .io import load_brdf
 from .merl import read_merl, write_merl
 from .metrics import cosine_weighted_snr, gamma_mse, rae, render_snr
@@ -32,7 +33,8 @@ __all__ = [
     "BRDF", "BRDFFileError", "Corpus", "DEFAULT_N_COEFFS", "Ensemble", "EnsembleMismatchError",
     "InvalidBRDFError", "Material", "SparseBRDF", "SparseBRDFError", "TRANSFORMS",
     "cosine_weighted_snr", "decode_file", "encode", "gamma_mse", "get_corpus",
-    "inverse_transform", "list_corpora", "load_brdf", "load_sbrdf", "mitsuba_catalog", "rae",
+    "interpolate", "inverse_transform", "list_corpora", "load_brdf", "load_sbrdf",
+    "mitsuba_catalog", "rae",
     "read_merl", "render_snr", "save_sbrdf", "train_dictionaries", "train_ensemble",
     "transform", "write_merl",
 ]

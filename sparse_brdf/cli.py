@@ -133,6 +133,17 @@ def cmd_decode(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_blend(args: argparse.Namespace) -> int:
+    from .interpolate import interpolate
+    from .sbrdf import load_sbrdf, save_sbrdf
+
+    ens = _ensemble(args.ensemble)
+    a, b = load_sbrdf(args.a, ens), load_sbrdf(args.b, ens)
+    out = save_sbrdf(args.output, interpolate(a, b, args.alpha, ens, args.coeffs))
+    print(f"wrote {out}")
+    return 0
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     from .bench import Bench, BenchConfig
 
@@ -214,6 +225,15 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("-o", "--output", required=True, help="output .binary path")
     d.add_argument("--ensemble", help="ensemble .npz (default: the shipped one)")
     d.set_defaults(func=cmd_decode)
+
+    bl = sub.add_parser("blend", help="interpolate two .sbrdf materials in coefficient space")
+    bl.add_argument("a", help="first .sbrdf (its dictionaries and transform are used)")
+    bl.add_argument("b", help="second .sbrdf (same ensemble and transform)")
+    bl.add_argument("--alpha", type=float, required=True, help="0 gives A, 1 gives B")
+    bl.add_argument("--coeffs", type=int, help="coefficients per channel of the result")
+    bl.add_argument("--ensemble", help="ensemble .npz (default: the shipped one)")
+    bl.add_argument("-o", "--output", required=True, help="output .sbrdf")
+    bl.set_defaults(func=cmd_blend)
 
     b = sub.add_parser("bench", help="compare models: tables, figures, speed-vs-accuracy chart",
                        description="Run a bench suite (see benchmarks/*.toml for configs); "
