@@ -72,7 +72,7 @@ def _read_props(props, plugin: str, spec: dict) -> dict:
     """Read every known property (Mitsuba rejects unread ones) with its default."""
     out = {}
     for name, default in spec.items():
-        if props.has_property(name):
+        if name in props:
             out[name] = props.get(name)
         elif default is _REQUIRED:
             raise PluginError(f"{plugin}: the parameter {name!r} is required")
@@ -336,32 +336,36 @@ def make_classes(m):
             s_buf, p_buf, r_buf = self._s, self._p, self._r
             soff, roff = sp["soff"], sp["roff"]
             mask = (1 << D.PACK_BITS) - 1
-
-            def atoms(t):
-                p = ops.gather_u(p_buf, soff + t, active)
-                return (p & mask, (p >> D.PACK_BITS) & mask, p >> (2 * D.PACK_BITS))
+            zero = m.Float(0.0)
 
             if lin is None:
-                def body(t, acc):
-                    s = ops.gather(s_buf, soff + t, active)
-                    prod = s
-                    for mode, a in enumerate(atoms(t)):
-                        prod = prod * ops.gather(r_buf, roff[mode] + a * n[mode] + bins[mode],
-                                                 active)
-                    return acc + prod
-
-                return ops.loop(sp["t"], body, m.Float(0.0))
-
-            def body_lin(t, acc):
-                prod = ops.gather(s_buf, soff + t, active)
-                for mode, a in enumerate(atoms(t)):
+                def row(mode, a, active_):
+                    return ops.gather(r_buf, roff[mode] + a * n[mode] + bins[mode], active_)
+            else:
+                def row(mode, a, active_):
                     i0, i1, w = lin[mode]
-                    row = roff[mode] + a * n[mode]
-                    prod = prod * ((1.0 - w) * ops.gather(r_buf, row + i0, active)
-                                   + w * ops.gather(r_buf, row + i1, active))
-                return acc + prod
+                    base = roff[mode] + a * n[mode]
+                    return ((1.0 - w) * ops.gather(r_buf, base + i0, active_)
+                            + w * ops.gather(r_buf, base + i1, active_))
 
-            return ops.loop(sp["t"], body_lin, m.Float(0.0))
+            def body(t, state):
+                acc, acc_c, acc_b = state
+                p = ops.gather_u(p_buf, soff + t, active)
+                s = ops.gather(s_buf, soff + t, active)
+                end_b = (p & D.END_B) != 0
+                end_c = (p & D.END_C) != 0
+                acc_b = acc_b + s * row(0, p & mask, active)
+                # close the (c, b) group: multiply by U2[j, b] (read only at group ends)
+                u2 = row(1, (p >> D.PACK_BITS) & mask, active & end_b)
+                acc_c = dr.select(end_b, acc_c + acc_b * u2, acc_c)
+                acc_b = dr.select(end_b, zero, acc_b)
+                # close the c group: multiply by U3[k, c]
+                u3 = row(2, (p >> (2 * D.PACK_BITS)) & mask, active & end_c)
+                acc = dr.select(end_c, acc + acc_c * u3, acc)
+                acc_c = dr.select(end_c, zero, acc_c)
+                return acc, acc_c, acc_b
+
+            return ops.loop(sp["t"], body, (zero, zero, zero))[0]
 
         def _rho(self, wi, wo, active):
             sh = self._shape
@@ -370,13 +374,17 @@ def make_classes(m):
             if self.interpolate:
                 lin = linear_bins(ops, sh, coords)
                 bins = None
-                w = interp_weight(ops, sh, lin, self._use_cos)
+                w, valid = interp_weight(ops, sh, lin, self._use_cos)
             else:
                 lin = None
                 bins = nearest_bins(ops, sh, coords)
-                w = bin_weight(ops, sh, *bins, self._use_cos)
-            inv_w = dr.rcp(w)
-            out = [dr.maximum(expm1(x_of(c, bins, lin, active)) * inv_w, 0.0)
+                w, valid = bin_weight(ops, sh, *bins, self._use_cos)
+                # invalid bins (below the horizon at their angles) hold no measurement:
+                # 0, as in the tabulated reference and in SparseBRDF.decode
+                active = active & valid
+                valid = dr.select(valid, 1.0, 0.0)
+            scale = valid * dr.rcp(w)
+            out = [dr.maximum(expm1(x_of(c, bins, lin, active)) * scale, 0.0)
                    for c in range(3)]
             return m.Color3f(*out)
 
@@ -480,7 +488,7 @@ bytes of the arrays the BSDF holds.
      - ``grouped`` (terms grouped by the atom of one mode, the other two modes
        contracted at load time into an (n_p n_q) x K table: fastest), ``strict`` (loops
        over the nonzero terms: least memory) or ``auto`` (default: grouped unless its
-       tables exceed ``mitsuba_plugin.data.AUTO_GROUPED_MAX_BYTES``, 8 MiB).
+       tables exceed ``mitsuba_plugin.data.AUTO_GROUPED_MAX_BYTES``, 32 MiB).
    * - sampling
      - string
      - ``cosine`` (default) or ``lobe``, as for ``tabulated_brdf``.

@@ -199,21 +199,27 @@ def _cos_terms(ops: Ops, shape: Shape, i, j, k):
 
 
 def bin_weight(ops: Ops, shape: Shape, i, j, k, use_cos):
-    """The transform weight w of bin (i, j, k): clip(cos_i cos_o, 0.01, 1) or 1."""
-    w = dr.clip(_cos_terms(ops, shape, i, j, k), 0.01, 1.0)
-    return dr.select(use_cos > 0.5, w, 1.0)
+    """(w, valid) of bin (i, j, k): the transform weight clip(cos_i cos_o, 0.01, 1) (or 1
+    for log-plus) and whether both directions are above the horizon at the bin's angles
+    (a bin is invalid otherwise, SPEC section 1; since cos_i + cos_o >= 0 on the grid,
+    cos_i cos_o > 0 means both are positive)."""
+    c = _cos_terms(ops, shape, i, j, k)
+    return dr.select(use_cos > 0.5, dr.clip(c, 0.01, 1.0), 1.0), c > 0.0
 
 
 def interp_weight(ops: Ops, shape: Shape, lin, use_cos):
-    """Trilinear interpolation of the bins' weights w (the grid samples of w)."""
+    """Trilinear interpolation of the bins' weights w and of their validity (0 or 1)."""
     (i0, i1, ti), (j0, j1, tj), (k0, k1, tk) = lin
     acc = 0.0
+    vacc = 0.0
     for ei, wi in ((i0, 1.0 - ti), (i1, ti)):
         for ej, wj in ((j0, 1.0 - tj), (j1, tj)):
             for ek, wk in ((k0, 1.0 - tk), (k1, tk)):
-                acc = acc + wi * wj * wk * dr.clip(_cos_terms(ops, shape, ei, ej, ek),
-                                                   0.01, 1.0)
-    return dr.select(use_cos > 0.5, acc, 1.0)
+                c = _cos_terms(ops, shape, ei, ej, ek)
+                wt = wi * wj * wk
+                acc = acc + wt * dr.clip(c, 0.01, 1.0)
+                vacc = vacc + dr.select(c > 0.0, wt, 0.0)
+    return dr.select(use_cos > 0.5, acc, 1.0), vacc
 
 
 # ------------------------------------------------------------------------- sampling

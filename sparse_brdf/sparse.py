@@ -98,7 +98,7 @@ class SparseBRDF:
 
         Evaluates sum_t s_t U1[i, a_t] U2[j, b_t] U3[k, c_t] from the nonzero terms only,
         at the bins of the pairs (the same lookup as the tabulated BRDF); pairs with a
-        direction below the horizon give 0.
+        direction below the horizon, or in a bin whose lower-edge angles are, give 0.
         """
         self.check_ensemble(ensemble)
         wi = np.asarray(wi, np.float64).reshape(-1, 3)
@@ -117,7 +117,8 @@ class SparseBRDF:
                 g = u1[bins[0][sl]][:, a] * u2[bins[1][sl]][:, b] * u3[bins[2][sl]][:, k]
                 out[sl, c] = g @ s
         rho = inverse_at_bins(out, self.transform, tuple(b[:, None] for b in bins), self.shape)
-        return np.where(above[:, None], rho, 0.0).astype(np.float32)
+        keep = above & geometric_valid(self.shape)[bins]  # as decode() and the plugins
+        return np.where(keep[:, None], rho, 0.0).astype(np.float32)
 
 
 __all__ = ["SparseBRDF", "MERL_SHAPE"]

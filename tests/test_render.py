@@ -1,0 +1,170 @@
+"""Rendering with the plugins: scenes, material overrides, EXR files, the noise floor."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sparse_brdf.metrics import render_snr
+from sparse_brdf.render import (
+    RenderError,
+    parse_overrides,
+    plugin_for,
+    read_exr,
+    render_scene,
+    scene_xml,
+    write_exr,
+)
+
+pytest.importorskip("mitsuba")
+dr = pytest.importorskip("drjit")
+
+from test_plugin import make_exact_material  # noqa: E402
+
+SCENES = Path(__file__).resolve().parents[1] / "scenes"
+SPHERE = SCENES / "sphere.xml"
+SPHERES = SCENES / "spheres.xml"
+RES, SPP = 32, 4
+
+pytestmark = pytest.mark.render
+
+
+@pytest.fixture(scope="module")
+def exact_material(tmp_path_factory):
+    """A glossy material, its exact sparse code and the code's decoded table."""
+    return make_exact_material(tmp_path_factory.mktemp("render"))
+
+
+def _sparse(mat, **kw):
+    return {"ensemble": mat["ensemble"], **kw}
+
+
+def test_scenes_and_envmap_are_shipped():
+    assert (SCENES / "envmaps" / "studio.exr").is_file()
+    assert "CC0" in (SCENES / "envmaps" / "ATTRIBUTION.md").read_text()
+    for scene in (SPHERE, SPHERES):
+        text = scene.read_text()
+        assert 'id="material"' in text and "$spp" in text and "$res" in text
+    assert 'id="material3"' in SPHERES.read_text()
+
+
+def test_overrides_and_plugin_choice(exact_material):
+    assert parse_overrides(["material=a.sbrdf", "material2=b.binary", "c.h5"]) == {
+        "material": "a.sbrdf", "material2": "b.binary"} | {"material": "c.h5"}
+    with pytest.raises(ValueError):
+        parse_overrides(["material="])
+    assert plugin_for("x.SBRDF") == "sparse_brdf"
+    assert plugin_for("mitsuba:cu-ggx-0.12") == "tabulated_brdf"
+    xml = scene_xml(SPHERE, {"material": exact_material["sbrdf"]},
+                    sparse_options=_sparse(exact_material, decoder="strict", interpolate=True))
+    assert 'type="sparse_brdf"' in xml and 'value="strict"' in xml
+    assert '<boolean name="interpolate" value="true"' in xml
+    with pytest.raises(KeyError, match="nothere"):
+        scene_xml(SPHERE, {"nothere": exact_material["binary"]})
+
+
+def test_renders_are_finite_and_the_exact_model_matches_its_table(exact_material):
+    native = render_scene(SPHERE, None, spp=SPP, seed=0, res=RES)
+    assert native.shape == (RES, RES, 3) and native.dtype == np.float32
+    assert np.all(np.isfinite(native)) and native.mean() > 0
+    ref = render_scene(SPHERE, {"material": exact_material["binary"]}, spp=SPP, seed=0,
+                       res=RES)
+    assert np.all(np.isfinite(ref)) and ref.mean() > 0
+    for decoder in ("grouped", "strict"):
+        img = render_scene(SPHERE, {"material": exact_material["sbrdf"]}, spp=SPP, seed=0,
+                           res=RES, sparse_options=_sparse(exact_material, decoder=decoder))
+        assert np.all(np.isfinite(img))
+        # same seed and cosine sampling: the Monte Carlo noise cancels, so the exact
+        # model differs from its own table by float rounding only
+        assert render_snr(ref, img) > 60, decoder
+    # the model against the original (not sparse) material: close, but not exact
+    orig = render_scene(SPHERE, {"material": exact_material["original"]}, spp=SPP, seed=0,
+                        res=RES)
+    assert 15 < render_snr(orig, img) < 200
+
+
+def test_lobe_sampling_and_interpolation_render(exact_material):
+    ref = render_scene(SPHERE, {"material": exact_material["binary"]}, spp=SPP, seed=0,
+                       res=RES, tabulated_options={"sampling": "lobe", "interpolate": True})
+    img = render_scene(SPHERE, {"material": exact_material["sbrdf"]}, spp=SPP, seed=0,
+                       res=RES, sparse_options=_sparse(exact_material, sampling="lobe",
+                                                       interpolate=True))
+    assert np.all(np.isfinite(ref)) and np.all(np.isfinite(img))
+    # both converge to nearly the same image (interpolation of X vs of rho differs a bit)
+    assert render_snr(ref, img) > 20
+
+
+def test_swapping_materials_does_not_recompile(exact_material, tmp_path):
+    second = make_exact_material(tmp_path, "principled-clearcoat-red-0.4", 200)
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        hashes = []
+        for mat in (exact_material, second):
+            dr.kernel_history()  # clear
+            render_scene(SPHERE, {"material": mat["sbrdf"]}, spp=2, seed=0, res=16,
+                         sparse_options=_sparse(mat, decoder="grouped"))
+            hist = dr.kernel_history()
+            hashes.append({k["hash"] for k in hist
+                           if k["type"] == dr.KernelType.JIT and k["operation_count"] > 200})
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    assert hashes[0] and hashes[1] <= hashes[0], "a second material compiled a new kernel"
+
+
+def test_three_spheres_scene(exact_material):
+    img = render_scene(SPHERES, {"material": exact_material["sbrdf"],
+                                 "material2": exact_material["binary"],
+                                 "material3": "mitsuba:diffuse-white"},
+                       spp=2, seed=0, res=24, sparse_options=_sparse(exact_material))
+    assert img.shape == (24, 24, 3) and np.all(np.isfinite(img)) and img.mean() > 0
+
+
+def test_scalar_variant_renders(exact_material):
+    img = render_scene(SPHERE, {"material": exact_material["sbrdf"]}, spp=1, seed=0, res=4,
+                       variant="scalar_rgb", sparse_options=_sparse(exact_material))
+    assert img.shape == (4, 4, 3) and np.all(np.isfinite(img))
+
+
+def test_errors_name_the_file(exact_material, tmp_path):
+    missing = tmp_path / "missing.sbrdf"
+    with pytest.raises(RenderError, match="missing.sbrdf"):
+        render_scene(SPHERE, {"material": str(missing)}, spp=1, res=4,
+                     sparse_options=_sparse(exact_material))
+    with pytest.raises(FileNotFoundError, match="nope.xml"):
+        render_scene(tmp_path / "nope.xml", None, spp=1, res=4)
+
+
+def test_noise_floor_and_seeds(exact_material):
+    mats = {"material": exact_material["binary"]}
+    a = render_scene(SPHERE, mats, spp=2, seed=3, res=16)
+    b = render_scene(SPHERE, mats, spp=2, seed=3, res=16)
+    assert render_snr(a, b) == float("inf")  # deterministic for a given seed
+    from sparse_brdf.render import noise_floor
+
+    floor = noise_floor(SPHERE, mats, spp=2, seeds=(0, 1), res=16)
+    assert np.isfinite(floor) and 0 < floor < 60
+
+
+def test_exr_roundtrip_is_exact_and_atomic(tmp_path):
+    rng = np.random.default_rng(0)
+    img = rng.random((7, 5, 3)).astype(np.float32) * 10
+    path = write_exr(tmp_path / "sub" / "img.exr", img)
+    np.testing.assert_array_equal(read_exr(path), img)
+    assert sorted(p.name for p in path.parent.iterdir()) == ["img.exr"]
+    with pytest.raises(ValueError):
+        write_exr(tmp_path / "bad.exr", img[..., :2])
+    assert not (tmp_path / "bad.exr").exists()
+    (tmp_path / "junk.exr").write_bytes(b"not an exr")
+    with pytest.raises(ValueError, match="junk.exr"):
+        read_exr(tmp_path / "junk.exr")
+
+
+@pytest.mark.shared
+def test_measured_material_renders(shared_data):
+    h5 = sorted((shared_data / "nbrdf" / "merl").glob("*.h5"))
+    if not h5:
+        pytest.skip("no Neural-BRDF materials in the shared data")
+    img = render_scene(SPHERE, {"material": str(h5[0])}, spp=2, seed=0, res=16)
+    assert np.all(np.isfinite(img)) and img.mean() > 0
