@@ -19,13 +19,14 @@ from pathlib import Path
 
 import numpy as np
 
+from .errors import SparseBRDFError
 from .metrics import render_snr
 from .mitsuba_env import DEFAULT_VARIANT, set_variant
 
 SPARSE_SUFFIX = ".sbrdf"
 
 
-class RenderError(RuntimeError):
+class RenderError(SparseBRDFError, RuntimeError):
     """A scene failed to load or render; the message holds the underlying cause."""
 
 

@@ -72,3 +72,19 @@ def test_train_encode_decode_round_trip(tmp_path, capsys):
     out = tmp_path / "d.binary"
     assert main(["decode", str(sb), "-o", str(out), "--ensemble", str(ens)]) == 0
     assert read_merl(out).shape == (18, 18, 36)
+
+
+def test_render_and_snr(tmp_path, capsys):
+    a, b = tmp_path / "a.exr", tmp_path / "b.exr"
+    common = ["--material", "material=mitsuba:plastic-red-ggx-0.3", "--spp", "4", "--res", "24"]
+    assert main(["render", "sphere.xml", "-o", str(a), *common]) == 0
+    assert main(["render", "sphere.xml", "-o", str(b), "--seed", "3", *common]) == 0
+    capsys.readouterr()
+    assert main(["snr", str(a), str(a), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["snr_db"] == float("inf")
+    assert main(["snr", str(a), str(b)]) == 0
+    snr = float(capsys.readouterr().out.split()[0])
+    assert 0 < snr < 60  # different seeds: finite, noise-limited
+    assert main(["render", "sphere.xml", "-o", str(a), "--material",
+                 f"material={tmp_path / 'missing.sbrdf'}"]) == 2
+    assert "missing.sbrdf" in capsys.readouterr().err
