@@ -139,7 +139,7 @@ class CPDModel(BRDFModel):
     Invalid bins are masked out (tensorly's EM imputation), not fitted as zeros.
     """
 
-    def __init__(self, rank: int = 1, n_iter: int = 20, seed: int = 0):
+    def __init__(self, rank: int = 1, n_iter: int = 30, seed: int = 0):
         self.rank, self.n_iter, self.seed = rank, n_iter, seed
         self.name = f"cpd-{rank}"
 
@@ -152,7 +152,7 @@ class CPDModel(BRDFModel):
         mask = np.broadcast_to(brdf.valid, y.shape[1:])
         for c in range(3):
             cp = parafac(tl.tensor(y[c]), self.rank, n_iter_max=self.n_iter,
-                         init="svd", mask=mask.astype(float), random_state=self.seed)
+                         init="random", mask=mask.astype(float), random_state=self.seed)
             rec[c] = tl.cp_to_tensor(cp)
         n = 3 * self.rank * (sum(brdf.shape) + 1)
         out = np.moveaxis(inverse(rec, "log-plus"), 0, -1)
@@ -174,7 +174,8 @@ class TuckerModel(BRDFModel):
         rec = np.empty_like(y)
         mask = np.broadcast_to(brdf.valid, y.shape[1:])
         for c in range(3):
-            core, factors = tucker(tl.tensor(y[c]), rank=list(self.ranks), n_iter_max=20,
+            core, factors = tucker(tl.tensor(y[c]), rank=list(self.ranks), n_iter_max=30,
+                                   init="random",
                                    mask=mask.astype(float), random_state=self.seed)
             rec[c] = tl.tucker_to_tensor((core, factors))
         r1, r2, r3 = self.ranks

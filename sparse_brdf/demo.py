@@ -1,10 +1,15 @@
-"""The main job (``make demo``): encode unseen materials with the shipped ensemble.
+"""The main job (``make demo``): the shipped ensemble on unseen materials, end to end.
 
-Runs on the embedded default: the shipped ensemble and the built-in ``mitsuba`` corpus's
-test split (plus the shared MERL/RGL test splits when ``../shared/data`` is present).
-For each material it tabulates, encodes (262 coefficients per channel), writes the
-``.sbrdf`` file, decodes and measures; it writes a decoded MERL file, a figure and a
-markdown report to ``demo_out/`` (or ``--out``).
+Runs on the embedded default: the shipped ensemble, the shipped sphere scene and the
+built-in ``mitsuba`` corpus's test split (plus the first shared MERL/RGL test materials
+when ``../shared/data`` is present). Into ``demo_out/`` (or ``--out``):
+
+1. encode every material (262 coefficients per channel), write its ``.sbrdf``, decode
+   and measure in BRDF space; ``report.md`` and ``demo.png``;
+2. render the sphere with the model and with the full tabulated reference (same seed
+   and sampling), print the rendering SNR beside the noise floor;
+3. run the bench of ``benchmarks/demo.toml`` (baselines side by side, the speed-vs-
+   accuracy chart, the stability table) into ``demo_out/bench/report.md``.
 """
 
 from __future__ import annotations
@@ -115,16 +120,59 @@ def run(out: Path, include_shared: bool = True, per_corpus: int | None = 4) -> l
     return rows
 
 
+def render_pair(out: Path, material: str, sbrdf: Path, spp: int = 32, res: int = 128) -> dict:
+    """Render the sphere with the model and the reference; SNR and noise floor."""
+    from .bench import SCENES_DIR
+    from .metrics import render_snr
+    from .render import render_scene, write_exr
+
+    scene = SCENES_DIR / "sphere.xml"
+    times = {}
+    imgs = {}
+    for tag, src, seed in (("reference", material, 0), ("reference-seed1", material, 1),
+                           ("model", str(sbrdf), 0)):
+        t0 = time.perf_counter()
+        imgs[tag] = render_scene(scene, {"material": src}, spp=spp, seed=seed, res=res)
+        times[tag] = time.perf_counter() - t0
+        write_exr(out / f"sphere-{tag}.exr", imgs[tag])
+    snr = render_snr(imgs["reference"], imgs["model"])
+    floor = render_snr(imgs["reference"], imgs["reference-seed1"])
+    print(f"sphere ({res}x{res}, {spp} spp): model vs reference {snr:.1f} dB "
+          f"(noise floor {floor:.1f} dB); render {times['model']:.2f} s model, "
+          f"{times['reference']:.2f} s reference")
+    return {"snr_db": snr, "noise_floor_db": floor, "seconds": times}
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m sparse_brdf.demo", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", default="demo_out", help="output folder")
     p.add_argument("--builtin-only", action="store_true",
                    help="only the built-in corpus, even when ../shared/data is present")
+    p.add_argument("--no-bench", action="store_true", help="skip step 3 (the bench)")
     args = p.parse_args(argv)
     t0 = time.perf_counter()
-    run(Path(args.out), include_shared=not args.builtin_only)
-    print(f"demo finished in {time.perf_counter() - t0:.0f} s")
+    out = Path(args.out)
+    print("== 1. encode unseen materials with the shipped ensemble")
+    rows = run(out, include_shared=not args.builtin_only)
+    print("== 2. render the sphere: sparse model against the tabulated reference")
+    first = rows[0]
+    src = f"mitsuba:{first['material']}" if first["corpus"] == "mitsuba" else None
+    if src is None:
+        src = str(get_corpus(first["corpus"]).split("test")[0].source)
+    pair = render_pair(out, src, out / f"{first['corpus']}-{first['material']}.sbrdf")
+    (out / "sphere.json").write_text(json.dumps(pair, indent=2))
+    if not args.no_bench:
+        print("== 3. bench: baselines, speed-vs-accuracy chart, stability "
+              "(benchmarks/demo.toml)")
+        from .bench import Bench, BenchConfig
+
+        cfg = BenchConfig.load(Path(__file__).resolve().parent.parent / "benchmarks"
+                               / "demo.toml")
+        cfg.out = str(out / "bench")
+        Bench(cfg).run()
+        print(f"wrote {cfg.out}/report.md (tables, speed_accuracy.png, renders)")
+    print(f"demo finished in {time.perf_counter() - t0:.0f} s; open {out}/report.md")
     return 0
 
 
