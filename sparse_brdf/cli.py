@@ -184,6 +184,18 @@ def cmd_snr(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_fit_scene(args: argparse.Namespace) -> int:
+    from .fit_scene import fit_scene
+    from .render import parse_overrides
+
+    rep = fit_scene(_scene(args.scene), args.target_snr, parse_overrides(args.material),
+                    args.output, ensemble_path=args.ensemble, spp=args.spp, res=args.res,
+                    seed=args.seed)
+    print(f"scene SNR with every material sparse: {rep['scene_snr_all_sparse']:.1f} dB; "
+          f"{rep['bytes_total']} bytes of coefficients; wrote {args.output}/fit-scene.md")
+    return 0
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     from .bench import Bench, BenchConfig
 
@@ -292,6 +304,21 @@ def build_parser() -> argparse.ArgumentParser:
                                         "floor beside the SNR")
     n.add_argument("--json", action="store_true")
     n.set_defaults(func=cmd_snr)
+
+    fs = sub.add_parser("fit-scene", formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+                        help="give each material of a scene the fewest coefficients that "
+                             "reach a target rendering SNR in that scene")
+    fs.add_argument("scene", help="scene XML (a path, or a name in the shipped scenes/)")
+    fs.add_argument("--target-snr", type=float, required=True, metavar="DB")
+    fs.add_argument("--material", action="append", default=[], metavar="ID=FILE",
+                    help="measured material of BSDF ID (repeatable); tabulated_brdf BSDFs "
+                         "with a filename in the XML are found by themselves")
+    fs.add_argument("-o", "--output", default="fit_scene_out", help="output folder")
+    fs.add_argument("--spp", type=int, default=8, help="spp of the verification renders")
+    fs.add_argument("--res", type=int, default=64, help="resolution of verification renders")
+    fs.add_argument("--seed", type=int, default=0)
+    fs.add_argument("--ensemble", help="ensemble .npz (default: the shipped one)")
+    fs.set_defaults(func=cmd_fit_scene)
 
     bl = sub.add_parser("blend", help="interpolate two .sbrdf materials in coefficient space")
     bl.add_argument("a", help="first .sbrdf (its dictionaries and transform are used)")
