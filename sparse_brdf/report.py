@@ -32,12 +32,16 @@ def summary_table(results: dict) -> list[dict]:
     rows = []
     for model, cells in by_model.items():
         ok = [c for c in cells if c.get("status") == "finished"]
-        snr = _finite([c.get("render_snr") for c in ok])
+        snr = [c["render_snr"] for c in ok if c.get("render_snr") is not None]
         row = {"model": model, "n": len(ok), "failed": len(cells) - len(ok),
                "bytes": float(np.mean([c["bytes"] for c in ok])) if ok else float("nan"),
                "rae": float(np.mean([c["rae"] for c in ok])) if ok else float("nan"),
                "cos_snr": float(np.mean(_finite([c["cos_snr"] for c in ok]) or [np.nan]))}
-        if snr:
+        if snr and all(math.isinf(x) and x > 0 for x in snr):  # identical to the reference
+            row.update(snr_mean=math.inf, snr_std=0.0, snr_min=math.inf, snr_max=math.inf,
+                       render_s=float(np.mean([c["render_s"] for c in ok if "render_s" in c])))
+        elif _finite(snr):
+            snr = _finite(snr)
             row.update(snr_mean=float(np.mean(snr)), snr_std=float(np.std(snr)),
                        snr_min=float(np.min(snr)), snr_max=float(np.max(snr)),
                        render_s=float(np.mean([c["render_s"] for c in ok if "render_s" in c])))
@@ -58,7 +62,7 @@ def pareto(points: list[tuple[float, float]]) -> list[int]:
 
 def speed_accuracy_chart(rows: list[dict], path: Path) -> None:
     plt = _plt()
-    rows = [r for r in rows if "snr_mean" in r]
+    rows = [r for r in rows if "snr_mean" in r and math.isfinite(r["snr_mean"])]
     if not rows:
         return
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
@@ -134,9 +138,8 @@ def difference_figure(results: dict, out: Path, max_materials: int = 4) -> list[
             axes[0, i].imshow(tone(img))
             axes[0, i].set_title(f"{m}\n{cell.get('render_snr', float('nan')):.1f} dB",
                                  fontsize=8)
-            diff = np.abs(ref - img).mean(-1) * 10
-            axes[1, i].imshow(np.clip(diff / max(float(ref.mean()), 1e-6), 0, 1), cmap="jet",
-                              vmin=0, vmax=1)
+            diff = np.abs(ref - img).mean(-1) * 10  # linear radiance, as the paper's figures
+            axes[1, i].imshow(np.clip(diff, 0, 1), cmap="jet", vmin=0, vmax=1)
             axes[1, i].set_title("|ref - img| x 10", fontsize=7)
         for a in axes.ravel():
             a.set_xticks([])
