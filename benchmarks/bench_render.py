@@ -1,0 +1,166 @@
+"""Render speed of the plugins, in one run on one scene: sparse_brdf (grouped and strict
+decoders, 32 / 128 / 262 coefficients) against tabulated_brdf, native diffuse and native
+roughconductor; JIT compile time (first render) and a material swap; memory per material;
+BSDF evaluations per second.
+
+    .venv/bin/python benchmarks/bench_render.py [--material SOURCE] [--res 256] [--spp 64]
+
+Prints a markdown table (copied into docs/benchmarks.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from sparse_brdf.bench import SCENES_DIR
+from sparse_brdf.encode import encode
+from sparse_brdf.ensemble import Ensemble
+from sparse_brdf.io import load_brdf
+from sparse_brdf.sbrdf import save_sbrdf
+
+
+def timed_render(scene, spp, repeats):
+    import drjit as dr
+    import mitsuba as mi
+
+    t0 = time.perf_counter()
+    img = mi.render(scene, spp=spp, seed=0)
+    dr.eval(img)
+    first = time.perf_counter() - t0
+    times = []
+    for r in range(repeats):
+        t0 = time.perf_counter()
+        img = mi.render(scene, spp=spp, seed=r + 1)
+        dr.eval(img)
+        times.append(time.perf_counter() - t0)
+    return first, float(np.median(times))
+
+
+def eval_rate(bsdf, n=1 << 20):
+    """BSDF evaluations per second at random direction pairs (llvm, one batch)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    rng = np.random.default_rng(0)
+    v = rng.standard_normal((2, n, 3))
+    v[..., 2] = np.abs(v[..., 2])
+    v /= np.linalg.norm(v, axis=-1, keepdims=True)
+    si = dr.zeros(mi.SurfaceInteraction3f, n)
+    si.wi = mi.Vector3f(v[0].T.astype(np.float32))
+    si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
+    wo = mi.Vector3f(v[1].T.astype(np.float32))
+    ctx = mi.BSDFContext()
+    dr.eval(bsdf.eval(ctx, si, wo))  # compile
+    t0 = time.perf_counter()
+    for _ in range(5):
+        dr.eval(bsdf.eval(ctx, si, wo))
+    return 5 * n / (time.perf_counter() - t0)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--material", default=None,
+                   help="BRDF source (default: MERL blue-metallic-paint2 if the shared data "
+                        "is present, else mitsuba:cu-ggx-0.12)")
+    p.add_argument("--res", type=int, default=256)
+    p.add_argument("--spp", type=int, default=64)
+    p.add_argument("--repeats", type=int, default=3)
+    args = p.parse_args()
+    import drjit as dr
+    import mitsuba as mi
+
+    from sparse_brdf.corpora import shared_data_dir
+    from sparse_brdf.mitsuba_env import set_variant
+
+    set_variant("llvm_ad_rgb")
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+
+    src = args.material
+    if src is None:
+        data = shared_data_dir()
+        src = (str(data / "nbrdf" / "merl" / "blue-metallic-paint2.h5") if data
+               else "mitsuba:cu-ggx-0.12")
+    ens = Ensemble.default()
+    brdf = load_brdf(src)
+    tmp = Path(tempfile.mkdtemp())
+    files = {}
+    for n in (32, 128, 262):
+        files[n] = save_sbrdf(tmp / f"m{n}.sbrdf", encode(brdf, ens, n))
+    second = save_sbrdf(tmp / "other.sbrdf", encode(load_brdf("mitsuba:au-ggx-0.25"), ens, 262))
+    scene_path = SCENES_DIR / "sphere.xml"
+    cases = [("native diffuse", {"type": "diffuse"}), ("native roughconductor",
+             {"type": "roughconductor", "material": "Cu", "alpha": 0.12}),
+             ("tabulated_brdf", {"type": "tabulated_brdf", "filename": src})]
+    for dec in ("grouped", "strict"):
+        for n in (32, 128, 262):
+            cases.append((f"sparse_brdf {dec} {n}", {"type": "sparse_brdf",
+                          "filename": str(files[n]), "decoder": dec}))
+    rows = []
+    base = None
+    for name, bsdf_dict in cases:
+        dr.flush_kernel_cache()
+        scene = mi.load_dict(_swap(scene_path, bsdf_dict, args))
+        first, t = timed_render(scene, args.spp, args.repeats)
+        bsdf = scene.shapes()[0].bsdf()
+        mem = getattr(bsdf, "memory_bytes", None)
+        rate = eval_rate(bsdf)
+        base = base or t
+        rows.append((name, t, t / base, first - t, mem, rate))
+    # swapping materials: a second sparse material reuses the compiled kernels
+    dr.flush_kernel_cache()
+    def kernels():
+        return {k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT}
+
+    dr.kernel_history()  # clear
+    s1 = mi.load_dict(_swap(scene_path, {"type": "sparse_brdf", "filename": str(files[262]),
+                                         "decoder": "grouped"}, args))
+    timed_render(s1, args.spp, 0)
+    k1 = kernels()
+    s2 = mi.load_dict(_swap(scene_path, {"type": "sparse_brdf", "filename": str(second),
+                                         "decoder": "grouped"}, args))
+    first2, _ = timed_render(s2, args.spp, 0)
+    compiled = kernels() - k1
+    tab = next(r for r in rows if r[0] == "tabulated_brdf")
+    print(f"{args.res}x{args.res}, {args.spp} spp, sphere.xml; material {src}; "
+          f"{platform.node()}, {time.strftime('%Y-%m-%d')}")
+    print("| BSDF | render (s) | vs diffuse | vs tabulated | compile (s) | memory (bytes) | "
+          "evals/s |")
+    print("|---|---|---|---|---|---|---|")
+    for name, t, rel, comp, mem, rate in rows:
+        print(f"| {name} | {t:.3f} | {rel:.2f}x | {t / tab[1]:.2f}x | {comp:.2f} | "
+              f"{'' if mem is None else mem} | {rate / 1e6:.1f} M |")
+    print(f"\nSwapping to a second sparse material: first render {first2:.3f} s, "
+          f"{len(compiled)} kernels compiled anew.")
+
+
+def _swap(scene_path, bsdf_dict, args):
+    """The sphere scene as a dict with the material replaced (Mitsuba's dict API)."""
+    import mitsuba as mi
+
+    import mitsuba_plugin
+
+    mitsuba_plugin.register()
+    env = str(scene_path.parent / "envmaps" / "studio.exr")
+    return {
+        "type": "scene",
+        "integrator": {"type": "direct"},
+        "sensor": {"type": "perspective", "fov": 32,
+                   "to_world": mi.ScalarTransform4f().look_at([0, 0.9, 4], [0, 0, 0],
+                                                              [0, 1, 0]),
+                   "sampler": {"type": "independent", "sample_count": args.spp},
+                   "film": {"type": "hdrfilm", "width": args.res, "height": args.res,
+                            "rfilter": {"type": "box"}}},
+        "emitter": {"type": "envmap", "filename": env},
+        "sphere": {"type": "sphere", "bsdf": bsdf_dict},
+    }
+
+
+if __name__ == "__main__":
+    main()
