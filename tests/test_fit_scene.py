@@ -52,13 +52,12 @@ def test_fit_scene_reaches_target(tmp_path, materials, small_ensemble):
     assert main(args) == 0
     rep = json.loads((out / "fit-scene.json").read_text())
     assert {r["id"] for r in rep["materials"]} == set(materials)
+    assert rep["scene_snr_all_sparse"] >= 30  # the target holds for the whole scene
     for r in rep["materials"]:
-        assert r["reached"] and r["verified_snr"] >= 30
+        assert r["verified_snr"] >= 30
         m = load_sbrdf(r["file"], small_ensemble)
         assert m.n_coeffs.max() == r["coefficients"]
         assert r["memory_strict"] < r["memory_tabulated"]
-    # the diffuse material needs fewer coefficients than the gold
-    by = {r["id"]: r["coefficients"] for r in rep["materials"]}
-    assert by["material2"] <= by["material3"]
+    assert rep["bytes_total"] == sum((out / f"{m}.sbrdf").stat().st_size for m in materials)
     assert "verified SNR" in (out / "fit-scene.md").read_text()
     assert not list(out.glob("*.candidate.sbrdf"))
