@@ -7,6 +7,8 @@ takes the shape so that tests can use small grids (e.g. 18x18x36) with the same 
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 MERL_SHAPE: tuple[int, int, int] = (90, 90, 180)
@@ -125,13 +127,22 @@ def grid_angles(
     return np.meshgrid(th, td, pd, indexing="ij")
 
 
-def cosine_product(shape: tuple[int, int, int] = MERL_SHAPE) -> np.ndarray:
-    """cos(theta_i) * cos(theta_o) at every bin's angles, float64 array of ``shape``."""
+@functools.lru_cache(maxsize=8)
+def _cosines(shape: tuple[int, int, int]) -> tuple[np.ndarray, np.ndarray]:
     ci, co = cos_io(*grid_angles(shape))
-    return ci * co
+    prod, valid = ci * co, (ci > 0.0) & (co > 0.0)
+    prod.flags.writeable = False
+    valid.flags.writeable = False
+    return prod, valid
+
+
+def cosine_product(shape: tuple[int, int, int] = MERL_SHAPE) -> np.ndarray:
+    """cos(theta_i) * cos(theta_o) at every bin's angles, float64 array of ``shape``
+    (cached, read-only)."""
+    return _cosines(tuple(shape))[0]
 
 
 def geometric_valid(shape: tuple[int, int, int] = MERL_SHAPE) -> np.ndarray:
-    """Bins whose two directions are both above the horizon, bool array of ``shape``."""
-    ci, co = cos_io(*grid_angles(shape))
-    return (ci > 0.0) & (co > 0.0)
+    """Bins whose two directions are both above the horizon, bool array of ``shape``
+    (a fresh, writable copy)."""
+    return _cosines(tuple(shape))[1].copy()

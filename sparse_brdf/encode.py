@@ -99,12 +99,13 @@ def select(p: Projections, n_coeffs: int, max_error: float | None = None,
 def choose_transform(brdf: BRDF, models: dict[str, SparseBRDF], ens: Ensemble) -> SparseBRDF:
     """The model with the smaller gamma-mapped MSE; ``stats`` gets every model's errors."""
     stats = {}
+    ref = brdf.values[brdf.valid]  # (n_valid, 3): mask once, then flat metrics
     for name, model in models.items():
-        rec = model.decode(ens).values
+        rec = model.decode(ens).values[brdf.valid]
         stats[name] = {
-            "gamma_mse": gamma_mse(brdf.values, rec, brdf.valid),
-            "mse": mse(brdf.values, rec, brdf.valid),
-            "rae": rae(brdf.values, rec, brdf.valid),
+            "gamma_mse": gamma_mse(ref, rec),
+            "mse": mse(ref, rec),
+            "rae": rae(ref, rec),
             "relative_residual": model.stats["relative_residual"],
         }
     chosen = min(models, key=lambda n: stats[n]["gamma_mse"])

@@ -64,13 +64,14 @@ def cosine_weighted_snr(ref: np.ndarray, rec: np.ndarray, valid: np.ndarray) -> 
 
 
 def _masked(ref: np.ndarray, rec: np.ndarray, valid: np.ndarray | None):
-    ref = np.asarray(ref, dtype=np.float64)
-    rec = np.asarray(rec, dtype=np.float64)
+    """Flat float64 copies of the valid entries (mask first, then convert: less memory)."""
+    ref = np.asarray(ref)
+    rec = np.asarray(rec)
     if ref.shape != rec.shape:
         raise ValueError(f"shapes differ: reference {ref.shape}, reconstruction {rec.shape}")
-    if valid is None:
-        return ref.ravel(), rec.ravel()
-    valid = np.asarray(valid, dtype=bool)
-    if ref.ndim == valid.ndim + 1:
-        return ref[valid], rec[valid]
-    return ref[np.broadcast_to(valid, ref.shape)], rec[np.broadcast_to(valid, ref.shape)]
+    if valid is not None:
+        valid = np.asarray(valid, dtype=bool)
+        if ref.ndim != valid.ndim + 1:
+            valid = np.broadcast_to(valid, ref.shape)
+        ref, rec = ref[valid], rec[valid]
+    return ref.astype(np.float64).ravel(), rec.astype(np.float64).ravel()
