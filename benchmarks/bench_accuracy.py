@@ -20,30 +20,20 @@ import numpy as np
 
 from sparse_brdf.corpora import get_corpus
 from sparse_brdf.dataset import training_tensors
-from sparse_brdf.encode import choose_transform, encode, project_all, select
+from sparse_brdf.encode import encode, error_curve
 from sparse_brdf.ensemble import Ensemble, hosvd_ensemble
-from sparse_brdf.metrics import cosine_weighted_snr, rae
 from sparse_brdf.transforms import TRANSFORMS
 
 
 def measure(brdf, ens, counts):
     """RAE / cos-SNR per transform and count, plus the gamma-MSE choice at each count."""
-    out = {t: {"rae": [], "snr": []} for t in TRANSFORMS}
-    out["auto"] = {"rae": [], "snr": [], "chosen": [], "better_by_rae": []}
-    proj = {t: project_all(brdf, ens, t, max(counts)) for t in TRANSFORMS}
-    for n in counts:
-        models = {t: select(proj[t], n, name=brdf.name) for t in TRANSFORMS}
-        for t, m in models.items():
-            rec = m.decode(ens, valid=brdf.valid).values
-            out[t]["rae"].append(rae(brdf.values, rec, brdf.valid))
-            out[t]["snr"].append(cosine_weighted_snr(brdf.values, rec, brdf.valid))
-        chosen = choose_transform(brdf, models, ens).transform
-        i = TRANSFORMS.index(chosen)
-        out["auto"]["chosen"].append(chosen)
-        out["auto"]["rae"].append(out[chosen]["rae"][-1])
-        out["auto"]["snr"].append(out[chosen]["snr"][-1])
-        lower = min(TRANSFORMS, key=lambda t: out[t]["rae"][-1])
-        out["auto"]["better_by_rae"].append(lower == TRANSFORMS[i])
+    c = error_curve(brdf, ens, counts)
+    out = {t: {"rae": c[t]["rae"], "snr": c[t]["cos_snr"]} for t in TRANSFORMS}
+    out["auto"] = {"chosen": c["chosen"],
+                   "rae": [c[t]["rae"][i] for i, t in enumerate(c["chosen"])],
+                   "snr": [c[t]["cos_snr"][i] for i, t in enumerate(c["chosen"])],
+                   "better_by_rae": [min(TRANSFORMS, key=lambda u, i=i: c[u]["rae"][i]) == t
+                                     for i, t in enumerate(c["chosen"])]}
     return out
 
 

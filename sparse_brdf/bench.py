@@ -32,7 +32,7 @@ from .baselines import (
 )
 from .corpora import get_corpus
 from .fileio import atomic_write
-from .metrics import cosine_weighted_snr, gamma_mse, mse, rae
+from .metrics import cosine_weighted_snr, gamma_mse, rae
 
 SCENES_DIR = Path(__file__).resolve().parent.parent / "scenes"
 
@@ -191,23 +191,9 @@ class Bench:
 
     def _curve(self, key, brdf, ens) -> None:
         """Error against coefficients and the transform choices (Fig. 2, Table 2)."""
-        from .encode import choose_transform, project_all, select
-        from .transforms import TRANSFORMS
+        from .encode import error_curve
 
-        counts = self.cfg.curve_coeffs
-        proj = {t: project_all(brdf, ens, t, max(counts)) for t in TRANSFORMS}
-        curve = {t: {"rae": [], "cos_snr": [], "gamma_mse": [], "mse": []} for t in TRANSFORMS}
-        chosen = []
-        for n in counts:
-            models = {t: select(proj[t], n, name=brdf.name) for t in TRANSFORMS}
-            for t, mdl in models.items():
-                rec = mdl.decode(ens, valid=brdf.valid).values
-                curve[t]["rae"].append(rae(brdf.values, rec, brdf.valid))
-                curve[t]["cos_snr"].append(cosine_weighted_snr(brdf.values, rec, brdf.valid))
-                curve[t]["gamma_mse"].append(gamma_mse(brdf.values, rec, brdf.valid))
-                curve[t]["mse"].append(mse(brdf.values, rec, brdf.valid))
-            chosen.append(choose_transform(brdf, models, ens).transform)
-        self.results["curves"][key] = {"counts": counts, **curve, "chosen": chosen}
+        self.results["curves"][key] = error_curve(brdf, ens, self.cfg.curve_coeffs)
 
     def _render(self, key, m, filename: str, seed: int, tag: str) -> tuple[np.ndarray, float]:
         from .render import read_exr, render_scene, write_exr

@@ -96,6 +96,36 @@ def select(p: Projections, n_coeffs: int, max_error: float | None = None,
     return model
 
 
+def pick_transform(stats: dict[str, dict]) -> str:
+    """The transform rule (SPEC section 5): the smaller gamma-mapped MSE."""
+    return min(stats, key=lambda t: stats[t]["gamma_mse"])
+
+
+def error_curve(brdf: BRDF, ens: Ensemble, counts: list[int]) -> dict:
+    """Errors against the coefficient count, per transform, and the transform chosen.
+
+    Returns ``{"counts": counts, "<transform>": {"rae": [...], "cos_snr": [...],
+    "gamma_mse": [...], "mse": [...]}, "chosen": [...]}`` (one projection per transform).
+    """
+    from .metrics import cosine_weighted_snr
+
+    proj = {t: project_all(brdf, ens, t, max(counts)) for t in TRANSFORMS}
+    out: dict = {"counts": list(counts), "chosen": []}
+    out.update({t: {"rae": [], "cos_snr": [], "gamma_mse": [], "mse": []} for t in TRANSFORMS})
+    for n in counts:
+        stats = {}
+        for t in TRANSFORMS:
+            rec = select(proj[t], n, name=brdf.name).decode(ens, valid=brdf.valid).values
+            ref, flat = brdf.values[brdf.valid], rec[brdf.valid]
+            stats[t] = {"rae": rae(ref, flat), "gamma_mse": gamma_mse(ref, flat),
+                        "mse": mse(ref, flat),
+                        "cos_snr": cosine_weighted_snr(brdf.values, rec, brdf.valid)}
+            for k, v in stats[t].items():
+                out[t][k].append(v)
+        out["chosen"].append(pick_transform(stats))
+    return out
+
+
 def choose_transform(brdf: BRDF, models: dict[str, SparseBRDF], ens: Ensemble) -> SparseBRDF:
     """The model with the smaller gamma-mapped MSE; ``stats`` gets every model's errors."""
     stats = {}
@@ -108,7 +138,7 @@ def choose_transform(brdf: BRDF, models: dict[str, SparseBRDF], ens: Ensemble) -
             "rae": rae(ref, rec),
             "relative_residual": model.stats["relative_residual"],
         }
-    chosen = min(models, key=lambda n: stats[n]["gamma_mse"])
+    chosen = pick_transform(stats)
     model = models[chosen]
     model.stats = {"transforms": stats, "chosen": chosen}
     return model
