@@ -14,7 +14,7 @@ demo: setup
 
 test: setup
 	$(VENV)/bin/ruff check sparse_brdf mitsuba_plugin tests benchmarks
-	$(PY) -m pytest -q tests
+	$(PY) -m pytest -q --durations=10 tests
 
 setup: llvm $(STAMP)
 
