@@ -19,7 +19,7 @@ from .ensemble import Ensemble
 from .metrics import gamma_mse, mse, rae
 from .sparse import SparseBRDF
 from .tensor import parallel_map, project, top_k
-from .transforms import TRANSFORMS, check_transform, forward
+from .transforms import TRANSFORMS, check_transform, forward, inverse_at_bins
 
 DEFAULT_N_COEFFS = 262
 
@@ -130,8 +130,10 @@ def choose_transform(brdf: BRDF, models: dict[str, SparseBRDF], ens: Ensemble) -
     """The model with the smaller gamma-mapped MSE; ``stats`` gets every model's errors."""
     stats = {}
     ref = brdf.values[brdf.valid]  # (n_valid, 3): mask once, then flat metrics
+    bins = tuple(i[:, None] for i in np.nonzero(brdf.valid))
     for name, model in models.items():
-        rec = model.decode(ens).values[brdf.valid]
+        t = model.transformed(ens)[:, brdf.valid].T  # (n_valid, 3), valid bins only
+        rec = inverse_at_bins(t, name, bins, brdf.shape)
         stats[name] = {
             "gamma_mse": gamma_mse(ref, rec),
             "mse": mse(ref, rec),

@@ -24,6 +24,14 @@ def _finite(xs):
     return [x for x in xs if x is not None and math.isfinite(x)]
 
 
+def _mean_snr(xs: list[float]) -> float:
+    """Mean of finite SNRs; inf when every one is +inf (an exact model), else nan."""
+    if xs and all(math.isinf(x) and x > 0 for x in xs):
+        return math.inf
+    f = _finite(xs)
+    return float(np.mean(f)) if f else math.nan
+
+
 def summary_table(results: dict) -> list[dict]:
     """Per model: mean/std/min/max rendering SNR, RAE, bytes, render time (Table 3)."""
     by_model: dict[str, list[dict]] = {}
@@ -36,7 +44,7 @@ def summary_table(results: dict) -> list[dict]:
         row = {"model": model, "n": len(ok), "failed": len(cells) - len(ok),
                "bytes": float(np.mean([c["bytes"] for c in ok])) if ok else float("nan"),
                "rae": float(np.mean([c["rae"] for c in ok])) if ok else float("nan"),
-               "cos_snr": float(np.mean(_finite([c["cos_snr"] for c in ok]) or [np.nan]))}
+               "cos_snr": _mean_snr([c["cos_snr"] for c in ok])}
         if snr and all(math.isinf(x) and x > 0 for x in snr):  # identical to the reference
             row.update(snr_mean=math.inf, snr_std=0.0, snr_min=math.inf, snr_max=math.inf,
                        render_s=float(np.mean([c["render_s"] for c in ok if "render_s" in c])))

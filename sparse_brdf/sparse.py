@@ -10,7 +10,7 @@ from .brdf import BRDF
 from .coords import MERL_SHAPE, dirs_to_bins, geometric_valid
 from .ensemble import Ensemble
 from .errors import EnsembleMismatchError
-from .tensor import reconstruct, sparse_to_dense
+from .tensor import parallel_map, reconstruct, sparse_to_dense
 from .transforms import check_transform, inverse, inverse_at_bins
 
 
@@ -80,11 +80,12 @@ class SparseBRDF:
     def transformed(self, ensemble: Ensemble) -> np.ndarray:
         """The transformed tensor, shape (3, n1, n2, n3), float32 (full decode)."""
         self.check_ensemble(ensemble)
-        out = np.empty((3, *self.shape), np.float32)
-        for c in range(3):
+
+        def channel(c):
             s = sparse_to_dense(self.locations[c], self.values[c], self.shape)
-            out[c] = reconstruct(s, *ensemble.dictionary(int(self.dict_index[c])))
-        return out
+            return reconstruct(s, *ensemble.dictionary(int(self.dict_index[c])))
+
+        return np.stack(list(parallel_map(channel, range(3))))
 
     def decode(self, ensemble: Ensemble, valid: np.ndarray | None = None) -> BRDF:
         """Full linear-RGB BRDF on the grid (invalid bins: geometric, or ``valid``)."""
