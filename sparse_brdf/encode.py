@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .brdf import BRDF
+from .coords import geometric_valid
 from .ensemble import Ensemble
 from .metrics import gamma_mse, mse, rae
 from .sparse import SparseBRDF
@@ -42,9 +43,14 @@ class Projections:
     norms: np.ndarray
 
 
-def project_all(brdf: BRDF, ens: Ensemble, transform: str, max_coeffs: int) -> Projections:
-    """Transform ``brdf`` and project each channel on every dictionary (3 K projections)."""
-    y = forward(brdf.channel_first(), check_transform(transform), brdf.valid)
+def project_all(brdf: BRDF, ens: Ensemble, transform: str, max_coeffs: int,
+                y: np.ndarray | None = None) -> Projections:
+    """Transform ``brdf`` and project each channel on every dictionary (3 K projections).
+
+    ``y``: the transformed tensor (3, n1, n2, n3) to project instead of ``brdf``'s own.
+    """
+    if y is None:
+        y = forward(brdf.channel_first(), check_transform(transform), brdf.valid)
     norms = np.array([float(np.dot(ch.ravel(), ch.ravel())) for ch in y])
     tasks = [(c, k) for c in range(3) for k in range(ens.n_dicts)]
 
@@ -152,6 +158,7 @@ def encode(
     n_coeffs: int = DEFAULT_N_COEFFS,
     max_error: float | None = None,
     transform: str = "auto",
+    fill_iters: int = 3,
 ) -> SparseBRDF:
     """Encode ``brdf`` as a :class:`SparseBRDF` over ``ensemble`` (default: shipped one).
 
@@ -161,6 +168,9 @@ def encode(
     max_error : optional relative squared residual in the transformed domain at which a
         channel stops adding coefficients (e.g. 1e-4); None keeps ``n_coeffs``.
     transform : "auto" (gamma-mapped MSE picks), "log-plus" or "log-plus-cosine".
+    fill_iters : for BRDFs with unmeasured bins above the horizon (negative entries in a
+        MERL file), that many rounds of filling them from the model and re-encoding, so
+        that holes are not fitted as zeros (0 disables; the paper fits them as zeros).
 
     ``result.stats`` holds, per transform tried: gamma-mapped MSE, plain MSE, RAE and the
     relative residual per channel.
@@ -174,6 +184,22 @@ def encode(
     if max_error is not None and not (0 <= max_error < 1):
         raise ValueError(f"max_error must be in [0, 1), got {max_error}")
     names = TRANSFORMS if transform == "auto" else (check_transform(transform),)
-    models = {t: select(project_all(brdf, ens, t, n_coeffs), n_coeffs, max_error, brdf.name)
-              for t in names}
+    models = {t: _encode_one(brdf, ens, t, n_coeffs, max_error, fill_iters) for t in names}
     return choose_transform(brdf, models, ens)
+
+
+def _encode_one(brdf, ens, transform, n_coeffs, max_error, fill_iters) -> SparseBRDF:
+    """Encode with one transform; unmeasured bins are filled from the model (EM)."""
+    p = project_all(brdf, ens, transform, n_coeffs)
+    model = select(p, n_coeffs, max_error, brdf.name)
+    missing = geometric_valid(brdf.shape) & ~brdf.valid
+    if not missing.any():
+        return model
+    # Bins above the horizon without a measurement would act as zeros in the projection;
+    # replace them by the current reconstruction and re-encode (expectation-maximisation).
+    y = forward(brdf.channel_first(), transform, brdf.valid)
+    for _ in range(fill_iters):
+        y[:, missing] = model.transformed(ens)[:, missing]
+        model = select(project_all(brdf, ens, transform, n_coeffs, y=y), n_coeffs, max_error,
+                       brdf.name)
+    return model

@@ -137,3 +137,17 @@ def test_grid_mismatch_is_refused(small_ensemble):
 def test_sparse_model_validates():
     with pytest.raises(ValueError, match="outside"):
         SparseBRDF("log-plus", SMALL, "0" * 32, [0, 0, 0], [[10**9], [], []], [[1.0], [], []])
+
+
+def test_unmeasured_bins_are_filled_not_fitted_as_zeros(small_ensemble):
+    from sparse_brdf.metrics import cosine_weighted_snr
+
+    clean = load_brdf("mitsuba:plastic-red-ggx-0.3", shape=SMALL)
+    keep = np.random.default_rng(0).random(SMALL) >= 0.2
+    holes = BRDF(clean.values, clean.valid & keep, "holes")
+    snr = {}
+    for n in (0, 3):
+        rec = encode(holes, small_ensemble, 64, fill_iters=n).decode(
+            small_ensemble, valid=clean.valid).values
+        snr[n] = cosine_weighted_snr(clean.values, rec, clean.valid)
+    assert snr[3] > snr[0] + 3
