@@ -78,10 +78,10 @@ class SparseModel(BRDFModel):
 
     def fit(self, brdf: BRDF) -> Compact:
         from .encode import encode
-        from .sbrdf import file_size
+        from .sbrdf import RECORD_BYTES
 
         m = encode(brdf, self.ensemble, self.n_coeffs, transform=self.transform)
-        return Compact(self.name, file_size(int(m.n_coeffs.sum())) - 4 - 53,
+        return Compact(self.name, RECORD_BYTES * int(m.n_coeffs.sum()),
                        lambda: m.decode(self.ensemble, valid=brdf.valid).values,
                        {"transform": m.transform, "model": m})
 

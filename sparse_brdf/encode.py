@@ -190,14 +190,14 @@ def encode(
 
 def _encode_one(brdf, ens, transform, n_coeffs, max_error, fill_iters) -> SparseBRDF:
     """Encode with one transform; unmeasured bins are filled from the model (EM)."""
-    p = project_all(brdf, ens, transform, n_coeffs)
-    model = select(p, n_coeffs, max_error, brdf.name)
+    y = forward(brdf.channel_first(), transform, brdf.valid)
+    model = select(project_all(brdf, ens, transform, n_coeffs, y=y), n_coeffs, max_error,
+                   brdf.name)
     missing = geometric_valid(brdf.shape) & ~brdf.valid
     if not missing.any():
         return model
     # Bins above the horizon without a measurement would act as zeros in the projection;
     # replace them by the current reconstruction and re-encode (expectation-maximisation).
-    y = forward(brdf.channel_first(), transform, brdf.valid)
     for _ in range(fill_iters):
         y[:, missing] = model.transformed(ens)[:, missing]
         model = select(project_all(brdf, ens, transform, n_coeffs, y=y), n_coeffs, max_error,

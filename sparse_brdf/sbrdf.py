@@ -40,6 +40,8 @@ MAGIC = b"SBRDF\r\n\x1a"
 VERSION = 1
 _HEAD = struct.Struct("<8sHBB3H16s3H3IB")
 _RECORD = np.dtype([("loc", "<u4"), ("val", "<f4")])
+#: Bytes per stored coefficient (u32 location + f32 value).
+RECORD_BYTES = _RECORD.itemsize
 
 
 def file_size(n_coeffs: int, name_len: int = 0) -> int:

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .brdf import BRDF
-from .coords import MERL_SHAPE, dirs_to_bins, geometric_valid
+from .coords import dirs_to_bins, geometric_valid
 from .ensemble import Ensemble
 from .errors import EnsembleMismatchError
 from .tensor import parallel_map, reconstruct, sparse_to_dense
@@ -122,4 +122,4 @@ class SparseBRDF:
         return np.where(keep[:, None], rho, 0.0).astype(np.float32)
 
 
-__all__ = ["SparseBRDF", "MERL_SHAPE"]
+__all__ = ["SparseBRDF"]
