@@ -256,17 +256,20 @@ def make_classes(m):
         def _build_grouped(self, model, ens) -> None:
             chans = [D.grouped_channel(*D.channel_terms(model, ens, c)) for c in range(3)]
             self.channels = chans
-            toff = np.cumsum([0] + [ch.table.size for ch in chans])
-            voff = np.cumsum([0] + [ch.rows.size for ch in chans])
-            self._t = ops.floats(np.concatenate([ch.table.ravel() for ch in chans]))
-            self._v = ops.floats(np.concatenate([ch.rows.ravel() for ch in chans]))
+            tables, rows, kp = D.grouped_layout(chans)
+            w = D.PACKET
+            self._t = ops.floats(tables)
+            self._v = ops.floats(rows)
+            self._chunks = ops.u(kp // w)
+            toff = np.cumsum([0] + [ch.table.shape[0] * kp for ch in chans]) // w
+            voff = np.cumsum([0] + [ch.rows.shape[1] * kp for ch in chans]) // w
             self._gp = []
             for c, ch in enumerate(chans):
                 onehot = [[ops.u(int(mode == sel)) for mode in range(3)]
                           for sel in (ch.mode_p, ch.mode_q, ch.mode_g)]
                 self._gp.append({
-                    "k": ops.u(ch.k), "toff": ops.u(toff[c]), "voff": ops.u(voff[c]),
-                    "ng": ops.u(ch.rows.shape[1]), "nq": ops.u(ch.n_q), "sel": onehot,
+                    "toff": ops.u(toff[c]), "voff": ops.u(voff[c]),
+                    "nq": ops.u(ch.n_q), "sel": onehot,
                     "fsel": [[ops.f(float(mode == sel)) for mode in range(3)]
                              for sel in (ch.mode_p, ch.mode_q, ch.mode_g)],
                 })
@@ -290,45 +293,56 @@ def make_classes(m):
             self.distinct_atoms = tuple(tuple(r.shape[0] for r in ch.rows) for ch in chans)
 
         # lookups -----------------------------------------------------------------------
-        def _x_grouped(self, c, bins, lin, active):
-            gp = self._gp[c]
-            sel_p, sel_q, sel_g = gp["sel"]
-            k, ng, nq = gp["k"], gp["ng"], gp["nq"]
+        def _x_grouped(self, bins, lin, active):
+            """X of the three channels: sum over the K groups of table row times atom
+            values, read in packets of D.PACKET floats (one loop pass per packet)."""
+            w = D.PACKET
+            nch = self._chunks
             t_buf, v_buf = self._t, self._v
 
             def pick(idx, sel):
                 return idx[0] * sel[0] + idx[1] * sel[1] + idx[2] * sel[2]
 
-            if lin is None:
-                base = gp["toff"] + (pick(bins, sel_p) * nq + pick(bins, sel_q)) * k
-                vb = gp["voff"] + pick(bins, sel_g)
+            # per channel: [(table packet row, weight)], [(atom packet row, weight)]
+            reads = []
+            for gp in self._gp:
+                sel_p, sel_q, sel_g = gp["sel"]
+                nq = gp["nq"]
+                if lin is None:
+                    t_rows = [(gp["toff"] + (pick(bins, sel_p) * nq + pick(bins, sel_q))
+                               * nch, None)]
+                    v_rows = [(gp["voff"] + pick(bins, sel_g) * nch, None)]
+                else:
+                    i0s = tuple(x[0] for x in lin)
+                    i1s = tuple(x[1] for x in lin)
+                    ts = tuple(x[2] for x in lin)
+                    fp, fq, fg = gp["fsel"]
+                    tp, tq, tg = pick(ts, fp), pick(ts, fq), pick(ts, fg)
+                    t_rows = [(gp["toff"] + (ep * nq + eq) * nch, wp * wq)
+                              for ep, wp in ((pick(i0s, sel_p), 1.0 - tp),
+                                             (pick(i1s, sel_p), tp))
+                              for eq, wq in ((pick(i0s, sel_q), 1.0 - tq),
+                                             (pick(i1s, sel_q), tq))]
+                    v_rows = [(gp["voff"] + pick(i0s, sel_g) * nch, 1.0 - tg),
+                              (gp["voff"] + pick(i1s, sel_g) * nch, tg)]
+                reads.append((t_rows, v_rows))
 
-                def body(g, acc):
-                    return acc + ops.gather(t_buf, base + g, active) * ops.gather(
-                        v_buf, vb + g * ng, active)
+            def blend(buf, rows_, h):
+                out = None
+                for row, wt in rows_:
+                    pk = ops.gather_packet(buf, row + h, w, active)
+                    if wt is None:
+                        return pk
+                    pk = [wt * x for x in pk]
+                    out = pk if out is None else [a + b for a, b in zip(out, pk, strict=True)]
+                return out
 
-                return ops.loop(k, body, m.Float(0.0))
-            i0s = tuple(x[0] for x in lin)
-            i1s = tuple(x[1] for x in lin)
-            ts = tuple(x[2] for x in lin)
-            fp, fq, fg = gp["fsel"]
-            tp, tq, tg = pick(ts, fp), pick(ts, fq), pick(ts, fg)
-            corners = []
-            for ep, wp in ((pick(i0s, sel_p), 1.0 - tp), (pick(i1s, sel_p), tp)):
-                for eq, wq in ((pick(i0s, sel_q), 1.0 - tq), (pick(i1s, sel_q), tq)):
-                    corners.append((gp["toff"] + (ep * nq + eq) * k, wp * wq))
-            vb0 = gp["voff"] + pick(i0s, sel_g)
-            vb1 = gp["voff"] + pick(i1s, sel_g)
+            def body(h, acc):
+                return tuple(a + ops.dot_packet(blend(t_buf, tr, h), blend(v_buf, vr, h))
+                             for a, (tr, vr) in zip(acc, reads, strict=True))
 
-            def body_lin(g, acc):
-                tv = 0.0
-                for base, w in corners:
-                    tv = tv + w * ops.gather(t_buf, base + g, active)
-                vv = (1.0 - tg) * ops.gather(v_buf, vb0 + g * ng, active) + tg * ops.gather(
-                    v_buf, vb1 + g * ng, active)
-                return acc + tv * vv
-
-            return ops.loop(k, body_lin, m.Float(0.0))
+            zero = m.Float(0.0) if ops.jit else 0.0
+            return ops.loop(nch, body, (zero, zero, zero))
 
         def _x_strict(self, c, bins, lin, active):
             sp = self._sp[c]
@@ -370,7 +384,6 @@ def make_classes(m):
         def _rho(self, wi, wo, active):
             sh = self._shape
             coords = angle_coords(ops, sh, wi, wo)
-            x_of = self._x_grouped if self.decoder == "grouped" else self._x_strict
             if self.interpolate:
                 lin = linear_bins(ops, sh, coords)
                 bins = None
@@ -384,8 +397,11 @@ def make_classes(m):
                 active = active & valid
                 valid = dr.select(valid, 1.0, 0.0)
             scale = valid * dr.rcp(w)
-            out = [dr.maximum(expm1(x_of(c, bins, lin, active)) * scale, 0.0)
-                   for c in range(3)]
+            if self.decoder == "grouped":
+                xs = self._x_grouped(bins, lin, active)
+            else:
+                xs = [self._x_strict(c, bins, lin, active) for c in range(3)]
+            out = [dr.maximum(expm1(x) * scale, 0.0) for x in xs]
             return m.Color3f(*out)
 
         def to_string(self):

@@ -48,6 +48,11 @@ AUTO_GROUPED_MAX_BYTES = 32 * 1024 * 1024
 #: Bits per atom index in the strict decoder's packed term indices (3 x 10 bits), then
 #: bit 30: last term of its (c, b) group, bit 31: last term of its c group.
 PACK_BITS = 10
+
+#: Floats per packet gather: the grouped decoder reads table rows and atom values in
+#: contiguous runs of this many floats (Dr.Jit turns these into packet loads instead of
+#: per-lane gathers, see ``drjit.JitFlag.PacketOps``).
+PACKET = 8
 END_B = 1 << 30
 END_C = 1 << 31
 
@@ -96,16 +101,21 @@ def channel_terms(model, ensemble, c: int):
     return np.asarray(model.values[c], np.float32), modes, us
 
 
+def _grouped_mode(modes, shape) -> int:
+    """The mode with the fewest distinct atoms (ties: the smaller table)."""
+    def cost(g):
+        p, q = (m for m in range(3) if m != g)
+        k = np.unique(modes[g]).size
+        return (k, shape[p] * shape[q] * k + k * shape[g])
+
+    return min(range(3), key=cost)
+
+
 def grouped_channel(s, modes, us, mode_g: int | None = None) -> GroupedChannel:
     """Build the grouped table of one channel (optionally forcing the grouped mode)."""
     shape = tuple(u.shape[0] for u in us)
     if mode_g is None:
-        def cost(g):
-            p, q = (m for m in range(3) if m != g)
-            k = np.unique(modes[g]).size
-            return (k, shape[p] * shape[q] * k + k * shape[g])
-
-        mode_g = min(range(3), key=cost)
+        mode_g = _grouped_mode(modes, shape)
     p, q = (m for m in range(3) if m != mode_g)
     atoms, group = np.unique(modes[mode_g], return_inverse=True)
     k = atoms.size
@@ -145,20 +155,44 @@ def strict_channel(s, modes, us) -> StrictChannel:
     return StrictChannel(values, packed.astype(np.uint32), tuple(rows))
 
 
+def packed_k(ks, width: int = PACKET) -> int:
+    """Columns per table row in the uploaded layout: the largest K of the three channels,
+    rounded up to a multiple of ``width`` (the packet-gather width)."""
+    return width * max(1, -(-max(int(k) for k in ks) // width))
+
+
+def grouped_layout(chans, width: int = PACKET) -> tuple[np.ndarray, np.ndarray, int]:
+    """The three channels' grouped data as uploaded: (tables, rows, kp).
+
+    Every channel's table is zero-padded to ``kp`` columns (:func:`packed_k`), so that a
+    lookup reads whole rows with packet gathers of ``width`` floats; its K atom rows are
+    stored transposed, (n_g, kp), so that the values of all K atoms at one bin are
+    contiguous too. ``tables`` and ``rows`` are flat float32 arrays, channel after channel.
+    """
+    kp = packed_k([ch.k for ch in chans], width)
+    tabs, rows = [], []
+    for ch in chans:
+        t = np.zeros((ch.table.shape[0], kp), np.float32)
+        t[:, :ch.k] = ch.table[:, :ch.k]
+        v = np.zeros((ch.rows.shape[1], kp), np.float32)
+        v[:, :ch.k] = ch.rows.T
+        tabs.append(t.ravel())
+        rows.append(v.ravel())
+    return np.concatenate(tabs), np.concatenate(rows), kp
+
+
 def grouped_bytes(model, ensemble) -> int:
-    """Bytes the grouped decoder would hold for ``model`` (without building the tables)."""
-    total = 0
+    """Bytes the grouped decoder holds for ``model`` (tables and rows as uploaded, padded
+    to :func:`packed_k` columns), without building the tables."""
+    sizes = []
     for c in range(3):
         _, modes, us = channel_terms(model, ensemble, c)
         shape = tuple(u.shape[0] for u in us)
-        best = None
-        for g in range(3):
-            p, q = (m for m in range(3) if m != g)
-            k = max(np.unique(modes[g]).size, 1)
-            key = (k, (shape[p] * shape[q] * k + k * shape[g]) * 4)
-            best = key if best is None or key < best else best
-        total += best[1]
-    return int(total)
+        g = _grouped_mode(modes, shape)
+        p, q = (m for m in range(3) if m != g)
+        sizes.append((max(np.unique(modes[g]).size, 1), shape[p] * shape[q] + shape[g]))
+    kp = packed_k([k for k, _ in sizes])
+    return int(sum(n * kp * 4 for _, n in sizes))
 
 
 def choose_decoder(decoder: str, model, ensemble,
