@@ -36,6 +36,22 @@ class VariantNamespace:
             return getattr(self._ext, name)
 
 
+def _aligned(a: np.ndarray, align: int = 64) -> np.ndarray:
+    """A copy of the 1-D array ``a`` whose data starts on an ``align``-byte boundary.
+
+    Dr.Jit's LLVM backend may map a numpy buffer instead of copying it, and reads an
+    unaligned source with per-lane gathers instead of packet loads; which of the two a
+    kernel gets would then depend on where numpy happened to allocate, and a material
+    swap could compile a new kernel.
+    """
+    item = a.dtype.itemsize
+    buf = np.empty(a.size + align // item, a.dtype)
+    off = (-buf.ctypes.data % align) // item
+    out = buf[off:off + a.size]
+    out[:] = a
+    return out
+
+
 class Ops:
     """Storage and gathers for one variant module ``m`` (e.g. ``mitsuba.llvm_ad_rgb``)."""
 
@@ -45,7 +61,7 @@ class Ops:
 
     # buffers and opaque scalars ------------------------------------------------------
     def floats(self, a: np.ndarray):
-        a = np.ascontiguousarray(np.asarray(a, np.float32).ravel())
+        a = _aligned(np.asarray(a, np.float32).ravel())
         return self.m.Float(a) if self.jit else a
 
     def uints(self, a: np.ndarray):
@@ -143,9 +159,8 @@ class Shape:
         self.n = tuple(ops.u(n) for n in self.py)
         self.nf = tuple(ops.f(n) for n in self.py)
         th, td, pd = bin_angles(self.py)
-        self.cos_sin_h = ops.floats(np.stack([np.cos(th), np.sin(th)], axis=1))
-        self.cos_sin_d = ops.floats(np.stack([np.cos(td), np.sin(td)], axis=1))
-        self.cos_p = ops.floats(np.cos(pd))
+        self.trig = tuple(ops.floats(f(a)) for f, a in (
+            (np.cos, th), (np.sin, th), (np.cos, td), (np.sin, td), (np.cos, pd)))
 
 
 def angle_coords(ops: Ops, shape: Shape, wi, wo):
@@ -216,9 +231,10 @@ def linear_bins(ops: Ops, shape: Shape, coords):
 def _cos_terms(ops: Ops, shape: Shape, i, j, k):
     """cos(theta_i) cos(theta_o) at the lower-edge angles of bin (i, j, k), from the
     angle tables (five table reads instead of five trigonometric functions)."""
-    ch, sh = ops.gather_packet(shape.cos_sin_h, i, 2)
-    cd, sd = ops.gather_packet(shape.cos_sin_d, j, 2)
-    cp = ops.gather(shape.cos_p, k)
+    cos_h, sin_h, cos_d, sin_d, cos_p = shape.trig
+    ch, sh = ops.gather(cos_h, i), ops.gather(sin_h, i)
+    cd, sd = ops.gather(cos_d, j), ops.gather(sin_d, j)
+    cp = ops.gather(cos_p, k)
     a = cd * ch
     b = sd * cp * sh
     return (a - b) * (a + b)
