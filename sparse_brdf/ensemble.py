@@ -176,8 +176,12 @@ def _code(s: np.ndarray, tau: int) -> tuple[np.ndarray, np.ndarray, float]:
     return idx.astype(np.int32), flat[idx].astype(np.float32), float(e[idx].sum(dtype=np.float64))
 
 
-def _assign_all(x, norms, state_u, tau, progress) -> tuple[np.ndarray, ...]:
-    """Project every tensor on every dictionary; return best labels, codes and errors."""
+def _assign_all(x, norms, state_u, tau, progress, known=None) -> tuple[np.ndarray, ...]:
+    """Project every tensor on every dictionary; return best labels, codes and errors.
+
+    ``known``: optional (labels, codes_idx, codes_val, errors) already computed with the
+    current dictionaries; each tensor's own dictionary is then not projected again.
+    """
     u1, u2, u3 = state_u
     k = u1.shape[0]
 
@@ -185,8 +189,12 @@ def _assign_all(x, norms, state_u, tau, progress) -> tuple[np.ndarray, ...]:
         best = None
         errs = np.empty(k)
         for j in range(k):
-            idx, val, kept = _code(project(x[i], u1[j], u2[j], u3[j]), tau)
-            errs[j] = norms[i] - kept
+            if known is not None and known[0][i] == j:
+                idx, val, err = known[1][i], known[2][i], known[3][i]
+            else:
+                idx, val, kept = _code(project(x[i], u1[j], u2[j], u3[j]), tau)
+                err = norms[i] - kept
+            errs[j] = err
             if best is None or errs[j] < errs[best[0]]:
                 best = (j, idx, val)
         return best, errs
@@ -213,15 +221,36 @@ def _code_own(x, norms, state: TrainState, tau, progress) -> None:
         state.errors[i] = norms[i] - kept
 
 
+#: Bytes of mode-3 partial products the dictionary update may keep between its first two
+#: passes; above this (a very large cluster) they are recomputed instead.
+MAX_CACHE_BYTES = 3 * 1024**3
+
+
 def _update_dictionary(x, members, state: TrainState, j, progress) -> None:
-    """Gauss-Seidel Procrustes update of the three modes of dictionary j."""
+    """Gauss-Seidel Procrustes update of the three modes of dictionary j.
+
+    The passes for U1 and U2 both start from A = X x3 U3^T with the same U3, so A is
+    computed once per tensor and kept for the second pass (when the cluster's products fit
+    in ``MAX_CACHE_BYTES``); the results are the same as recomputing it.
+    """
     n1, n2, n3 = x.shape[1:]
     shape = (n1, n2, n3)
+    cache: dict[int, np.ndarray] | None = (
+        {} if len(members) * n1 * n2 * n3 * 4 <= MAX_CACHE_BYTES else None)
 
     def onehot(pos, val, n):
         m = np.zeros((len(pos), n), np.float32)
         np.add.at(m, (np.arange(len(pos)), pos), val)
         return m
+
+    def mode3_product(i, u3):
+        """A = X_i x3 U3^T as an (n1 n2, n3) matrix, from the cache when there."""
+        if cache is not None and i in cache:
+            return cache.pop(i)
+        a = x[i].reshape(n1 * n2, n3) @ u3
+        if cache is not None:
+            cache[i] = a
+        return a
 
     for mode in range(3):
         u1, u2, u3 = state.u1[j], state.u2[j], state.u3[j]
@@ -229,16 +258,15 @@ def _update_dictionary(x, members, state: TrainState, j, progress) -> None:
         def contrib(i, mode=mode, u1=u1, u2=u2, u3=u3):
             a, b, c = np.unravel_index(state.codes_idx[i], shape)
             s = state.codes_val[i]
-            xi = x[i]
             if mode == 0:  # W1 = X x2 U2^T x3 U3^T, Z1[:, a_t] += s_t W1[:, b_t, c_t]
-                w = np.matmul(u2.T, (xi.reshape(n1 * n2, n3) @ u3).reshape(n1, n2, n3))
+                w = np.matmul(u2.T, mode3_product(i, u3).reshape(n1, n2, n3))
                 return w[:, b, c] @ onehot(a, s, n1)
             if mode == 1:  # W2 = X x1 U1^T x3 U3^T, Z2[:, b_t] += s_t W2[a_t, :, c_t]
-                w = (u1.T @ (xi.reshape(n1 * n2, n3) @ u3).reshape(n1, n2 * n3))
+                w = (u1.T @ mode3_product(i, u3).reshape(n1, n2 * n3))
                 w = w.reshape(n1, n2, n3)
                 return w[a, :, c].T @ onehot(b, s, n2)
             # W3 = X x1 U1^T x2 U2^T, Z3[:, c_t] += s_t W3[a_t, b_t, :]
-            w = np.matmul(u2.T, (u1.T @ xi.reshape(n1, n2 * n3)).reshape(n1, n2, n3))
+            w = np.matmul(u2.T, (u1.T @ x[i].reshape(n1, n2 * n3)).reshape(n1, n2, n3))
             return w[a, b, :].T @ onehot(c, s, n3)
 
         z = None
@@ -353,11 +381,15 @@ def train_dictionaries(
         do_assign = it % reassign_every == 0
         if do_assign:
             old = state.labels.copy()
+            # after the first iteration the state's codes belong to the current dictionaries
+            known = ((state.labels, state.codes_idx, state.codes_val, state.errors)
+                     if it > 0 else None)
             (state.labels, state.codes_idx, state.codes_val, state.errors,
-             _) = _assign_all(x, norms, (state.u1, state.u2, state.u3), tau, progress)
+             _) = _assign_all(x, norms, (state.u1, state.u2, state.u3), tau, progress, known)
             moved = int(np.sum(old != state.labels))
         else:
-            _code_own(x, norms, state, tau, progress)
+            # the codes in the state are those of the current dictionaries (re-coded at
+            # the end of the previous iteration, or read from its checkpoint)
             moved = 0
         reseeded = _reseed_empty(x, norms, state, tau)
         obj_before_update = float(state.errors.sum())

@@ -85,3 +85,17 @@ def test_extend_with_new_transform(small_training):
     u = a.union(b)
     assert u.n_dicts == 4 and u.taus.tolist() == [16, 16, 8, 8]
     assert "history" in u.meta["parts"][0]
+
+
+def test_partial_product_cache_changes_nothing(small_training, monkeypatch):
+    """Keeping X x3 U3^T between the U1 and U2 passes gives the same dictionaries as
+    recomputing it (cache disabled by a zero byte budget)."""
+    import sparse_brdf.ensemble as ens_mod
+
+    x = small_training
+    kw = dict(tau=12, n_dicts=3, n_iter=4, reassign_every=2, seed=5, progress=False)
+    cached = train_dictionaries(x, **kw)
+    monkeypatch.setattr(ens_mod, "MAX_CACHE_BYTES", 0)
+    plain = train_dictionaries(x, **kw)
+    for name in ("u1", "u2", "u3", "labels", "codes_idx", "codes_val", "errors"):
+        np.testing.assert_array_equal(getattr(cached, name), getattr(plain, name), name)
