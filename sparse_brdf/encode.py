@@ -19,8 +19,8 @@ from .coords import geometric_valid
 from .ensemble import Ensemble
 from .metrics import gamma_mse, mse, rae
 from .sparse import SparseBRDF
-from .tensor import parallel_map, project, top_k
-from .transforms import TRANSFORMS, check_transform, forward, inverse_at_bins
+from .tensor import n_threads, parallel_map, phi_major_to_flat, project_phi_major, top_k
+from .transforms import TRANSFORMS, check_transform, forward, inverse
 
 DEFAULT_N_COEFFS = 262
 
@@ -53,13 +53,19 @@ def project_all(brdf: BRDF, ens: Ensemble, transform: str, max_coeffs: int,
         y = forward(brdf.channel_first(), check_transform(transform), brdf.valid)
     norms = np.array([float(np.dot(ch.ravel(), ch.ravel())) for ch in y])
     tasks = [(c, k) for c in range(3) for k in range(ens.n_dicts)]
+    # every channel meets every dictionary: store the channels phi_d-major once
+    yt = np.ascontiguousarray(np.moveaxis(y, -1, 1))  # (3, n3, n1, n2)
+    shape = tuple(y.shape[1:])
 
     def one(task):
         c, k = task
-        s = project(y[c], *ens.dictionary(k)).ravel()
+        u1, u2, u3 = ens.dictionary(k)
+        s = project_phi_major(yt[c], np.ascontiguousarray(u1.T), u2,
+                              np.ascontiguousarray(u3.T)).ravel()
         e = s * s
         idx = top_k(e, max_coeffs)
-        return idx, s[idx], norms[c] - np.cumsum(e[idx], dtype=np.float64)
+        return (phi_major_to_flat(idx, shape), s[idx],
+                norms[c] - np.cumsum(e[idx], dtype=np.float64))
 
     res = list(parallel_map(one, tasks))
     k = ens.n_dicts
@@ -134,18 +140,23 @@ def error_curve(brdf: BRDF, ens: Ensemble, counts: list[int]) -> dict:
 
 def choose_transform(brdf: BRDF, models: dict[str, SparseBRDF], ens: Ensemble) -> SparseBRDF:
     """The model with the smaller gamma-mapped MSE; ``stats`` gets every model's errors."""
-    stats = {}
-    ref = brdf.values[brdf.valid]  # (n_valid, 3): mask once, then flat metrics
-    bins = tuple(i[:, None] for i in np.nonzero(brdf.valid))
-    for name, model in models.items():
-        t = model.transformed(ens)[:, brdf.valid].T  # (n_valid, 3), valid bins only
-        rec = inverse_at_bins(t, name, bins, brdf.shape)
-        stats[name] = {
+    from concurrent.futures import ThreadPoolExecutor
+
+    valid = brdf.valid
+    ref = brdf.channel_first()[:, valid]  # (3, n_valid): mask once, then flat metrics
+    decoded = {name: model.transformed(ens) for name, model in models.items()}
+
+    def errors(name):  # numpy only (no BLAS): the models' metrics run side by side
+        rec = inverse(decoded[name], name)[:, valid]
+        return name, {
             "gamma_mse": gamma_mse(ref, rec),
             "mse": mse(ref, rec),
             "rae": rae(ref, rec),
-            "relative_residual": model.stats["relative_residual"],
+            "relative_residual": models[name].stats["relative_residual"],
         }
+
+    with ThreadPoolExecutor(max(1, min(len(models), n_threads()))) as ex:
+        stats = dict(ex.map(errors, list(models)))
     chosen = pick_transform(stats)
     model = models[chosen]
     model.stats = {"transforms": stats, "chosen": chosen}

@@ -36,22 +36,32 @@ def rae(ref: np.ndarray, rec: np.ndarray, valid: np.ndarray | None = None) -> fl
     ``valid``: bool mask over the leading grid axes (broadcast over channels).
     """
     ref, rec = _masked(ref, rec, valid)
-    den = float(np.sum(np.abs(ref)))
-    return float(np.sum(np.abs(ref - rec))) / den if den > 0 else float(np.sum(np.abs(rec)) > 0)
+    den = float(np.sum(np.abs(ref), dtype=np.float64))
+    num = float(np.sum(np.abs(ref - rec), dtype=np.float64))
+    return num / den if den > 0 else float(np.sum(np.abs(rec)) > 0)
 
 
 def gamma_mse(ref: np.ndarray, rec: np.ndarray, valid: np.ndarray | None = None,
               gamma: float = GAMMA) -> float:
     """MSE of x ** (1 / gamma) of linear BRDF values over valid bins (gamma = 2)."""
     ref, rec = _masked(ref, rec, valid)
-    g = 1.0 / gamma
-    return float(np.mean((np.maximum(ref, 0) ** g - np.maximum(rec, 0) ** g) ** 2))
+    if ref.size == 0:
+        return float("nan")
+    if gamma == 2.0:  # x ** 0.5, several times faster as a square root
+        d = np.sqrt(np.maximum(ref, 0)) - np.sqrt(np.maximum(rec, 0))
+    else:
+        g = 1.0 / gamma
+        d = np.maximum(ref, 0) ** g - np.maximum(rec, 0) ** g
+    return float(np.sum(d * d, dtype=np.float64)) / ref.size
 
 
 def mse(ref: np.ndarray, rec: np.ndarray, valid: np.ndarray | None = None) -> float:
     """Plain MSE of linear BRDF values over valid bins."""
     ref, rec = _masked(ref, rec, valid)
-    return float(np.mean((ref - rec) ** 2))
+    if ref.size == 0:
+        return float("nan")
+    d = ref - rec
+    return float(np.sum(d * d, dtype=np.float64)) / ref.size
 
 
 def cosine_weighted_snr(ref: np.ndarray, rec: np.ndarray, valid: np.ndarray) -> float:
@@ -64,7 +74,8 @@ def cosine_weighted_snr(ref: np.ndarray, rec: np.ndarray, valid: np.ndarray) -> 
 
 
 def _masked(ref: np.ndarray, rec: np.ndarray, valid: np.ndarray | None):
-    """Flat float64 copies of the valid entries (mask first, then convert: less memory)."""
+    """Flat arrays of the valid entries, float32 or float64 (float32 inputs stay float32;
+    the metrics accumulate their sums in float64)."""
     ref = np.asarray(ref)
     rec = np.asarray(rec)
     if ref.shape != rec.shape:
@@ -74,4 +85,5 @@ def _masked(ref: np.ndarray, rec: np.ndarray, valid: np.ndarray | None):
         if ref.ndim != valid.ndim + 1:
             valid = np.broadcast_to(valid, ref.shape)
         ref, rec = ref[valid], rec[valid]
-    return ref.astype(np.float64).ravel(), rec.astype(np.float64).ravel()
+    dtype = np.result_type(ref.dtype, rec.dtype, np.float32)
+    return (np.asarray(ref, dtype).ravel(), np.asarray(rec, dtype).ravel())

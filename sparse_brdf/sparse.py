@@ -10,7 +10,7 @@ from .brdf import BRDF
 from .coords import dirs_to_bins, geometric_valid
 from .ensemble import Ensemble
 from .errors import EnsembleMismatchError
-from .tensor import parallel_map, reconstruct, sparse_to_dense
+from .tensor import parallel_map, reconstruct_sparse
 from .transforms import check_transform, inverse, inverse_at_bins
 
 
@@ -82,8 +82,8 @@ class SparseBRDF:
         self.check_ensemble(ensemble)
 
         def channel(c):
-            s = sparse_to_dense(self.locations[c], self.values[c], self.shape)
-            return reconstruct(s, *ensemble.dictionary(int(self.dict_index[c])))
+            return reconstruct_sparse(self.locations[c], self.values[c], self.shape,
+                                      *ensemble.dictionary(int(self.dict_index[c])))
 
         return np.stack(list(parallel_map(channel, range(3))))
 
