@@ -151,3 +151,41 @@ def test_unmeasured_bins_are_filled_not_fitted_as_zeros(small_ensemble):
             small_ensemble, valid=clean.valid).values
         snr[n] = cosine_weighted_snr(clean.values, rec, clean.valid)
     assert snr[3] > snr[0] + 3
+
+
+def _same_selection(a, b):
+    assert a.dict_index.tolist() == b.dict_index.tolist()
+    for c in range(3):  # the same coefficients (order among near-equal ones may differ)
+        oa, ob = np.argsort(a.locations[c]), np.argsort(b.locations[c])
+        np.testing.assert_array_equal(a.locations[c][oa], b.locations[c][ob])
+        np.testing.assert_allclose(a.values[c][oa], b.values[c][ob], rtol=1e-5, atol=1e-6)
+
+
+def test_pruned_projection_selects_what_the_full_search_selects(small_ensemble):
+    from sparse_brdf.encode import project_all, project_pruned, select
+    from sparse_brdf.transforms import forward
+
+    pruned = 0
+    for name in ("plastic-red-ggx-0.3", "cu-ggx-0.12", "diffuse-white"):
+        b = load_brdf(f"mitsuba:{name}", shape=SMALL)
+        for t in ("log-plus", "log-plus-cosine"):
+            y = forward(b.channel_first(), t, b.valid)
+            for n, max_error in ((8, None), (64, None), (300, None), (64, 1e-3)):
+                p = project_pruned(b, small_ensemble, t, n, max_error, y=y)
+                full = select(project_all(b, small_ensemble, t, n, y=y), n, max_error)
+                _same_selection(select(p, n, max_error), full)
+                pruned += int(np.isinf(p.residual[:, :, 0]).sum())
+                with pytest.raises(ValueError, match="pruned"):
+                    select(p, n + 1, max_error)
+    assert pruned > 0  # the bounds did drop dictionaries
+
+
+def test_pruned_projection_on_measured_data(shared_data):
+    from sparse_brdf.encode import project_all, project_pruned, select
+
+    data = shared_data
+    b = load_brdf(str(data / "nbrdf" / "merl" / "green-plastic.h5"))
+    ens = Ensemble.default()
+    for t, n in (("log-plus", 1024), ("log-plus-cosine", 262)):
+        p = project_pruned(b, ens, t, n)
+        _same_selection(select(p, n), select(project_all(b, ens, t, n), n))
