@@ -18,7 +18,10 @@ with w = 1 (log-plus) or w = clip(cos_i cos_o, 0.01, 1) at the bin's lower-edge 
   contracted at load time into ``table[ip * nq + iq, G] = sum_{t in G} s_t Up[ip, p_t]
   Uq[iq, q_t]`` (shape (np * nq, K), K = distinct atoms of mode g), and the K atom
   columns of mode g are kept as rows ``V[G, :]``. A lookup is
-  ``X = sum_G table[(ip, iq), G] * V[G, ig]``: K fused multiply-adds and 2K gathers.
+  ``X = sum_G table[(ip, iq), G] * V[G, ig]``: K fused multiply-adds. As uploaded
+  (:func:`grouped_layout`), each table row and the atom values at one bin are contiguous
+  runs of ``kp`` floats (K rounded up to a multiple of ``PACKET`` = 8, the same for the
+  three channels), read with packet loads.
 - **strict**: keeps the nonzero terms (s_t and the packed indices of its three atoms
   among the distinct atoms of each mode) and the distinct atom columns of each mode.
   The terms are sorted by (c, b, a), and a lookup runs one loop over them evaluating
@@ -41,8 +44,9 @@ from sparse_brdf.transforms import COS_CLIP
 #: bytes (all three channels), then "strict". The grouped decoder is several times faster
 #: (measured on the sphere scene: about the speed of the dense table up to K ~ 30 atoms),
 #: so it is kept up to twice the dense float32 table of a MERL BRDF (90 * 90 * 180 * 3 * 4
-#: bytes = 16.7 MiB). Measured with a HOSVD dictionary: 262 coefficients per channel
-#: need 0.9 MB, 1024 need 2.8 MB, 4096 need 8.5 MB.
+#: bytes = 16.7 MiB). Measured on MERL blue-metallic-paint2 with the shipped ensemble
+#: (rows padded to multiples of 8 floats): 32 and 128 coefficients per channel need
+#: 0.8 MB, 262 need 1.6 MB.
 AUTO_GROUPED_MAX_BYTES = 32 * 1024 * 1024
 
 #: Bits per atom index in the strict decoder's packed term indices (3 x 10 bits), then

@@ -285,6 +285,7 @@ def choose_transform(brdf: BRDF, models: dict[str, SparseBRDF], ens: Ensemble) -
             "mse": mse(ref, rec),
             "rae": rae(ref, rec),
             "relative_residual": models[name].stats["relative_residual"],
+            "projections_completed": models[name].stats.get("projections_completed"),
         }
 
     with ThreadPoolExecutor(max(1, min(len(models), n_threads()))) as ex:
@@ -315,8 +316,9 @@ def encode(
         MERL file), that many rounds of filling them from the model and re-encoding, so
         that holes are not fitted as zeros (0 disables; the paper fits them as zeros).
 
-    ``result.stats`` holds, per transform tried: gamma-mapped MSE, plain MSE, RAE and the
-    relative residual per channel.
+    ``result.stats`` holds, per transform tried: gamma-mapped MSE, plain MSE, RAE, the
+    relative residual per channel and how many of the 3 K (channel, dictionary)
+    projections were completed (the others were pruned, see :func:`project_pruned`).
     """
     ens = Ensemble.default() if ensemble is None else ensemble
     if brdf.shape != ens.shape:
@@ -334,8 +336,15 @@ def encode(
 def _encode_one(brdf, ens, transform, n_coeffs, max_error, fill_iters) -> SparseBRDF:
     """Encode with one transform; unmeasured bins are filled from the model (EM)."""
     y = forward(brdf.channel_first(), transform, brdf.valid)
-    model = select(project_pruned(brdf, ens, transform, n_coeffs, max_error, y=y), n_coeffs,
-                   max_error, brdf.name)
+
+    def one_round():
+        p = project_pruned(brdf, ens, transform, n_coeffs, max_error, y=y)
+        m = select(p, n_coeffs, max_error, brdf.name)
+        # (channel, dictionary) projections completed; the others were pruned
+        m.stats["projections_completed"] = int(np.isfinite(p.residual[:, :, 0]).sum())
+        return m
+
+    model = one_round()
     missing = geometric_valid(brdf.shape) & ~brdf.valid
     if not missing.any():
         return model
@@ -343,6 +352,5 @@ def _encode_one(brdf, ens, transform, n_coeffs, max_error, fill_iters) -> Sparse
     # replace them by the current reconstruction and re-encode (expectation-maximisation).
     for _ in range(fill_iters):
         y[:, missing] = model.transformed(ens)[:, missing]
-        model = select(project_pruned(brdf, ens, transform, n_coeffs, max_error, y=y),
-                       n_coeffs, max_error, brdf.name)
+        model = one_round()
     return model
