@@ -254,28 +254,23 @@ def make_classes(m):
 
         # data --------------------------------------------------------------------------
         def _build_grouped(self, model, ens) -> None:
-            chans = [D.grouped_channel(*D.channel_terms(model, ens, c)) for c in range(3)]
+            chans = D.grouped_channels(model, ens)
             self.channels = chans
-            tables, rows, kp = D.grouped_layout(chans)
-            w = D.PACKET
+            tables, rows, width = D.grouped_layout(chans)
             self._t = ops.floats(tables)
             self._v = ops.floats(rows)
-            self._chunks = ops.u(kp // w)
-            toff = np.cumsum([0] + [ch.table.shape[0] * kp for ch in chans]) // w
-            voff = np.cumsum([0] + [ch.rows.shape[1] * kp for ch in chans]) // w
-            self._gp = []
-            for c, ch in enumerate(chans):
-                onehot = [[ops.u(int(mode == sel)) for mode in range(3)]
+            self._chunks = ops.u(width // D.PACKET)
+            ch = chans[0]
+            self._sel = [[ops.u(int(mode == sel)) for mode in range(3)]
+                         for sel in (ch.mode_p, ch.mode_q, ch.mode_g)]
+            self._fsel = [[ops.f(float(mode == sel)) for mode in range(3)]
                           for sel in (ch.mode_p, ch.mode_q, ch.mode_g)]
-                self._gp.append({
-                    "toff": ops.u(toff[c]), "voff": ops.u(voff[c]),
-                    "nq": ops.u(ch.n_q), "sel": onehot,
-                    "fsel": [[ops.f(float(mode == sel)) for mode in range(3)]
-                             for sel in (ch.mode_p, ch.mode_q, ch.mode_g)],
-                })
+            self._nq = ops.u(ch.n_q)
+            # column offsets where channels 1 and 2 start in the shared rows
+            self._ends = (ops.u(chans[0].k), ops.u(chans[0].k + chans[1].k))
             self.memory_bytes = ops.nbytes(self._t) + ops.nbytes(self._v)
-            self.distinct_atoms = tuple(ch.k for ch in chans)
-            self.grouped_modes = tuple(ch.mode_g + 1 for ch in chans)
+            self.distinct_atoms = tuple(c.k for c in chans)
+            self.grouped_modes = tuple(c.mode_g + 1 for c in chans)
 
         def _build_strict(self, model, ens) -> None:
             chans = [D.strict_channel(*D.channel_terms(model, ens, c)) for c in range(3)]
@@ -294,38 +289,33 @@ def make_classes(m):
 
         # lookups -----------------------------------------------------------------------
         def _x_grouped(self, bins, lin, active):
-            """X of the three channels: sum over the K groups of table row times atom
-            values, read in packets of D.PACKET floats (one loop pass per packet)."""
+            """X of the three channels from the shared rows (see data.grouped_layout):
+            packets of D.PACKET products table x atom value, each added to the channel
+            its column belongs to (one loop pass per packet)."""
             w = D.PACKET
             nch = self._chunks
+            nq = self._nq
+            sel_p, sel_q, sel_g = self._sel
+            end0, end1 = self._ends
             t_buf, v_buf = self._t, self._v
 
             def pick(idx, sel):
                 return idx[0] * sel[0] + idx[1] * sel[1] + idx[2] * sel[2]
 
-            # per channel: [(table packet row, weight)], [(atom packet row, weight)]
-            reads = []
-            for gp in self._gp:
-                sel_p, sel_q, sel_g = gp["sel"]
-                nq = gp["nq"]
-                if lin is None:
-                    t_rows = [(gp["toff"] + (pick(bins, sel_p) * nq + pick(bins, sel_q))
-                               * nch, None)]
-                    v_rows = [(gp["voff"] + pick(bins, sel_g) * nch, None)]
-                else:
-                    i0s = tuple(x[0] for x in lin)
-                    i1s = tuple(x[1] for x in lin)
-                    ts = tuple(x[2] for x in lin)
-                    fp, fq, fg = gp["fsel"]
-                    tp, tq, tg = pick(ts, fp), pick(ts, fq), pick(ts, fg)
-                    t_rows = [(gp["toff"] + (ep * nq + eq) * nch, wp * wq)
-                              for ep, wp in ((pick(i0s, sel_p), 1.0 - tp),
-                                             (pick(i1s, sel_p), tp))
-                              for eq, wq in ((pick(i0s, sel_q), 1.0 - tq),
-                                             (pick(i1s, sel_q), tq))]
-                    v_rows = [(gp["voff"] + pick(i0s, sel_g) * nch, 1.0 - tg),
-                              (gp["voff"] + pick(i1s, sel_g) * nch, tg)]
-                reads.append((t_rows, v_rows))
+            # [(table packet row, weight)], [(atom-value packet row, weight)]
+            if lin is None:
+                t_rows = [((pick(bins, sel_p) * nq + pick(bins, sel_q)) * nch, None)]
+                v_rows = [(pick(bins, sel_g) * nch, None)]
+            else:
+                i0s = tuple(x[0] for x in lin)
+                i1s = tuple(x[1] for x in lin)
+                ts = tuple(x[2] for x in lin)
+                fp, fq, fg = self._fsel
+                tp, tq, tg = pick(ts, fp), pick(ts, fq), pick(ts, fg)
+                t_rows = [((ep * nq + eq) * nch, wp * wq)
+                          for ep, wp in ((pick(i0s, sel_p), 1.0 - tp), (pick(i1s, sel_p), tp))
+                          for eq, wq in ((pick(i0s, sel_q), 1.0 - tq), (pick(i1s, sel_q), tq))]
+                v_rows = [(pick(i0s, sel_g) * nch, 1.0 - tg), (pick(i1s, sel_g) * nch, tg)]
 
             def blend(buf, rows_, h):
                 out = None
@@ -338,8 +328,18 @@ def make_classes(m):
                 return out
 
             def body(h, acc):
-                return tuple(a + ops.dot_packet(blend(t_buf, tr, h), blend(v_buf, vr, h))
-                             for a, (tr, vr) in zip(acc, reads, strict=True))
+                x0, x1, x2 = acc
+                tv, vv = blend(t_buf, t_rows, h), blend(v_buf, v_rows, h)
+                for lane in range(w):
+                    col = h * w + lane  # the same for every lane of the vector
+                    prod = tv[lane] * vv[lane]
+                    in0 = col < end0
+                    in1 = col < end1
+                    x0 = x0 + ops.where(in0, prod, 0.0)
+                    x1 = x1 + ops.where(in1 & ~in0 if ops.jit else (in1 and not in0),
+                                        prod, 0.0)
+                    x2 = x2 + ops.where(in1, 0.0, prod)
+                return x0, x1, x2
 
             zero = m.Float(0.0) if ops.jit else 0.0
             return ops.loop(nch, body, (zero, zero, zero))

@@ -13,15 +13,15 @@ Sparse model of one channel (SPEC section 3)::
 with w = 1 (log-plus) or w = clip(cos_i cos_o, 0.01, 1) at the bin's lower-edge angles
 (log-plus-cosine). Neither decoder ever builds the (n1, n2, n3) tensor:
 
-- **grouped**: the terms are grouped by the atom of one mode ``g`` (the mode with the
-  fewest distinct atoms; ties: the smaller table). The two other modes ``p < q`` are
+- **grouped**: the terms are grouped by the atom of one mode ``g`` (the same mode for the
+  three channels: fewest distinct atoms in all). The two other modes ``p < q`` are
   contracted at load time into ``table[ip * nq + iq, G] = sum_{t in G} s_t Up[ip, p_t]
   Uq[iq, q_t]`` (shape (np * nq, K), K = distinct atoms of mode g), and the K atom
   columns of mode g are kept as rows ``V[G, :]``. A lookup is
   ``X = sum_G table[(ip, iq), G] * V[G, ig]``: K fused multiply-adds. As uploaded
-  (:func:`grouped_layout`), each table row and the atom values at one bin are contiguous
-  runs of ``kp`` floats (K rounded up to a multiple of ``PACKET`` = 8, the same for the
-  three channels), read with packet loads.
+  (:func:`grouped_layout`), the three channels share one table row per bin pair and one
+  row of atom values per bin of mode g, K_0 + K_1 + K_2 floats rounded up to a multiple
+  of ``PACKET`` = 8, read with packet loads.
 - **strict**: keeps the nonzero terms (s_t and the packed indices of its three atoms
   among the distinct atoms of each mode) and the distinct atom columns of each mode.
   The terms are sorted by (c, b, a), and a lookup runs one loop over them evaluating
@@ -159,44 +159,70 @@ def strict_channel(s, modes, us) -> StrictChannel:
     return StrictChannel(values, packed.astype(np.uint32), tuple(rows))
 
 
-def packed_k(ks, width: int = PACKET) -> int:
-    """Columns per table row in the uploaded layout: the largest K of the three channels,
-    rounded up to a multiple of ``width`` (the packet-gather width)."""
-    return width * max(1, -(-max(int(k) for k in ks) // width))
+def shared_grouped_mode(model, ensemble) -> int:
+    """The grouped mode for all three channels of ``model``: fewest distinct atoms summed
+    over the channels (ties: the smaller tables). One mode for the three channels lets
+    their tables share one row per bin pair."""
+    def cost(g):
+        k = 0
+        size = 0
+        for c in range(3):
+            _, modes, us = channel_terms(model, ensemble, c)
+            shape = tuple(u.shape[0] for u in us)
+            p, q = (m for m in range(3) if m != g)
+            kc = np.unique(modes[g]).size
+            k += kc
+            size += shape[p] * shape[q] * kc + kc * shape[g]
+        return (k, size)
+
+    return min(range(3), key=cost)
+
+
+def grouped_channels(model, ensemble) -> list[GroupedChannel]:
+    """The grouped data of the three channels, all grouped on :func:`shared_grouped_mode`."""
+    g = shared_grouped_mode(model, ensemble)
+    return [grouped_channel(*channel_terms(model, ensemble, c), mode_g=g) for c in range(3)]
+
+
+def packed_width(ks, width: int = PACKET) -> int:
+    """Columns of the shared rows: the channels' K summed, rounded up to a multiple of
+    ``width`` (the packet-gather width)."""
+    return width * max(1, -(-sum(int(k) for k in ks) // width))
 
 
 def grouped_layout(chans, width: int = PACKET) -> tuple[np.ndarray, np.ndarray, int]:
-    """The three channels' grouped data as uploaded: (tables, rows, kp).
+    """The three channels' grouped data as uploaded: (tables, rows, w).
 
-    Every channel's table is zero-padded to ``kp`` columns (:func:`packed_k`), so that a
-    lookup reads whole rows with packet gathers of ``width`` floats; its K atom rows are
-    stored transposed, (n_g, kp), so that the values of all K atoms at one bin are
-    contiguous too. ``tables`` and ``rows`` are flat float32 arrays, channel after channel.
+    One table row per bin pair (ip, iq) holds the three channels' K_c entries side by
+    side, ``[channel 0 | channel 1 | channel 2 | zeros]``, ``w`` (:func:`packed_width`)
+    floats in all; the atom values at one bin of the grouped mode are laid out the same
+    way, (n_g, w). A lookup then reads two contiguous runs of ``w`` floats with packet
+    gathers and splits the products by channel at the offsets K_0 and K_0 + K_1.
     """
-    kp = packed_k([ch.k for ch in chans], width)
-    tabs, rows = [], []
+    if len({(ch.mode_p, ch.mode_q, ch.mode_g) for ch in chans}) != 1:
+        raise ValueError("the shared grouped layout needs one grouped mode for all channels")
+    w = packed_width([ch.k for ch in chans], width)
+    tab = np.zeros((chans[0].table.shape[0], w), np.float32)
+    rows = np.zeros((chans[0].rows.shape[1], w), np.float32)
+    off = 0
     for ch in chans:
-        t = np.zeros((ch.table.shape[0], kp), np.float32)
-        t[:, :ch.k] = ch.table[:, :ch.k]
-        v = np.zeros((ch.rows.shape[1], kp), np.float32)
-        v[:, :ch.k] = ch.rows.T
-        tabs.append(t.ravel())
-        rows.append(v.ravel())
-    return np.concatenate(tabs), np.concatenate(rows), kp
+        tab[:, off:off + ch.k] = ch.table[:, :ch.k]
+        rows[:, off:off + ch.k] = ch.rows[:ch.k].T
+        off += ch.k
+    return tab.ravel(), rows.ravel(), w
 
 
 def grouped_bytes(model, ensemble) -> int:
-    """Bytes the grouped decoder holds for ``model`` (tables and rows as uploaded, padded
-    to :func:`packed_k` columns), without building the tables."""
-    sizes = []
+    """Bytes the grouped decoder holds for ``model`` (the shared rows of
+    :func:`grouped_layout`), without building the tables."""
+    g = shared_grouped_mode(model, ensemble)
+    ks = []
     for c in range(3):
         _, modes, us = channel_terms(model, ensemble, c)
         shape = tuple(u.shape[0] for u in us)
-        g = _grouped_mode(modes, shape)
-        p, q = (m for m in range(3) if m != g)
-        sizes.append((max(np.unique(modes[g]).size, 1), shape[p] * shape[q] + shape[g]))
-    kp = packed_k([k for k, _ in sizes])
-    return int(sum(n * kp * 4 for _, n in sizes))
+        ks.append(np.unique(modes[g]).size)
+    p, q = (m for m in range(3) if m != g)
+    return int((shape[p] * shape[q] + shape[g]) * packed_width(ks) * 4)
 
 
 def choose_decoder(decoder: str, model, ensemble,

@@ -114,14 +114,11 @@ class Ops:
         """Non-negative float -> UInt32 (truncation)."""
         return self.m.UInt32(x) if self.jit else int(x)
 
-    def dot_packet(self, a, b):
-        """sum_w a[w] b[w] of two packets from :meth:`gather_packet`."""
-        if not self.jit:
-            return sum(x * y for x, y in zip(a, b, strict=True))
-        acc = a[0] * b[0]
-        for w in range(1, len(a)):
-            acc = dr.fma(a[w], b[w], acc)
-        return acc
+    def where(self, cond, a, b):
+        """``dr.select`` in JIT variants, a Python conditional in scalar ones."""
+        if self.jit:
+            return dr.select(cond, a, b)
+        return a if cond else b
 
     def loop(self, n, body, init):
         """acc = init; for g in range(n): acc = body(g, acc) -- a Dr.Jit loop over an
