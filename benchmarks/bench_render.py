@@ -7,7 +7,9 @@ BSDF evaluations per second.
 
 (a fresh HOME empties Dr.Jit's on-disk kernel cache, so compile times are cold).
 
-Prints a markdown table (copied into docs/benchmarks.md).
+Render times are medians over interleaved rounds (every case once per round, so that the
+virtual machine's slow and fast phases hit all cases alike); the ratios are medians of the
+per-round ratios. Prints a markdown table (copied into docs/benchmarks.md).
 """
 
 from __future__ import annotations
@@ -87,7 +89,8 @@ def main() -> None:
                         "is present, else mitsuba:cu-ggx-0.12)")
     p.add_argument("--res", type=int, default=256)
     p.add_argument("--spp", type=int, default=64)
-    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--repeats", type=int, default=7,
+                   help="interleaved rounds (every case rendered once per round)")
     args = p.parse_args()
     import drjit as dr
     import mitsuba as mi
@@ -118,17 +121,31 @@ def main() -> None:
         for n in (32, 128, 262):
             cases.append((f"sparse_brdf {dec} {n}", {"type": "sparse_brdf",
                           "filename": str(files[n]), "decoder": dec}))
-    rows = []
-    base = None
+    # 1. per case: load, first render (compile time), memory; 2. interleaved rounds, so
+    # that the machine's slow and fast phases hit every case alike; 3. eval rates
+    loaded = []
     for name, bsdf_dict in cases:
         dr.flush_kernel_cache()
         scene = mi.load_dict(_swap(scene_path, bsdf_dict, args))
-        comp, t = timed_render(scene, args.spp, args.repeats)
+        comp, _ = timed_render(scene, args.spp, 0)
+        loaded.append((name, scene, comp))
+    times = {name: [] for name, _, _ in loaded}
+    for r in range(args.repeats):
+        for name, scene, _ in loaded:
+            t0 = time.perf_counter()
+            img = mi.render(scene, spp=args.spp, seed=r + 1)
+            dr.eval(img)
+            dr.sync_thread()
+            times[name].append(time.perf_counter() - t0)
+    base = np.array(times[loaded[0][0]])
+    tab_t = np.array(times["tabulated_brdf"])
+    rows = []
+    for name, scene, comp in loaded:
         bsdf = scene.shapes()[0].bsdf()
-        mem = getattr(bsdf, "memory_bytes", None)
-        rate = eval_rate(bsdf)
-        base = base or t
-        rows.append((name, t, t / base, comp, mem, rate))
+        t = np.array(times[name])
+        rows.append((name, float(np.median(t)), float(np.median(t / base)),
+                     float(np.median(t / tab_t)), comp,
+                     getattr(bsdf, "memory_bytes", None), eval_rate(bsdf)))
     # swapping materials: a second sparse material reuses the compiled kernels
     dr.flush_kernel_cache()
     def kernels():
@@ -143,15 +160,14 @@ def main() -> None:
                                          "decoder": "grouped"}, args))
     first2, _ = timed_render(s2, args.spp, 0)
     compiled = kernels() - k1
-    tab = next(r for r in rows if r[0] == "tabulated_brdf")
     print(f"{args.res}x{args.res}, {args.spp} spp, sphere.xml; material {src}; "
-          f"{platform.node()}, {time.strftime('%Y-%m-%d')}")
+          f"{args.repeats} interleaved rounds; {platform.node()}, {time.strftime('%Y-%m-%d')}")
     print("| BSDF | render (s) | vs diffuse | vs tabulated | compile (s) | memory (bytes) | "
           "evals/s |")
     print("|---|---|---|---|---|---|---|")
-    for name, t, rel, comp, mem, rate in rows:
-        print(f"| {name} | {t:.3f} | {rel:.2f}x | {t / tab[1]:.2f}x | {comp:.2f} | "
-              f"{'' if mem is None else mem} | {rate / 1e6:.1f} M |")
+    for name, t, rel, rel_tab, comp, mem, rate in rows:
+        print(f"| {name} | {t:.3f} | {rel:.2f}x | {rel_tab:.2f}x | {comp:.2f} | "
+              f"{'' if mem is None else f'{mem:,}'} | {rate / 1e6:.1f} M |")
     print(f"\nSwapping to a second sparse material: {len(compiled)} kernels compiled anew "
           f"(compile {first2:.2f} s).")
 

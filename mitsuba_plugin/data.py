@@ -45,8 +45,8 @@ from sparse_brdf.transforms import COS_CLIP
 #: (measured on the sphere scene: about the speed of the dense table up to K ~ 30 atoms),
 #: so it is kept up to twice the dense float32 table of a MERL BRDF (90 * 90 * 180 * 3 * 4
 #: bytes = 16.7 MiB). Measured on MERL blue-metallic-paint2 with the shipped ensemble
-#: (rows padded to multiples of 8 floats): 32 and 128 coefficients per channel need
-#: 0.8 MB, 262 need 1.6 MB.
+#: (one row shared by the channels, padded to multiples of 8 floats): 32, 128 and 262
+#: coefficients per channel need 0.5, 0.8 and 1.1 MB.
 AUTO_GROUPED_MAX_BYTES = 32 * 1024 * 1024
 
 #: Bits per atom index in the strict decoder's packed term indices (3 x 10 bits), then
