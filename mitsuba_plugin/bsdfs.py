@@ -19,6 +19,7 @@ from .kernels import (
     VariantNamespace,
     angle_coords,
     bin_weight,
+    bin_weight_from_cos,
     expm1,
     interp_weight,
     linear_bins,
@@ -256,18 +257,16 @@ def make_classes(m):
         def _build_grouped(self, model, ens) -> None:
             chans = D.grouped_channels(model, ens)
             self.channels = chans
-            tables, rows, width = D.grouped_layout(chans)
+            tables, rows, slots = D.grouped_layout(chans, model.shape)
             self._t = ops.floats(tables)
             self._v = ops.floats(rows)
-            self._chunks = ops.u(width // D.PACKET)
+            self._chunks = ops.u(slots * D.SLOT // D.PACKET)
             ch = chans[0]
             self._sel = [[ops.u(int(mode == sel)) for mode in range(3)]
                          for sel in (ch.mode_p, ch.mode_q, ch.mode_g)]
             self._fsel = [[ops.f(float(mode == sel)) for mode in range(3)]
                           for sel in (ch.mode_p, ch.mode_q, ch.mode_g)]
             self._nq = ops.u(ch.n_q)
-            # column offsets where channels 1 and 2 start in the shared rows
-            self._ends = (ops.u(chans[0].k), ops.u(chans[0].k + chans[1].k))
             self.memory_bytes = ops.nbytes(self._t) + ops.nbytes(self._v)
             self.distinct_atoms = tuple(c.k for c in chans)
             self.grouped_modes = tuple(c.mode_g + 1 for c in chans)
@@ -289,14 +288,13 @@ def make_classes(m):
 
         # lookups -----------------------------------------------------------------------
         def _x_grouped(self, bins, lin, active):
-            """X of the three channels from the shared rows (see data.grouped_layout):
-            packets of D.PACKET products table x atom value, each added to the channel
-            its column belongs to (one loop pass per packet)."""
+            """X of the three channels and the bins' cos_i cos_o from the shared rows
+            (see data.grouped_layout): one multiply-add sum per float of a packet, float
+            4 s + c of every slot s belonging to channel c (c = 3: the weight)."""
             w = D.PACKET
             nch = self._chunks
             nq = self._nq
             sel_p, sel_q, sel_g = self._sel
-            end0, end1 = self._ends
             t_buf, v_buf = self._t, self._v
 
             def pick(idx, sel):
@@ -328,21 +326,14 @@ def make_classes(m):
                 return out
 
             def body(h, acc):
-                x0, x1, x2 = acc
                 tv, vv = blend(t_buf, t_rows, h), blend(v_buf, v_rows, h)
-                for lane in range(w):
-                    col = h * w + lane  # the same for every lane of the vector
-                    prod = tv[lane] * vv[lane]
-                    in0 = col < end0
-                    in1 = col < end1
-                    x0 = x0 + ops.where(in0, prod, 0.0)
-                    x1 = x1 + ops.where(in1 & ~in0 if ops.jit else (in1 and not in0),
-                                        prod, 0.0)
-                    x2 = x2 + ops.where(in1, 0.0, prod)
-                return x0, x1, x2
+                return tuple(dr.fma(a, b, c) if ops.jit else a * b + c
+                             for a, b, c in zip(tv, vv, acc, strict=True))
 
             zero = m.Float(0.0) if ops.jit else 0.0
-            return ops.loop(nch, body, (zero, zero, zero))
+            acc = ops.loop(nch, body, (zero,) * w)
+            sums = [sum(acc[c::D.SLOT][1:], acc[c]) for c in range(D.SLOT)]
+            return sums[:3], sums[3]
 
         def _x_strict(self, c, bins, lin, active):
             sp = self._sp[c]
@@ -384,23 +375,29 @@ def make_classes(m):
         def _rho(self, wi, wo, active):
             sh = self._shape
             coords = angle_coords(ops, sh, wi, wo)
+            grouped = self.decoder == "grouped"
             if self.interpolate:
                 lin = linear_bins(ops, sh, coords)
                 bins = None
                 w, valid = interp_weight(ops, sh, lin, self._use_cos)
+                if grouped:
+                    xs, _ = self._x_grouped(bins, lin, active)
             else:
                 lin = None
                 bins = nearest_bins(ops, sh, coords)
-                w, valid = bin_weight(ops, sh, *bins, self._use_cos)
-                # invalid bins (below the horizon at their angles) hold no measurement:
-                # 0, as in the tabulated reference and in SparseBRDF.decode
-                active = active & valid
-                valid = dr.select(valid, 1.0, 0.0)
-            scale = valid * dr.rcp(w)
-            if self.decoder == "grouped":
-                xs = self._x_grouped(bins, lin, active)
-            else:
+                if grouped:
+                    # the grouped rows carry the bins' cos_i cos_o as a fourth channel
+                    xs, cc = self._x_grouped(bins, lin, active)
+                    w, ok = bin_weight_from_cos(cc, self._use_cos)
+                else:
+                    w, ok = bin_weight(ops, sh, *bins, self._use_cos)
+                    # invalid bins (below the horizon at their angles) hold no
+                    # measurement: 0, as in the tabulated reference and SparseBRDF.decode
+                    active = active & ok
+                valid = dr.select(ok, 1.0, 0.0)
+            if not grouped:
                 xs = [self._x_strict(c, bins, lin, active) for c in range(3)]
+            scale = valid * dr.rcp(w)
             out = [dr.maximum(expm1(x) * scale, 0.0) for x in xs]
             return m.Color3f(*out)
 

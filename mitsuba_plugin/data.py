@@ -14,14 +14,16 @@ with w = 1 (log-plus) or w = clip(cos_i cos_o, 0.01, 1) at the bin's lower-edge 
 (log-plus-cosine). Neither decoder ever builds the (n1, n2, n3) tensor:
 
 - **grouped**: the terms are grouped by the atom of one mode ``g`` (the same mode for the
-  three channels: fewest distinct atoms in all). The two other modes ``p < q`` are
+  three channels: the fewest slots, see below). The two other modes ``p < q`` are
   contracted at load time into ``table[ip * nq + iq, G] = sum_{t in G} s_t Up[ip, p_t]
   Uq[iq, q_t]`` (shape (np * nq, K), K = distinct atoms of mode g), and the K atom
   columns of mode g are kept as rows ``V[G, :]``. A lookup is
   ``X = sum_G table[(ip, iq), G] * V[G, ig]``: K fused multiply-adds. As uploaded
-  (:func:`grouped_layout`), the three channels share one table row per bin pair and one
-  row of atom values per bin of mode g, K_0 + K_1 + K_2 floats rounded up to a multiple
-  of ``PACKET`` = 8, read with packet loads.
+  (:func:`grouped_layout`), the three channels share one row per bin pair: slot s holds
+  column s of each channel's table and of the bin weight's two separable factors
+  (:func:`weight_factors`), 4 floats, and the atom values at one bin of mode g are laid
+  out the same way; both rows are read with packet loads, and the fourth "channel"
+  gives the bin's ``cos_i cos_o`` (weight and validity) without any trigonometry.
 - **strict**: keeps the nonzero terms (s_t and the packed indices of its three atoms
   among the distinct atoms of each mode) and the distinct atom columns of each mode.
   The terms are sorted by (c, b, a), and a lookup runs one loop over them evaluating
@@ -58,6 +60,12 @@ PACK_BITS = 10
 #: contiguous runs of this many floats (Dr.Jit turns these into packet loads instead of
 #: per-lane gathers, see ``drjit.JitFlag.PacketOps``).
 PACKET = 8
+
+#: Floats per slot of the grouped layout: channels 0, 1, 2 and the bin weight.
+SLOT = 4
+
+#: Products in the bin weight's separable form (:func:`weight_factors`).
+WEIGHT_RANK = 2
 END_B = 1 << 30
 END_C = 1 << 31
 
@@ -160,21 +168,21 @@ def strict_channel(s, modes, us) -> StrictChannel:
     return StrictChannel(values, packed.astype(np.uint32), tuple(rows))
 
 
+def _distinct(model, ensemble, g: int) -> list[int]:
+    """Distinct atoms of mode ``g`` in each channel of ``model``."""
+    return [np.unique(channel_terms(model, ensemble, c)[1][g]).size for c in range(3)]
+
+
 def shared_grouped_mode(model, ensemble) -> int:
-    """The grouped mode for all three channels of ``model``: fewest distinct atoms summed
-    over the channels (ties: the smaller tables). One mode for the three channels lets
-    their tables share one row per bin pair."""
+    """The grouped mode for all three channels of ``model``: fewest slots (see
+    :func:`grouped_layout`), ties broken by the smaller tables. One mode for the three
+    channels lets them share one row per bin pair."""
+    shape = tuple(model.shape)
+
     def cost(g):
-        k = 0
-        size = 0
-        for c in range(3):
-            _, modes, us = channel_terms(model, ensemble, c)
-            shape = tuple(u.shape[0] for u in us)
-            p, q = (m for m in range(3) if m != g)
-            kc = np.unique(modes[g]).size
-            k += kc
-            size += shape[p] * shape[q] * kc + kc * shape[g]
-        return (k, size)
+        p, q = (m for m in range(3) if m != g)
+        slots = n_slots(_distinct(model, ensemble, g))
+        return (slots, (shape[p] * shape[q] + shape[g]) * slots)
 
     return min(range(3), key=cost)
 
@@ -185,45 +193,78 @@ def grouped_channels(model, ensemble) -> list[GroupedChannel]:
     return [grouped_channel(*channel_terms(model, ensemble, c), mode_g=g) for c in range(3)]
 
 
-def packed_width(ks, width: int = PACKET) -> int:
-    """Columns of the shared rows: the channels' K summed, rounded up to a multiple of
-    ``width`` (the packet-gather width)."""
-    return width * max(1, -(-sum(int(k) for k in ks) // width))
+def n_slots(ks) -> int:
+    """Slots of the grouped layout: the largest of the channels' K (at least the
+    weight's two), rounded up to whole packets (``PACKET // SLOT`` slots)."""
+    per = PACKET // SLOT
+    need = max([WEIGHT_RANK] + [int(k) for k in ks])
+    return per * -(-need // per)
 
 
-def grouped_layout(chans, width: int = PACKET) -> tuple[np.ndarray, np.ndarray, int]:
-    """The three channels' grouped data as uploaded: (tables, rows, w).
+def weight_factors(shape, mode_g: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rank-2 factors of the bins' ``cos_i cos_o`` for the grouped layout.
 
-    One table row per bin pair (ip, iq) holds the three channels' K_c entries side by
-    side, ``[channel 0 | channel 1 | channel 2 | zeros]``, ``w`` (:func:`packed_width`)
-    floats in all; the atom values at one bin of the grouped mode are laid out the same
-    way, (n_g, w). A lookup then reads two contiguous runs of ``w`` floats with packet
-    gathers and splits the products by channel at the offsets K_0 and K_0 + K_1.
+    At the lower-edge angles of bin (i, j, k), ``cos_i cos_o = cos_d^2 cos_h^2 -
+    sin_d^2 sin_h^2 cos_p^2`` (SPEC section 1), a sum of two products separable into
+    the contracted pair (p, q) and the grouped mode g. Returns (pair, atom): shapes
+    (n_p * n_q, 2) and (n_g, 2), float64, with ``cos_i cos_o = pair[(ip, iq)] .
+    atom[ig]``.
+    """
+    th, td, pd = bin_angles(tuple(shape))
+    # per mode: its factor in the first product and in the second
+    first = (np.cos(th) ** 2, np.cos(td) ** 2, np.ones_like(pd))
+    second = (np.sin(th) ** 2, np.sin(td) ** 2, np.cos(pd) ** 2)
+    p, q = (m for m in range(3) if m != mode_g)
+    pair = np.stack([np.outer(first[p], first[q]).ravel(),
+                     np.outer(second[p], second[q]).ravel()], axis=1)
+    atom = np.stack([first[mode_g], -second[mode_g]], axis=1)  # the second is subtracted
+    return pair, atom
+
+
+def grouped_layout(chans, shape) -> tuple[np.ndarray, np.ndarray, int]:
+    """The three channels' grouped data as uploaded: (tables, values, slots).
+
+    The row of bin pair (ip, iq) is ``slots`` slots of ``SLOT`` = 4 floats: in slot s,
+    column s of the tables of channels 0, 1, 2 (0 past a channel's K) and column s of
+    the bin weight's pair factors (:func:`weight_factors`; 0 past its two). The atom
+    values at one bin of the grouped mode are laid out the same way, (n_g, slots, 4).
+    A lookup reads both rows as packets of ``PACKET`` floats and keeps one multiply-add
+    sum per float of the packet; float 4 s + c always adds to channel c, so the kernel
+    needs no selects, and the fourth channel is the bin's ``cos_i cos_o``.
+    Returns the flattened (n_p * n_q, slots, 4) and (n_g, slots, 4) float32 arrays.
     """
     if len({(ch.mode_p, ch.mode_q, ch.mode_g) for ch in chans}) != 1:
         raise ValueError("the shared grouped layout needs one grouped mode for all channels")
-    w = packed_width([ch.k for ch in chans], width)
-    tab = np.zeros((chans[0].table.shape[0], w), np.float32)
-    rows = np.zeros((chans[0].rows.shape[1], w), np.float32)
-    off = 0
-    for ch in chans:
-        tab[:, off:off + ch.k] = ch.table[:, :ch.k]
-        rows[:, off:off + ch.k] = ch.rows[:ch.k].T
-        off += ch.k
-    return tab.ravel(), rows.ravel(), w
+    slots = n_slots([ch.k for ch in chans])
+    pair, atom = weight_factors(shape, chans[0].mode_g)
+    tab = np.zeros((chans[0].table.shape[0], slots, SLOT), np.float32)
+    vals = np.zeros((chans[0].rows.shape[1], slots, SLOT), np.float32)
+    for c, ch in enumerate(chans):
+        tab[:, :ch.k, c] = ch.table[:, :ch.k]
+        vals[:, :ch.k, c] = ch.rows[:ch.k].T
+    tab[:, :WEIGHT_RANK, 3] = pair
+    vals[:, :WEIGHT_RANK, 3] = atom
+    return tab.ravel(), vals.ravel(), slots
+
+
+def layout_eval(tables, values, slots, ch: GroupedChannel, bins):
+    """(X of the three channels (3, N), cos_i cos_o (N,)) at integer bins from the
+    uploaded layout of :func:`grouped_layout` (numpy mirror of the kernel)."""
+    tab = np.asarray(tables).reshape(-1, slots, SLOT)
+    val = np.asarray(values).reshape(-1, slots, SLOT)
+    pair = bins[ch.mode_p] * ch.n_q + bins[ch.mode_q]
+    acc = np.einsum("nsc,nsc->cn", tab[pair].astype(np.float64), val[bins[ch.mode_g]])
+    return acc[:3], acc[3]
 
 
 def grouped_bytes(model, ensemble) -> int:
-    """Bytes the grouped decoder holds for ``model`` (the shared rows of
+    """Bytes the grouped decoder holds for ``model`` (the layout of
     :func:`grouped_layout`), without building the tables."""
     g = shared_grouped_mode(model, ensemble)
-    ks = []
-    for c in range(3):
-        _, modes, us = channel_terms(model, ensemble, c)
-        shape = tuple(u.shape[0] for u in us)
-        ks.append(np.unique(modes[g]).size)
+    shape = tuple(model.shape)
     p, q = (m for m in range(3) if m != g)
-    return int((shape[p] * shape[q] + shape[g]) * packed_width(ks) * 4)
+    return int((shape[p] * shape[q] + shape[g]) * n_slots(_distinct(model, ensemble, g))
+               * SLOT * 4)
 
 
 def choose_decoder(decoder: str, model, ensemble,

@@ -237,13 +237,17 @@ def _cos_terms(ops: Ops, shape: Shape, i, j, k):
     return (a - b) * (a + b)
 
 
-def bin_weight(ops: Ops, shape: Shape, i, j, k, use_cos):
-    """(w, valid) of bin (i, j, k): the transform weight clip(cos_i cos_o, 0.01, 1) (or 1
-    for log-plus) and whether both directions are above the horizon at the bin's angles
-    (a bin is invalid otherwise, SPEC section 1; since cos_i + cos_o >= 0 on the grid,
-    cos_i cos_o > 0 means both are positive)."""
-    c = _cos_terms(ops, shape, i, j, k)
+def bin_weight_from_cos(c, use_cos):
+    """(w, valid) of a bin from its ``c = cos_i cos_o``: the transform weight clip(c,
+    0.01, 1) (or 1 for log-plus) and whether both directions are above the horizon at
+    the bin's angles (a bin is invalid otherwise, SPEC section 1; since cos_i + cos_o
+    >= 0 on the grid, c > 0 means both are positive)."""
     return dr.select(use_cos > 0.5, dr.clip(c, 0.01, 1.0), 1.0), c > 0.0
+
+
+def bin_weight(ops: Ops, shape: Shape, i, j, k, use_cos):
+    """(w, valid) of bin (i, j, k), see :func:`bin_weight_from_cos`."""
+    return bin_weight_from_cos(_cos_terms(ops, shape, i, j, k), use_cos)
 
 
 def interp_weight(ops: Ops, shape: Shape, lin, use_cos):

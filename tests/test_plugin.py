@@ -170,6 +170,32 @@ def test_grouped_and_strict_data_reproduce_the_model(exact_material):
         assert st.nbytes < ch.nbytes
 
 
+def test_grouped_layout_reproduces_channels_and_bin_weight(exact_material):
+    """The uploaded layout (slots of 3 channels + the bin's cos_i cos_o) gives the
+    channels' X and the weight's cosine product at every bin, for every grouped mode."""
+    from sparse_brdf.coords import bin_angles, cos_io
+
+    ens = Ensemble.load(exact_material["ensemble"])
+    model = load_sbrdf(exact_material["sbrdf"], ens)
+    x = model.transformed(ens)
+    bins = tuple(a.ravel() for a in np.indices(SMALL))
+    th, td, pd = bin_angles(SMALL)
+    ci, co = cos_io(th[bins[0]], td[bins[1]], pd[bins[2]])
+    for g in range(3):
+        chans = [D.grouped_channel(*D.channel_terms(model, ens, c), mode_g=g)
+                 for c in range(3)]
+        tab, val, slots = D.grouped_layout(chans, SMALL)
+        assert slots == D.n_slots([ch.k for ch in chans]) and slots % 2 == 0
+        xs, cc = D.layout_eval(tab, val, slots, chans[0], bins)
+        for c in range(3):
+            np.testing.assert_allclose(xs[c], x[c].ravel(), atol=2e-5)
+        np.testing.assert_allclose(cc, ci * co, atol=1e-6)
+    # channels on different grouped modes cannot share rows
+    mixed = [D.grouped_channel(*D.channel_terms(model, ens, c), mode_g=c) for c in range(3)]
+    with pytest.raises(ValueError, match="one grouped mode"):
+        D.grouped_layout(mixed, SMALL)
+
+
 def test_auto_decoder_and_memory(exact_material, llvm):
     ens = Ensemble.load(exact_material["ensemble"])
     model = load_sbrdf(exact_material["sbrdf"], ens)
