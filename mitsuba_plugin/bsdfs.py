@@ -398,7 +398,10 @@ def make_classes(m):
             if not grouped:
                 xs = [self._x_strict(c, bins, lin, active) for c in range(3)]
             scale = valid * dr.rcp(w)
-            out = [dr.maximum(expm1(x) * scale, 0.0) for x in xs]
+            # a select, not only the product: an invalid bin gives 0 even where the
+            # model's X there is large enough for expm1 to overflow (inf * 0 = nan)
+            out = [dr.select(scale > 0.0, dr.maximum(expm1(x) * scale, 0.0), 0.0)
+                   for x in xs]
             return m.Color3f(*out)
 
         def to_string(self):

@@ -92,9 +92,10 @@ def full_random(tmp_path_factory):
     return out
 
 
-def random_pairs(shape, n, rng, lo=0.2, hi=0.8, min_h=0):
+def random_pairs(shape, n, rng, lo=0.2, hi=0.8, min_h=0, min_z=0.02):
     """Direction pairs inside random bins, away from their edges (fractions in [lo, hi]),
-    rotated by a random phi_h, with wi and wo swapped at random; both above the horizon.
+    rotated by a random phi_h, with wi and wo swapped at random; both above the horizon
+    (z > ``min_z``).
     Directions are rounded to float32 (what the plugin sees). theta_h bins below
     ``min_h`` are skipped: there theta_h is so small (< 2e-4 rad) that phi_d is
     ill-conditioned in float32. Returns wi, wo (N, 3) and the bins (i, j, k)."""
@@ -117,7 +118,7 @@ def random_pairs(shape, n, rng, lo=0.2, hi=0.8, min_h=0):
     wi, wo = np.where(swap[:, None], wo, wi), np.where(swap[:, None], wi, wo)
     wi = wi.astype(np.float32).astype(np.float64)
     wo = wo.astype(np.float32).astype(np.float64)
-    keep = (wi[:, 2] > 0.02) & (wo[:, 2] > 0.02)
+    keep = (wi[:, 2] > min_z) & (wo[:, 2] > min_z)
     return wi[keep], wo[keep], (i[keep], j[keep], k[keep])
 
 
@@ -236,6 +237,32 @@ def test_sparse_eval_matches_numpy_decoder(full_random, variant, transform):
         assert np.all(out[~valid] == 0)
         np.testing.assert_allclose(out[valid], ref[valid], rtol=1e-5,
                                    atol=1e-6 * float(np.abs(ref).max()))
+
+
+def test_invalid_bins_stay_zero_when_the_model_overflows(full_random, tmp_path, llvm):
+    """X = 100 everywhere: exp overflows float32 at every bin; bins below the horizon at
+    their angles must still give exactly 0 (not inf * 0 = nan) in both decoders."""
+    ens = full_random["ens"]
+    size = int(np.prod(FULL))
+    x_const = 100.0 * np.sqrt(size)  # the constant atom (0, 0, 0) is 1/sqrt(size)
+    model = SparseBRDF("log-plus", FULL, ens.id, [0, 0, 0], [np.array([0])] * 3,
+                       [np.array([x_const], np.float32)] * 3, name="overflow")
+    path = str(save_sbrdf(tmp_path / "overflow.sbrdf", model))
+    # pairs above the horizon in bins that are not valid at their lower-edge angles are
+    # rare (near grazing): draw many, keep those and some valid ones
+    wi, wo, bins = random_pairs(FULL, 400_000, np.random.default_rng(5), lo=0.02, hi=0.98,
+                                min_h=1, min_z=1e-3)
+    valid = geometric_valid(FULL)[bins]
+    pick = np.flatnonzero(~valid)
+    pick = np.concatenate([pick, np.flatnonzero(valid)[:200]])
+    wi, wo, valid = wi[pick], wo[pick], valid[pick]
+    assert (~valid).sum() >= 10
+    for dec in ("grouped", "strict"):
+        b = mi.load_dict({"type": "sparse_brdf", "filename": path,
+                          "ensemble": full_random["ensemble"], "decoder": dec})
+        out = eval_brdf(b, wi, wo)
+        assert not np.isnan(out).any()
+        assert np.all(out[~valid] == 0) and np.all(np.isinf(out[valid]))
 
 
 def test_tabulated_eval_equals_table(exact_material, variant):
