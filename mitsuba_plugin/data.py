@@ -44,7 +44,7 @@ from sparse_brdf.transforms import COS_CLIP
 
 #: ``decoder="auto"`` uses "grouped" unless its tables would take more than this many
 #: bytes (all three channels), then "strict". The grouped decoder is several times faster
-#: (measured on the sphere scene: 0.97-1.10x the dense table's render time at 32-262
+#: (measured on the sphere scene: 0.97-1.13x the dense table's render time at 32-262
 #: coefficients per channel, the strict decoder 3-18x),
 #: so it is kept up to twice the dense float32 table of a MERL BRDF (90 * 90 * 180 * 3 * 4
 #: bytes = 16.7 MiB). Measured on MERL blue-metallic-paint2 with the shipped ensemble
