@@ -138,8 +138,10 @@ def render_pair(out: Path, material: str, sbrdf: Path, spp: int = 32, res: int =
     snr = render_snr(imgs["reference"], imgs["model"])
     floor = render_snr(imgs["reference"], imgs["reference-seed1"])
     print(f"sphere ({res}x{res}, {spp} spp): model vs reference {snr:.1f} dB "
-          f"(noise floor {floor:.1f} dB); render {times['model']:.2f} s model, "
-          f"{times['reference']:.2f} s reference")
+          f"(noise floor {floor:.1f} dB); wall time of one call each (scene load, JIT "
+          f"compile when new, render): {times['model']:.2f} s model, "
+          f"{times['reference']:.2f} s reference; render speed without these: "
+          f"docs/benchmarks.md")
     return {"snr_db": snr, "noise_floor_db": floor, "seconds": times}
 
 
