@@ -1,5 +1,6 @@
 """Render speed of the plugins, in one run on one scene: sparse_brdf (grouped and strict
-decoders, 32 / 128 / 262 coefficients) against tabulated_brdf, native diffuse and native
+decoders, 32 / 128 / 262 coefficients; at 262 also the grouped decoder with its slot layout
+forced, an A/B of the two layouts) against tabulated_brdf, native diffuse and native
 roughconductor; JIT compile time (first render) and a material swap; memory per material;
 BSDF evaluations per second; optionally a speed/memory chart (``--out``).
 
@@ -131,6 +132,9 @@ def main() -> None:
         for n in (32, 128, 262):
             cases.append((f"sparse_brdf {dec} {n}", {"type": "sparse_brdf",
                           "filename": str(files[n]), "decoder": dec}))
+    # the grouped decoder at 262 with the other layout forced (an A/B in the same run)
+    cases.append(("sparse_brdf grouped-slots 262", {"type": "sparse_brdf", "layout": "slots",
+                  "filename": str(files[262]), "decoder": "grouped"}))
     # 1. per case, alone in the process: load, first render (compile time). Mitsuba's
     # kernels call every live BSDF instance's code, so a case loaded beside the others
     # would also compile theirs. 2. all cases loaded, a warm-up render each, then
@@ -165,6 +169,9 @@ def main() -> None:
         rows.append((name, float(np.median(t)), float(np.median(t / base)),
                      float(np.median(t / tab_t)), comp,
                      getattr(bsdf, "memory_bytes", None), eval_rate(bsdf)))
+    layouts = {name.split(" ", 1)[1]: (scene.shapes()[0].bsdf().layout,
+                                       scene.shapes()[0].bsdf().packets)
+               for name, scene, _ in loaded if "grouped" in name}
     # swapping materials: a second sparse material reuses the compiled kernels
     del loaded, scene, bsdf
     gc.collect()
@@ -191,13 +198,17 @@ def main() -> None:
               f"{'' if mem is None else f'{mem:,}'} | {rate / 1e6:.1f} M |")
     print(f"\nSwapping to a second sparse material: {len(compiled)} kernels compiled anew "
           f"(compile {first2:.2f} s).")
+    print("Grouped layouts: " + ", ".join(f"{n}: {lay} ({pk} packets per lookup)"
+                                          for n, (lay, pk) in layouts.items()))
     if args.out is not None:
         keys = ("bsdf", "render_s", "vs_diffuse", "vs_tabulated", "compile_s",
                 "memory_bytes", "evals_per_s")
         record = {"material": src, "res": args.res, "spp": args.spp,
                   "rounds": args.repeats, "date": time.strftime("%Y-%m-%d"),
                   "rows": [dict(zip(keys, r, strict=True)) for r in rows],
-                  "swap_new_kernels": len(compiled)}
+                  "swap_new_kernels": len(compiled),
+                  "grouped_layouts": {n: {"layout": lay, "packets": pk}
+                                      for n, (lay, pk) in layouts.items()}}
         with atomic_write(args.out / "render_speed.json", "w") as f:
             json.dump(record, f, indent=1)
         plot_speed_memory(record, args.out / "render_speed.png")
@@ -219,7 +230,8 @@ def plot_speed_memory(record: dict, path: Path) -> None:
     for ax, key, label in ((axes[0], "vs_tabulated", "render time / tabulated_brdf"),
                            (axes[1], "evals_per_s", "BSDF evaluations per second")):
         for name, (color, marker) in styles.items():
-            pts = [r for r in record["rows"] if name in r["bsdf"] and r["memory_bytes"]]
+            pts = [r for r in record["rows"] if r["memory_bytes"]
+                   and name in (r["bsdf"], *r["bsdf"].split()[1:2])]
             if not pts:
                 continue
             ax.plot([r["memory_bytes"] for r in pts], [r[key] for r in pts], marker=marker,

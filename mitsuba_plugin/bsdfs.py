@@ -30,6 +30,7 @@ from .kernels import (
 
 SAMPLING = ("cosine", "lobe")
 DECODERS = ("grouped", "strict", "auto")
+LAYOUTS = ("auto", "union", "slots")
 
 _ENSEMBLES: dict = {}
 _ENSEMBLE_LOCK = threading.Lock()
@@ -233,10 +234,11 @@ def make_classes(m):
             _Base.__init__(self, props)
             p = _read_props(props, self.plugin, {
                 "filename": _REQUIRED, "ensemble": None, "decoder": "auto",
-                "sampling": "cosine", "interpolate": False})
+                "sampling": "cosine", "interpolate": False, "layout": "auto"})
             self.sampling = _choice(p["sampling"], SAMPLING, self.plugin, "sampling")
             self.interpolate = _as_bool(p["interpolate"], self.plugin, "interpolate")
             decoder = _choice(p["decoder"], DECODERS, self.plugin, "decoder")
+            layout = _choice(p["layout"], LAYOUTS, self.plugin, "layout")
             self.filename = _resolve(str(p["filename"]))
             ens_path = None if p["ensemble"] is None else _resolve(str(p["ensemble"]))
             model, ens = _load_model(self.filename, ens_path, self.plugin)
@@ -247,20 +249,24 @@ def make_classes(m):
             self.decoder = D.choose_decoder(decoder, model, ens)
             self._shape = Shape(ops, model.shape)
             self._use_cos = ops.f(1.0 if model.transform == "log-plus-cosine" else 0.0)
+            self.layout = None
             if self.decoder == "grouped":
-                self._build_grouped(model, ens)
+                self._build_grouped(model, ens, layout)
             else:
                 self._build_strict(model, ens)
             self._setup_sampling(self.sampling, D.sparse_profile(model, ens), model.shape)
 
         # data --------------------------------------------------------------------------
-        def _build_grouped(self, model, ens) -> None:
+        def _build_grouped(self, model, ens, layout: str) -> None:
             chans = D.grouped_channels(model, ens)
             self.channels = chans
-            tables, rows, slots = D.grouped_layout(chans, model.shape)
-            self._t = ops.floats(tables)
-            self._v = ops.floats(rows)
-            self._chunks = ops.u(slots * D.SLOT // D.PACKET)
+            lay = D.grouped_layout(chans, model.shape, None if layout == "auto" else layout)
+            self.layout = lay.kind
+            self._t = ops.floats(lay.tables)
+            self._v = ops.floats(lay.values)
+            # one kernel for both layouts: a loop for each, the other runs 0 times
+            self._chunks = {k: ops.u(lay.chunks if k == lay.kind else 0)
+                            for k in ("slots", "union")}
             ch = chans[0]
             self._sel = [[ops.u(int(mode == sel)) for mode in range(3)]
                          for sel in (ch.mode_p, ch.mode_q, ch.mode_g)]
@@ -269,6 +275,7 @@ def make_classes(m):
             self._nq = ops.u(ch.n_q)
             self.memory_bytes = ops.nbytes(self._t) + ops.nbytes(self._v)
             self.distinct_atoms = tuple(c.k for c in chans)
+            self.packets = lay.packets
             self.grouped_modes = tuple(c.mode_g + 1 for c in chans)
 
         def _build_strict(self, model, ens) -> None:
@@ -289,10 +296,16 @@ def make_classes(m):
         # lookups -----------------------------------------------------------------------
         def _x_grouped(self, bins, lin, active):
             """X of the three channels and the bins' cos_i cos_o from the shared rows
-            (see data.grouped_layout): one multiply-add sum per float of a packet, float
-            4 s + c of every slot s belonging to channel c (c = 3: the weight)."""
+            (see data.grouped_layout). Two loops, one per layout; a material's data
+            has one of them, and the other's count is 0.
+
+            slots: a chunk is one packet of table row and one of atom values, float
+            4 s + c of both belonging to channel c (c = 3: the weight): one
+            multiply-add sum per float. union: a chunk is two packets of table row
+            (float 3 a + c: channel c at atom a < 5, float 15: the weight) and one
+            of atom values (float a: atom a, float 5: the weight)."""
             w = D.PACKET
-            nch = self._chunks
+            n_s, n_u = self._chunks["slots"], self._chunks["union"]
             nq = self._nq
             sel_p, sel_q, sel_g = self._sel
             t_buf, v_buf = self._t, self._v
@@ -300,39 +313,53 @@ def make_classes(m):
             def pick(idx, sel):
                 return idx[0] * sel[0] + idx[1] * sel[1] + idx[2] * sel[2]
 
-            # [(table packet row, weight)], [(atom-value packet row, weight)]
+            # [(bin pair, weight)], [(bin of mode g, weight)]
             if lin is None:
-                t_rows = [((pick(bins, sel_p) * nq + pick(bins, sel_q)) * nch, None)]
-                v_rows = [(pick(bins, sel_g) * nch, None)]
+                pairs = [(pick(bins, sel_p) * nq + pick(bins, sel_q), None)]
+                gs = [(pick(bins, sel_g), None)]
             else:
                 i0s = tuple(x[0] for x in lin)
                 i1s = tuple(x[1] for x in lin)
                 ts = tuple(x[2] for x in lin)
                 fp, fq, fg = self._fsel
                 tp, tq, tg = pick(ts, fp), pick(ts, fq), pick(ts, fg)
-                t_rows = [((ep * nq + eq) * nch, wp * wq)
-                          for ep, wp in ((pick(i0s, sel_p), 1.0 - tp), (pick(i1s, sel_p), tp))
-                          for eq, wq in ((pick(i0s, sel_q), 1.0 - tq), (pick(i1s, sel_q), tq))]
-                v_rows = [(pick(i0s, sel_g) * nch, 1.0 - tg), (pick(i1s, sel_g) * nch, tg)]
+                pairs = [(ep * nq + eq, wp * wq)
+                         for ep, wp in ((pick(i0s, sel_p), 1.0 - tp), (pick(i1s, sel_p), tp))
+                         for eq, wq in ((pick(i0s, sel_q), 1.0 - tq), (pick(i1s, sel_q), tq))]
+                gs = [(pick(i0s, sel_g), 1.0 - tg), (pick(i1s, sel_g), tg)]
 
-            def blend(buf, rows_, h):
+            def blend(buf, rows_, stride, h):
+                """Packet h of the rows (row index * stride packets), blended."""
                 out = None
                 for row, wt in rows_:
-                    pk = ops.gather_packet(buf, row + h, w, active)
+                    pk = ops.gather_packet(buf, row * stride + h, w, active)
                     if wt is None:
-                        return pk
+                        return list(pk)
                     pk = [wt * x for x in pk]
                     out = pk if out is None else [a + b for a, b in zip(out, pk, strict=True)]
                 return out
 
-            def body(h, acc):
-                tv, vv = blend(t_buf, t_rows, h), blend(v_buf, v_rows, h)
-                return tuple(dr.fma(a, b, c) if ops.jit else a * b + c
-                             for a, b, c in zip(tv, vv, acc, strict=True))
+            def fma(a, b, c):
+                return dr.fma(a, b, c) if ops.jit else a * b + c
+
+            def body_slots(h, acc):
+                tv, vv = blend(t_buf, pairs, n_s, h), blend(v_buf, gs, n_s, h)
+                return tuple(fma(a, b, c) for a, b, c in zip(tv, vv, acc, strict=True))
+
+            def body_union(h, acc):
+                tv = blend(t_buf, pairs, 2 * n_u, 2 * h) + blend(t_buf, pairs, 2 * n_u, 2 * h + 1)
+                vv = blend(v_buf, gs, n_u, h)
+                out = list(acc)
+                for a in range(D.UNION_ATOMS):
+                    for c in range(3):
+                        out[c] = fma(tv[3 * a + c], vv[a], out[c])
+                out[3] = fma(tv[3 * D.UNION_ATOMS], vv[D.UNION_ATOMS], out[3])
+                return tuple(out)
 
             zero = m.Float(0.0) if ops.jit else 0.0
-            acc = ops.loop(nch, body, (zero,) * w)
-            sums = [sum(acc[c::D.SLOT][1:], acc[c]) for c in range(D.SLOT)]
+            acc_s = ops.loop(n_s, body_slots, (zero,) * w)
+            acc_u = ops.loop(n_u, body_union, (zero,) * D.SLOT)
+            sums = [sum(acc_s[c::D.SLOT], acc_u[c]) for c in range(D.SLOT)]
             return sums[:3], sums[3]
 
         def _x_strict(self, c, bins, lin, active):
@@ -406,7 +433,8 @@ def make_classes(m):
 
         def to_string(self):
             return (f"SparseBRDF[filename={self.filename!r}, transform={self.transform}, "
-                    f"terms={self.n_terms}, decoder={self.decoder}, sampling={self.sampling}, "
+                    f"terms={self.n_terms}, decoder={self.decoder}, layout={self.layout}, "
+                    f"sampling={self.sampling}, "
                     f"interpolate={self.interpolate}, memory_bytes={self.memory_bytes}]")
 
     return TabulatedBRDF, SparseBSDF
@@ -505,6 +533,12 @@ bytes of the arrays the BSDF holds.
        contracted at load time into an (n_p n_q) x K table: fastest), ``strict`` (loops
        over the nonzero terms: least memory) or ``auto`` (default: grouped unless its
        tables exceed ``mitsuba_plugin.data.AUTO_GROUPED_MAX_BYTES``, 32 MiB).
+   * - layout
+     - string
+     - How the grouped decoder lays out its rows (see :func:`mitsuba_plugin.data.
+       grouped_layout`): ``union`` (each atom the three channels use stored once),
+       ``slots`` (every channel its own columns) or ``auto`` (default: the one that
+       reads fewer packets per lookup). Both run in the same kernel.
    * - sampling
      - string
      - ``cosine`` (default) or ``lobe``, as for ``tabulated_brdf``.

@@ -14,16 +14,17 @@ with w = 1 (log-plus) or w = clip(cos_i cos_o, 0.01, 1) at the bin's lower-edge 
 (log-plus-cosine). Neither decoder ever builds the (n1, n2, n3) tensor:
 
 - **grouped**: the terms are grouped by the atom of one mode ``g`` (the same mode for the
-  three channels: the fewest slots, see below). The two other modes ``p < q`` are
+  three channels: the fewest packets read per lookup, see below). The two other modes ``p < q`` are
   contracted at load time into ``table[ip * nq + iq, G] = sum_{t in G} s_t Up[ip, p_t]
   Uq[iq, q_t]`` (shape (np * nq, K), K = distinct atoms of mode g), and the K atom
   columns of mode g are kept as rows ``V[G, :]``. A lookup is
   ``X = sum_G table[(ip, iq), G] * V[G, ig]``: K fused multiply-adds. As uploaded
-  (:func:`grouped_layout`), the three channels share one row per bin pair: slot s holds
-  column s of each channel's table and of the bin weight's two separable factors
-  (:func:`weight_factors`), 4 floats, and the atom values at one bin of mode g are laid
-  out the same way; both rows are read with packet loads, and the fourth "channel"
-  gives the bin's ``cos_i cos_o`` (weight and validity) without any trigonometry.
+  (:func:`grouped_layout`), the three channels share one row per bin pair and one row
+  of atom values per bin of mode g, both read with packet loads, and the same rows carry
+  the two separable factors of the bin's ``cos_i cos_o`` (:func:`weight_factors`: weight
+  and validity without any trigonometry). Two layouts, whichever reads fewer packets:
+  "union" stores each distinct atom of the three channels once (channels usually share
+  their dictionary and most atoms), "slots" gives every channel its own atom columns.
 - **strict**: keeps the nonzero terms (s_t and the packed indices of its three atoms
   among the distinct atoms of each mode) and the distinct atom columns of each mode.
   The terms are sorted by (c, b, a), and a lookup runs one loop over them evaluating
@@ -64,6 +65,12 @@ PACKET = 8
 #: Floats per slot of the grouped layout: channels 0, 1, 2 and the bin weight.
 SLOT = 4
 
+#: Atoms per chunk of the union layout (:func:`union_layout`): 5 atoms x 3 channels +
+#: one weight factor fill two packets of table row, 5 atom values + one weight factor
+#: one packet of atom values.
+UNION_ATOMS = 5
+assert (3 * UNION_ATOMS + 1) == 2 * PACKET
+
 #: Products in the bin weight's separable form (:func:`weight_factors`).
 WEIGHT_RANK = 2
 END_B = 1 << 30
@@ -80,6 +87,8 @@ class GroupedChannel:
     n_q: int  # size of mode q (the table's row stride)
     table: np.ndarray  # (n_p * n_q, K) float32, row-major
     rows: np.ndarray  # (K, n_g) float32: the K distinct atom columns of mode g
+    atoms: np.ndarray | None = None  # (K,) their indices in the dictionary
+    source: int = 0  # the dictionary (index in the ensemble)
 
     @property
     def k(self) -> int:
@@ -124,8 +133,10 @@ def _grouped_mode(modes, shape) -> int:
     return min(range(3), key=cost)
 
 
-def grouped_channel(s, modes, us, mode_g: int | None = None) -> GroupedChannel:
-    """Build the grouped table of one channel (optionally forcing the grouped mode)."""
+def grouped_channel(s, modes, us, mode_g: int | None = None,
+                    source: int = 0) -> GroupedChannel:
+    """Build the grouped table of one channel (optionally forcing the grouped mode);
+    ``source`` is the channel's dictionary index, kept to find atoms channels share."""
     shape = tuple(u.shape[0] for u in us)
     if mode_g is None:
         mode_g = _grouped_mode(modes, shape)
@@ -142,7 +153,7 @@ def grouped_channel(s, modes, us, mode_g: int | None = None) -> GroupedChannel:
     rows = us[mode_g][:, atoms].T.astype(np.float32) if k else np.zeros((1, shape[mode_g]),
                                                                         np.float32)
     return GroupedChannel(p, q, mode_g, shape[q], np.ascontiguousarray(table, np.float32),
-                          np.ascontiguousarray(rows))
+                          np.ascontiguousarray(rows), atoms.astype(np.int64), int(source))
 
 
 def strict_channel(s, modes, us) -> StrictChannel:
@@ -168,21 +179,25 @@ def strict_channel(s, modes, us) -> StrictChannel:
     return StrictChannel(values, packed.astype(np.uint32), tuple(rows))
 
 
-def _distinct(model, ensemble, g: int) -> list[int]:
-    """Distinct atoms of mode ``g`` in each channel of ``model``."""
-    return [np.unique(channel_terms(model, ensemble, c)[1][g]).size for c in range(3)]
+def _atom_keys(model, ensemble, g: int) -> list[set]:
+    """Per channel of ``model``, its distinct atoms of mode ``g`` as (dictionary, atom)."""
+    out = []
+    for c in range(3):
+        d = int(model.dict_index[c])
+        out.append({(d, int(a)) for a in np.unique(channel_terms(model, ensemble, c)[1][g])})
+    return out
 
 
 def shared_grouped_mode(model, ensemble) -> int:
-    """The grouped mode for all three channels of ``model``: fewest slots (see
-    :func:`grouped_layout`), ties broken by the smaller tables. One mode for the three
-    channels lets them share one row per bin pair."""
+    """The grouped mode for all three channels of ``model``: fewest packets read per
+    lookup (:func:`layout_packets`), ties broken by the smaller tables. One mode for the
+    three channels lets them share one row per bin pair."""
     shape = tuple(model.shape)
 
     def cost(g):
-        p, q = (m for m in range(3) if m != g)
-        slots = n_slots(_distinct(model, ensemble, g))
-        return (slots, (shape[p] * shape[q] + shape[g]) * slots)
+        keys = _atom_keys(model, ensemble, g)
+        kind, chunks = layout_kind([len(k) for k in keys], len(set().union(*keys)))
+        return (layout_packets(kind, chunks), _layout_bytes(kind, chunks, shape, g))
 
     return min(range(3), key=cost)
 
@@ -190,15 +205,48 @@ def shared_grouped_mode(model, ensemble) -> int:
 def grouped_channels(model, ensemble) -> list[GroupedChannel]:
     """The grouped data of the three channels, all grouped on :func:`shared_grouped_mode`."""
     g = shared_grouped_mode(model, ensemble)
-    return [grouped_channel(*channel_terms(model, ensemble, c), mode_g=g) for c in range(3)]
+    return [grouped_channel(*channel_terms(model, ensemble, c), mode_g=g,
+                            source=int(model.dict_index[c])) for c in range(3)]
 
 
 def n_slots(ks) -> int:
-    """Slots of the grouped layout: the largest of the channels' K (at least the
-    weight's two), rounded up to whole packets (``PACKET // SLOT`` slots)."""
+    """Slots of the slot layout: the largest of the channels' K (at least the weight's
+    two), rounded up to whole packets (``PACKET // SLOT`` slots)."""
     per = PACKET // SLOT
     need = max([WEIGHT_RANK] + [int(k) for k in ks])
     return per * -(-need // per)
+
+
+def union_chunks(k_union: int) -> int:
+    """Chunks of the union layout for ``k_union`` distinct atoms over the three channels
+    (at least the weight's two)."""
+    return max(WEIGHT_RANK, -(-int(k_union) // UNION_ATOMS))
+
+
+#: Packets a lookup reads per loop iteration: (table, atom values).
+_PACKETS_PER_CHUNK = {"slots": (1, 1), "union": (2, 1)}
+
+
+def layout_packets(kind: str, chunks: int) -> int:
+    """Packets of ``PACKET`` floats one lookup reads in ``kind`` with ``chunks`` chunks."""
+    return chunks * sum(_PACKETS_PER_CHUNK[kind])
+
+
+def layout_kind(ks, k_union: int) -> tuple[str, int]:
+    """(layout, chunks) that reads fewer packets per lookup, for channels with ``ks``
+    distinct atoms of the grouped mode and ``k_union`` over the three (ties: slots)."""
+    slots = n_slots(ks) * SLOT // PACKET
+    union = union_chunks(k_union)
+    if layout_packets("union", union) < layout_packets("slots", slots):
+        return "union", union
+    return "slots", slots
+
+
+def _layout_bytes(kind: str, chunks: int, shape, g: int) -> int:
+    """Bytes of a layout's tables and atom values on grid ``shape``, grouped mode g."""
+    n_pq = int(np.prod([n for m, n in enumerate(shape) if m != g]))
+    t, v = _PACKETS_PER_CHUNK[kind]
+    return int((n_pq * t + shape[g] * v) * chunks * PACKET * 4)
 
 
 def weight_factors(shape, mode_g: int) -> tuple[np.ndarray, np.ndarray]:
@@ -221,20 +269,38 @@ def weight_factors(shape, mode_g: int) -> tuple[np.ndarray, np.ndarray]:
     return pair, atom
 
 
-def grouped_layout(chans, shape) -> tuple[np.ndarray, np.ndarray, int]:
-    """The three channels' grouped data as uploaded: (tables, values, slots).
+@dataclass
+class GroupedLayout:
+    """The three channels' grouped data as uploaded (:func:`grouped_layout`)."""
 
-    The row of bin pair (ip, iq) is ``slots`` slots of ``SLOT`` = 4 floats: in slot s,
-    column s of the tables of channels 0, 1, 2 (0 past a channel's K) and column s of
-    the bin weight's pair factors (:func:`weight_factors`; 0 past its two). The atom
-    values at one bin of the grouped mode are laid out the same way, (n_g, slots, 4).
-    A lookup reads both rows as packets of ``PACKET`` floats and keeps one multiply-add
-    sum per float of the packet; float 4 s + c always adds to channel c, so the kernel
-    needs no selects, and the fourth channel is the bin's ``cos_i cos_o``.
-    Returns the flattened (n_p * n_q, slots, 4) and (n_g, slots, 4) float32 arrays.
-    """
+    kind: str  # "slots" or "union"
+    tables: np.ndarray  # flat float32: per bin pair, ``chunks`` chunks of table floats
+    values: np.ndarray  # flat float32: per bin of mode g, ``chunks`` chunks of atom values
+    chunks: int  # loop iterations per lookup
+
+    @property
+    def packets(self) -> int:
+        return layout_packets(self.kind, self.chunks)
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.tables.nbytes + self.values.nbytes)
+
+
+def _check_modes(chans) -> None:
     if len({(ch.mode_p, ch.mode_q, ch.mode_g) for ch in chans}) != 1:
         raise ValueError("the shared grouped layout needs one grouped mode for all channels")
+
+
+def slot_layout(chans, shape) -> GroupedLayout:
+    """Slots of ``SLOT`` = 4 floats: in slot s of the row of bin pair (ip, iq), column s
+    of the tables of channels 0, 1, 2 (0 past a channel's K) and column s of the bin
+    weight's pair factors (:func:`weight_factors`; 0 past its two); the atom values at
+    one bin of mode g are laid out the same way. A chunk is one packet of each (two
+    slots); the kernel keeps one multiply-add sum per float of the packet, float 4 s + c
+    adding to channel c (c = 3: the bin's ``cos_i cos_o``), so it needs no selects.
+    Arrays (n_p * n_q, slots, 4) and (n_g, slots, 4), flattened."""
+    _check_modes(chans)
     slots = n_slots([ch.k for ch in chans])
     pair, atom = weight_factors(shape, chans[0].mode_g)
     tab = np.zeros((chans[0].table.shape[0], slots, SLOT), np.float32)
@@ -244,27 +310,76 @@ def grouped_layout(chans, shape) -> tuple[np.ndarray, np.ndarray, int]:
         vals[:, :ch.k, c] = ch.rows[:ch.k].T
     tab[:, :WEIGHT_RANK, 3] = pair
     vals[:, :WEIGHT_RANK, 3] = atom
-    return tab.ravel(), vals.ravel(), slots
+    return GroupedLayout("slots", tab.ravel(), vals.ravel(), slots * SLOT // PACKET)
 
 
-def layout_eval(tables, values, slots, ch: GroupedChannel, bins):
-    """(X of the three channels (3, N), cos_i cos_o (N,)) at integer bins from the
-    uploaded layout of :func:`grouped_layout` (numpy mirror of the kernel)."""
-    tab = np.asarray(tables).reshape(-1, slots, SLOT)
-    val = np.asarray(values).reshape(-1, slots, SLOT)
+def union_layout(chans, shape) -> GroupedLayout:
+    """Each distinct (dictionary, atom) of the three channels once: atom u sits in chunk
+    u // 5 at position a = u % 5. A chunk of the row of bin pair (ip, iq) is 16 floats:
+    float 3 a + c is channel c's table column of that atom (0 if the channel does not
+    use it), float 15 the bin weight's pair factor r = chunk (chunks 0 and 1); a chunk of
+    atom values is 8 floats: the 5 atoms' values at the bin of mode g, the weight's atom
+    factor (float 5), two zeros. Arrays (n_p * n_q, chunks, 16) and (n_g, chunks, 8),
+    flattened."""
+    _check_modes(chans)
+    keys: dict[tuple[int, int], int] = {}
+    for ch in chans:
+        for a in ch.atoms:
+            keys.setdefault((ch.source, int(a)), len(keys))
+    chunks = union_chunks(len(keys))
+    width = UNION_ATOMS * 3 + 1  # two packets
+    tab = np.zeros((chans[0].table.shape[0], chunks, width), np.float32)
+    vals = np.zeros((chans[0].rows.shape[1], chunks, PACKET), np.float32)
+    for c, ch in enumerate(chans):
+        for col, a in enumerate(ch.atoms):
+            u = keys[(ch.source, int(a))]
+            tab[:, u // UNION_ATOMS, 3 * (u % UNION_ATOMS) + c] = ch.table[:, col]
+            vals[:, u // UNION_ATOMS, u % UNION_ATOMS] = ch.rows[col]
+    pair, atom = weight_factors(shape, chans[0].mode_g)
+    tab[:, :WEIGHT_RANK, width - 1] = pair
+    vals[:, :WEIGHT_RANK, UNION_ATOMS] = atom
+    return GroupedLayout("union", tab.ravel(), vals.ravel(), chunks)
+
+
+def grouped_layout(chans, shape, kind: str | None = None) -> GroupedLayout:
+    """The three channels' grouped data as uploaded: the layout of :func:`layout_kind`
+    (fewer packets per lookup) unless ``kind`` ("slots" or "union") forces one."""
+    _check_modes(chans)
+    if kind is None:
+        union = {(ch.source, int(a)) for ch in chans for a in ch.atoms}
+        kind, _ = layout_kind([ch.k for ch in chans], len(union))
+    if kind == "slots":
+        return slot_layout(chans, shape)
+    if kind == "union":
+        return union_layout(chans, shape)
+    raise ValueError(f"unknown grouped layout {kind!r}: expected slots or union")
+
+
+def layout_eval(layout: GroupedLayout, ch: GroupedChannel, bins):
+    """(X of the three channels (3, N), cos_i cos_o (N,)) at integer bins from an
+    uploaded layout (numpy mirror of the kernel)."""
     pair = bins[ch.mode_p] * ch.n_q + bins[ch.mode_q]
-    acc = np.einsum("nsc,nsc->cn", tab[pair].astype(np.float64), val[bins[ch.mode_g]])
-    return acc[:3], acc[3]
+    n = layout.chunks
+    if layout.kind == "slots":
+        tab = layout.tables.reshape(-1, n * PACKET // SLOT, SLOT)[pair].astype(np.float64)
+        val = layout.values.reshape(-1, n * PACKET // SLOT, SLOT)[bins[ch.mode_g]]
+        acc = np.einsum("nsc,nsc->cn", tab, val)
+        return acc[:3], acc[3]
+    tab = layout.tables.reshape(-1, n, 3 * UNION_ATOMS + 1)[pair].astype(np.float64)
+    val = layout.values.reshape(-1, n, PACKET)[bins[ch.mode_g]]
+    atoms = tab[:, :, :3 * UNION_ATOMS].reshape(-1, n, UNION_ATOMS, 3)
+    xs = np.einsum("nuac,nua->cn", atoms, val[:, :, :UNION_ATOMS])
+    cc = np.einsum("nu,nu->n", tab[:, :, 3 * UNION_ATOMS], val[:, :, UNION_ATOMS])
+    return xs, cc
 
 
 def grouped_bytes(model, ensemble) -> int:
     """Bytes the grouped decoder holds for ``model`` (the layout of
     :func:`grouped_layout`), without building the tables."""
     g = shared_grouped_mode(model, ensemble)
-    shape = tuple(model.shape)
-    p, q = (m for m in range(3) if m != g)
-    return int((shape[p] * shape[q] + shape[g]) * n_slots(_distinct(model, ensemble, g))
-               * SLOT * 4)
+    keys = _atom_keys(model, ensemble, g)
+    kind, chunks = layout_kind([len(k) for k in keys], len(set().union(*keys)))
+    return _layout_bytes(kind, chunks, tuple(model.shape), g)
 
 
 def choose_decoder(decoder: str, model, ensemble,

@@ -24,6 +24,11 @@ from mitsuba_plugin import data as D  # noqa: E402
 from sparse_brdf.mitsuba_env import set_variant  # noqa: E402
 
 FULL = (90, 90, 180)
+#: The decoders and grouped layouts every evaluation test runs (the two layouts share
+#: one kernel; each material's data is in one of them).
+DECODER_OPTIONS = ({"decoder": "grouped", "layout": "union"},
+                   {"decoder": "grouped", "layout": "slots"},
+                   {"decoder": "strict"})
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -183,14 +188,23 @@ def test_grouped_layout_reproduces_channels_and_bin_weight(exact_material):
     th, td, pd = bin_angles(SMALL)
     ci, co = cos_io(th[bins[0]], td[bins[1]], pd[bins[2]])
     for g in range(3):
-        chans = [D.grouped_channel(*D.channel_terms(model, ens, c), mode_g=g)
-                 for c in range(3)]
-        tab, val, slots = D.grouped_layout(chans, SMALL)
-        assert slots == D.n_slots([ch.k for ch in chans]) and slots % 2 == 0
-        xs, cc = D.layout_eval(tab, val, slots, chans[0], bins)
-        for c in range(3):
-            np.testing.assert_allclose(xs[c], x[c].ravel(), atol=2e-5)
-        np.testing.assert_allclose(cc, ci * co, atol=1e-6)
+        chans = [D.grouped_channel(*D.channel_terms(model, ens, c), mode_g=g,
+                                   source=int(model.dict_index[c])) for c in range(3)]
+        union = {(ch.source, int(a)) for ch in chans for a in ch.atoms}
+        for kind in ("slots", "union"):
+            lay = D.grouped_layout(chans, SMALL, kind)
+            assert lay.kind == kind
+            if kind == "slots":
+                assert lay.chunks == D.n_slots([ch.k for ch in chans]) // 2
+            else:
+                assert lay.chunks == max(2, -(-len(union) // D.UNION_ATOMS))
+            xs, cc = D.layout_eval(lay, chans[0], bins)
+            for c in range(3):
+                np.testing.assert_allclose(xs[c], x[c].ravel(), atol=2e-5)
+            np.testing.assert_allclose(cc, ci * co, atol=1e-6)
+        auto = D.grouped_layout(chans, SMALL)
+        assert auto.packets == min(D.grouped_layout(chans, SMALL, k).packets
+                                   for k in ("slots", "union"))
     # channels on different grouped modes cannot share rows
     mixed = [D.grouped_channel(*D.channel_terms(model, ens, c), mode_g=c) for c in range(3)]
     with pytest.raises(ValueError, match="one grouped mode"):
@@ -228,9 +242,10 @@ def test_sparse_eval_matches_numpy_decoder(full_random, variant, transform):
     wi, wo, bins = random_pairs(FULL, n, rng, min_h=1)
     valid = geometric_valid(FULL)[bins]
     ref = model.eval(ens, wi, wo)
-    for dec in ("grouped", "strict"):
+    for opts in DECODER_OPTIONS:
         b = mi.load_dict({"type": "sparse_brdf", "filename": full_random[transform],
-                          "ensemble": full_random["ensemble"], "decoder": dec})
+                          "ensemble": full_random["ensemble"], **opts})
+        assert b.layout == opts.get("layout")
         out = eval_brdf(b, wi, wo)
         # the plugin zeroes bins below the horizon at their angles (like the tabulated
         # reference and SparseBRDF.decode); the numpy evaluator does not
@@ -257,9 +272,9 @@ def test_invalid_bins_stay_zero_when_the_model_overflows(full_random, tmp_path, 
     pick = np.concatenate([pick, np.flatnonzero(valid)[:200]])
     wi, wo, valid = wi[pick], wo[pick], valid[pick]
     assert (~valid).sum() >= 10
-    for dec in ("grouped", "strict"):
+    for opts in DECODER_OPTIONS:
         b = mi.load_dict({"type": "sparse_brdf", "filename": path,
-                          "ensemble": full_random["ensemble"], "decoder": dec})
+                          "ensemble": full_random["ensemble"], **opts})
         out = eval_brdf(b, wi, wo)
         assert not np.isnan(out).any()
         assert np.all(out[~valid] == 0) and np.all(np.isinf(out[valid]))
@@ -340,10 +355,10 @@ def test_interpolation_matches_numpy(exact_material, llvm):
     w = _trilinear(cosine_weight(SMALL).astype(np.float64), th, td, pd) if use_cos else 1.0
     v = _trilinear(geometric_valid(SMALL).astype(np.float64), th, td, pd)
     ref = np.maximum(np.expm1(x) / np.reshape(w, (-1, 1)) * v[:, None], 0)
-    for dec in ("grouped", "strict"):
+    for opts in DECODER_OPTIONS:
         s = mi.load_dict({"type": "sparse_brdf", "filename": exact_material["sbrdf"],
-                          "ensemble": exact_material["ensemble"], "decoder": dec,
-                          "interpolate": True})
+                          "ensemble": exact_material["ensemble"], "interpolate": True,
+                          **opts})
         np.testing.assert_allclose(eval_brdf(s, wi, wo), ref, rtol=1e-4,
                                    atol=1e-5 * ref.max())
 
