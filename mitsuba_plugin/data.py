@@ -44,13 +44,12 @@ from sparse_brdf.coords import bin_angles, cos_io
 from sparse_brdf.transforms import COS_CLIP
 
 #: ``decoder="auto"`` uses "grouped" unless its tables would take more than this many
-#: bytes (all three channels), then "strict". The grouped decoder is several times faster
-#: (measured on the sphere scene: 0.97-1.13x the dense table's render time at 32-262
-#: coefficients per channel, the strict decoder 3-18x),
-#: so it is kept up to twice the dense float32 table of a MERL BRDF (90 * 90 * 180 * 3 * 4
-#: bytes = 16.7 MiB). Measured on MERL blue-metallic-paint2 with the shipped ensemble
-#: (the slot layout of :func:`grouped_layout`): 32, 128 and 262 coefficients per channel
-#: need 0.53, 0.79 and 1.32 MB.
+#: bytes (all three channels), then "strict". The grouped decoder is many times faster
+#: (measured on the sphere scene, docs/benchmarks.md: 1.0-1.14x the dense table's render
+#: time at 32-262 coefficients per channel, the strict decoder 3-19x), so it is kept up
+#: to twice the dense float32 table of a MERL BRDF (90 * 90 * 180 * 3 * 4 bytes =
+#: 16.7 MiB). Measured on MERL blue-metallic-paint2 with the shipped ensemble: 32, 128
+#: and 262 coefficients per channel need 0.53, 0.79 and 1.05 MB.
 AUTO_GROUPED_MAX_BYTES = 32 * 1024 * 1024
 
 #: Bits per atom index in the strict decoder's packed term indices (3 x 10 bits), then
