@@ -23,6 +23,7 @@ import argparse
 import gc
 import json
 import platform
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -89,8 +90,9 @@ def eval_rate(bsdf, n=1 << 20, repeats=5):
     return repeats * n / total
 
 
-def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__,
+def scene_args(doc: str) -> argparse.ArgumentParser:
+    """The options every render benchmark takes (material, resolution, spp, rounds)."""
+    p = argparse.ArgumentParser(description=doc,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--material", default=None,
                    help="BRDF source (default: MERL blue-metallic-paint2 if the shared data "
@@ -99,6 +101,63 @@ def main() -> None:
     p.add_argument("--spp", type=int, default=64)
     p.add_argument("--repeats", type=int, default=7,
                    help="interleaved rounds (every case rendered once per round)")
+    return p
+
+
+def default_material(src: str | None) -> str:
+    """``src``, or the benchmarks' default material."""
+    from sparse_brdf.corpora import shared_data_dir
+
+    if src is not None:
+        return src
+    data = shared_data_dir()
+    return (str(data / "nbrdf" / "merl" / "blue-metallic-paint2.h5") if data
+            else "mitsuba:cu-ggx-0.12")
+
+
+def render_cases(cases, args) -> tuple[dict, list, dict]:
+    """Render every (name, bsdf dict) case on the sphere scene.
+
+    1. Per case, alone in the process: load, first render: cold compile time (Mitsuba's
+    kernels call every live BSDF instance's code, so a case loaded beside the others
+    would also compile theirs). 2. All cases loaded, then a warm-up render each (the
+    kernels compiled while a case was alone no longer apply once the others are alive),
+    then ``args.repeats`` interleaved rounds, so that the machine's slow and fast phases hit
+    every case alike. Returns (compile seconds, [(name, scene)], render seconds per
+    round) keyed by name.
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    from sparse_brdf.bench import SCENES_DIR
+
+    scene_path = SCENES_DIR / "sphere.xml"
+    compile_s = {}
+    for name, bsdf_dict in cases:
+        dr.flush_kernel_cache()
+        scene = mi.load_dict(_swap(scene_path, bsdf_dict, args))
+        compile_s[name], _ = timed_render(scene, args.spp, 0)
+        print(f"{name}: compiled in {compile_s[name]:.2f} s", file=sys.stderr, flush=True)
+        del scene
+        gc.collect()
+    loaded = [(name, mi.load_dict(_swap(scene_path, bsdf_dict, args)))
+              for name, bsdf_dict in cases]
+    for _, scene in loaded:  # warm-up, once every scene is alive (see above)
+        timed_render(scene, args.spp, 0)
+    times = {name: [] for name, _ in loaded}
+    for r in range(args.repeats):
+        print(f"round {r + 1}/{args.repeats}", file=sys.stderr, flush=True)
+        for name, scene in loaded:
+            t0 = time.perf_counter()
+            img = mi.render(scene, spp=args.spp, seed=r + 1)
+            dr.eval(img)
+            dr.sync_thread()
+            times[name].append(time.perf_counter() - t0)
+    return compile_s, loaded, times
+
+
+def main() -> None:
+    p = scene_args(__doc__)
     p.add_argument("--out", type=Path, default=None,
                    help="also write render_speed.json and the speed/memory chart "
                         "render_speed.png into this folder")
@@ -106,17 +165,12 @@ def main() -> None:
     import drjit as dr
     import mitsuba as mi
 
-    from sparse_brdf.corpora import shared_data_dir
     from sparse_brdf.mitsuba_env import set_variant
 
     set_variant("llvm_ad_rgb")
     dr.set_flag(dr.JitFlag.KernelHistory, True)
 
-    src = args.material
-    if src is None:
-        data = shared_data_dir()
-        src = (str(data / "nbrdf" / "merl" / "blue-metallic-paint2.h5") if data
-               else "mitsuba:cu-ggx-0.12")
+    src = default_material(args.material)
     ens = Ensemble.default()
     brdf = load_brdf(src)
     tmp = Path(tempfile.mkdtemp())
@@ -135,31 +189,8 @@ def main() -> None:
     # the grouped decoder at 262 with the other layout forced (an A/B in the same run)
     cases.append(("sparse_brdf grouped-slots 262", {"type": "sparse_brdf", "layout": "slots",
                   "filename": str(files[262]), "decoder": "grouped"}))
-    # 1. per case, alone in the process: load, first render (compile time). Mitsuba's
-    # kernels call every live BSDF instance's code, so a case loaded beside the others
-    # would also compile theirs. 2. all cases loaded, a warm-up render each, then
-    # interleaved rounds, so that the machine's slow and fast phases hit every case
-    # alike. 3. eval rates.
-    compile_s = {}
-    for name, bsdf_dict in cases:
-        dr.flush_kernel_cache()
-        scene = mi.load_dict(_swap(scene_path, bsdf_dict, args))
-        compile_s[name], _ = timed_render(scene, args.spp, 0)
-        del scene
-        gc.collect()
-    loaded = []
-    for name, bsdf_dict in cases:
-        scene = mi.load_dict(_swap(scene_path, bsdf_dict, args))
-        timed_render(scene, args.spp, 0)
-        loaded.append((name, scene, compile_s[name]))
-    times = {name: [] for name, _, _ in loaded}
-    for r in range(args.repeats):
-        for name, scene, _ in loaded:
-            t0 = time.perf_counter()
-            img = mi.render(scene, spp=args.spp, seed=r + 1)
-            dr.eval(img)
-            dr.sync_thread()
-            times[name].append(time.perf_counter() - t0)
+    compile_s, loaded, times = render_cases(cases, args)
+    loaded = [(name, scene, compile_s[name]) for name, scene in loaded]
     base = np.array(times[loaded[0][0]])
     tab_t = np.array(times["tabulated_brdf"])
     rows = []

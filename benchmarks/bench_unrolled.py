@@ -23,15 +23,13 @@ the strict decoder's eval at random directions.
 
 from __future__ import annotations
 
-import argparse
-import gc
 import platform
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
-from bench_render import _swap, eval_rate, timed_render
+from bench_render import default_material, eval_rate, render_cases, scene_args
 
 from sparse_brdf.encode import encode
 from sparse_brdf.ensemble import Ensemble
@@ -141,21 +139,11 @@ def max_rel_diff(a, b) -> float:
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--material", default=None,
-                   help="BRDF source (default: MERL blue-metallic-paint2 if the shared data "
-                        "is present, else mitsuba:cu-ggx-0.12)")
-    p.add_argument("--res", type=int, default=256)
-    p.add_argument("--spp", type=int, default=64)
-    p.add_argument("--repeats", type=int, default=7, help="interleaved rounds")
-    args = p.parse_args()
+    args = scene_args(__doc__).parse_args()
     import drjit as dr
     import mitsuba as mi
 
     import mitsuba_plugin
-    from sparse_brdf.bench import SCENES_DIR
-    from sparse_brdf.corpora import shared_data_dir
     from sparse_brdf.mitsuba_env import set_variant
 
     set_variant("llvm_ad_rgb")
@@ -164,11 +152,7 @@ def main() -> None:
     unrolled = make_unrolled_class()
     mi.register_bsdf("sparse_brdf_unrolled", lambda props: unrolled(props))
 
-    src = args.material
-    if src is None:
-        data = shared_data_dir()
-        src = (str(data / "nbrdf" / "merl" / "blue-metallic-paint2.h5") if data
-               else "mitsuba:cu-ggx-0.12")
+    src = default_material(args.material)
     ens = Ensemble.default()
     brdf = load_brdf(src)
     tmp = Path(tempfile.mkdtemp())
@@ -180,28 +164,7 @@ def main() -> None:
     for n in (32, 128, 262):
         cases.append((f"unrolled {n}", {"type": "sparse_brdf_unrolled", "decoder": "strict",
                                         "filename": str(files[n])}))
-    scene_path = SCENES_DIR / "sphere.xml"
-    compile_s = {}
-    for name, bsdf_dict in cases:  # each case alone: its cold compile time
-        dr.flush_kernel_cache()
-        scene = mi.load_dict(_swap(scene_path, bsdf_dict, args))
-        compile_s[name], _ = timed_render(scene, args.spp, 0)
-        print(f"{name}: compile {compile_s[name]:.2f} s", flush=True)
-        del scene
-        gc.collect()
-    loaded = []
-    for name, bsdf_dict in cases:
-        scene = mi.load_dict(_swap(scene_path, bsdf_dict, args))
-        timed_render(scene, args.spp, 0)
-        loaded.append((name, scene))
-    times = {name: [] for name, _ in loaded}
-    for r in range(args.repeats):
-        for name, scene in loaded:
-            t0 = time.perf_counter()
-            img = mi.render(scene, spp=args.spp, seed=r + 1)
-            dr.eval(img)
-            dr.sync_thread()
-            times[name].append(time.perf_counter() - t0)
+    compile_s, loaded, times = render_cases(cases, args)
     tab_t = np.array(times["tabulated_brdf"])
 
     # the unrolled and the strict decoder at the same random directions
