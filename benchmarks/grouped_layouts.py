@@ -1,0 +1,69 @@
+"""Which grouped layout do real materials get, and how many packets does a lookup read?
+
+For the test split of each corpus, encodes every material with the shipped ensemble and
+prints, per material: the dictionary of each channel, the distinct atoms of the grouped
+mode per channel (K) and over the three channels (union), the layout ``layout="auto"``
+picks (``mitsuba_plugin.data.layout_kind``), the packets of 8 floats a lookup reads in
+it and in the other layout, and the grouped decoder's bytes.
+
+    .venv/bin/python benchmarks/grouped_layouts.py [--coeffs 262] [--corpora merl rgl]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from tqdm import tqdm
+
+from mitsuba_plugin import data as D
+from sparse_brdf.corpora import get_corpus
+from sparse_brdf.encode import encode
+from sparse_brdf.ensemble import Ensemble
+
+
+def layout_row(model, ens) -> dict:
+    """The layout figures of one encoded material (see the module docstring)."""
+    g = D.shared_grouped_mode(model, ens)
+    keys = D._atom_keys(model, ens, g)
+    ks = [len(k) for k in keys]
+    union = len(set().union(*keys))
+    kind, chunks = D.layout_kind(ks, union)
+    packets = {"slots": D.layout_packets("slots", D.n_slots(ks) * D.SLOT // D.PACKET),
+               "union": D.layout_packets("union", D.union_chunks(union))}
+    return {"dicts": [int(d) for d in model.dict_index], "mode": g + 1, "k": ks,
+            "union": union, "layout": kind, "packets": packets[kind],
+            "other": packets["union" if kind == "slots" else "slots"],
+            "bytes": D.grouped_bytes(model, ens)}
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--coeffs", type=int, default=262, help="coefficients per channel")
+    p.add_argument("--corpora", nargs="+", default=["merl", "rgl"])
+    args = p.parse_args()
+    ens = Ensemble.default()
+    mats = [m for c in args.corpora for m in get_corpus(c).split("test")]
+    rows = []
+    for m in tqdm(mats, desc="encoding", file=sys.stderr):
+        rows.append((m, layout_row(encode(m.load(), ens, args.coeffs), ens)))
+    print(f"{args.coeffs} coefficients per channel, shipped ensemble, test splits of "
+          f"{', '.join(args.corpora)}")
+    print("| material | dictionaries | grouped mode | K per channel | union | layout | "
+          "packets | other layout | bytes |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for m, r in rows:
+        print(f"| {m.corpus}/{m.name} | {r['dicts']} | {r['mode']} | {r['k']} | "
+              f"{r['union']} | {r['layout']} | {r['packets']} | {r['other']} | "
+              f"{r['bytes']:,} |")
+    one = sum(len(set(r["dicts"])) == 1 for _, r in rows)
+    union = sum(r["layout"] == "union" for _, r in rows)
+    auto = [r["packets"] for _, r in rows]
+    slots = [r["packets"] if r["layout"] == "slots" else r["other"] for _, r in rows]
+    print(f"\nOne dictionary for the three channels: {one} of {len(rows)}; union layout "
+          f"chosen: {union} of {len(rows)}; packets per lookup: mean "
+          f"{sum(auto) / len(rows):.1f} (slot layout only: {sum(slots) / len(rows):.1f}).")
+
+if __name__ == "__main__":
+    main()
