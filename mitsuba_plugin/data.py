@@ -281,10 +281,6 @@ class GroupedLayout:
     def packets(self) -> int:
         return layout_packets(self.kind, self.chunks)
 
-    @property
-    def nbytes(self) -> int:
-        return int(self.tables.nbytes + self.values.nbytes)
-
 
 def _check_modes(chans) -> None:
     if len({(ch.mode_p, ch.mode_q, ch.mode_g) for ch in chans}) != 1:
