@@ -29,7 +29,13 @@ import time
 from pathlib import Path
 
 import numpy as np
-from bench_render import default_material, eval_rate, render_cases, scene_args
+from bench_render import (
+    default_material,
+    eval_rate,
+    random_directions,
+    render_cases,
+    scene_args,
+)
 
 from sparse_brdf.encode import encode
 from sparse_brdf.ensemble import Ensemble
@@ -168,13 +174,7 @@ def main() -> None:
     tab_t = np.array(times["tabulated_brdf"])
 
     # the unrolled and the strict decoder at the same random directions
-    rng = np.random.default_rng(1)
-    v = rng.standard_normal((2, 1 << 16, 3))
-    v[..., 2] = np.abs(v[..., 2])
-    v /= np.linalg.norm(v, axis=-1, keepdims=True)
-    si = dr.zeros(mi.SurfaceInteraction3f, v.shape[1])
-    si.wi = mi.Vector3f(v[0].T.astype(np.float32))
-    wo = mi.Vector3f(v[1].T.astype(np.float32))
+    si, wo = random_directions(1 << 16, np.random.default_rng(1))
     bsdfs = {name: scene.shapes()[0].bsdf() for name, scene in loaded}
     ctx = mi.BSDFContext()
     diff = max_rel_diff(bsdfs["unrolled 262"].eval(ctx, si, wo),

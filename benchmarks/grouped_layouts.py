@@ -25,10 +25,10 @@ from sparse_brdf.ensemble import Ensemble
 def layout_row(model, ens) -> dict:
     """The layout figures of one encoded material (see the module docstring)."""
     g = D.shared_grouped_mode(model, ens)
-    keys = D._atom_keys(model, ens, g)
+    keys = D.atom_keys(model, ens, g)
     ks = [len(k) for k in keys]
     union = len(set().union(*keys))
-    kind, chunks = D.layout_kind(ks, union)
+    kind, _ = D.layout_for(keys)
     packets = {"slots": D.layout_packets("slots", D.n_slots(ks) * D.SLOT // D.PACKET),
                "union": D.layout_packets("union", D.union_chunks(union))}
     return {"dicts": [int(d) for d in model.dict_index], "mode": g + 1, "k": ks,

@@ -178,7 +178,7 @@ def strict_channel(s, modes, us) -> StrictChannel:
     return StrictChannel(values, packed.astype(np.uint32), tuple(rows))
 
 
-def _atom_keys(model, ensemble, g: int) -> list[set]:
+def atom_keys(model, ensemble, g: int) -> list[set]:
     """Per channel of ``model``, its distinct atoms of mode ``g`` as (dictionary, atom)."""
     out = []
     for c in range(3):
@@ -194,8 +194,7 @@ def shared_grouped_mode(model, ensemble) -> int:
     shape = tuple(model.shape)
 
     def cost(g):
-        keys = _atom_keys(model, ensemble, g)
-        kind, chunks = layout_kind([len(k) for k in keys], len(set().union(*keys)))
+        kind, chunks = layout_for(atom_keys(model, ensemble, g))
         return (layout_packets(kind, chunks), _layout_bytes(kind, chunks, shape, g))
 
     return min(range(3), key=cost)
@@ -239,6 +238,12 @@ def layout_kind(ks, k_union: int) -> tuple[str, int]:
     if layout_packets("union", union) < layout_packets("slots", slots):
         return "union", union
     return "slots", slots
+
+
+def layout_for(keys: list[set]) -> tuple[str, int]:
+    """:func:`layout_kind` for channels whose distinct atoms of the grouped mode are the
+    (dictionary, atom) sets ``keys``."""
+    return layout_kind([len(k) for k in keys], len(set().union(*keys)))
 
 
 def _layout_bytes(kind: str, chunks: int, shape, g: int) -> int:
@@ -341,8 +346,7 @@ def grouped_layout(chans, shape, kind: str | None = None) -> GroupedLayout:
     (fewer packets per lookup) unless ``kind`` ("slots" or "union") forces one."""
     _check_modes(chans)
     if kind is None:
-        union = {(ch.source, int(a)) for ch in chans for a in ch.atoms}
-        kind, _ = layout_kind([ch.k for ch in chans], len(union))
+        kind, _ = layout_for([{(ch.source, int(a)) for a in ch.atoms} for ch in chans])
     if kind == "slots":
         return slot_layout(chans, shape)
     if kind == "union":
@@ -372,8 +376,7 @@ def grouped_bytes(model, ensemble) -> int:
     """Bytes the grouped decoder holds for ``model`` (the layout of
     :func:`grouped_layout`), without building the tables."""
     g = shared_grouped_mode(model, ensemble)
-    keys = _atom_keys(model, ensemble, g)
-    kind, chunks = layout_kind([len(k) for k in keys], len(set().union(*keys)))
+    kind, chunks = layout_for(atom_keys(model, ensemble, g))
     return _layout_bytes(kind, chunks, tuple(model.shape), g)
 
 
