@@ -1,10 +1,11 @@
 """Calibrate fit-scene's proxy: rendering SNR = cosine-weighted BRDF SNR + offset.
 
-    .venv/bin/python benchmarks/calibrate.py BENCH_OUT/results.json
+    .venv/bin/python benchmarks/calibrate.py BENCH_OUT/results.json [--scene sphere]
 
-Takes the median of (rendering SNR - cosine-weighted SNR) over the finished sparse-model
-cells of a bench and writes it, with its provenance, to
-sparse_brdf/data/snr_calibration.json (read by sparse_brdf.fit_scene).
+Takes the median of (object-only rendering SNR in SCENE - cosine-weighted SNR) over the
+finished sparse-model cells of a bench and writes it, with its provenance, to
+sparse_brdf/data/snr_calibration.json (read by sparse_brdf.fit_scene, which targets the
+object-only SNR).
 """
 
 from __future__ import annotations
@@ -24,16 +25,20 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("results", help="results.json of a bench run with renders")
+    p.add_argument("--scene", default="sphere", help="the bench scene to calibrate on")
     args = p.parse_args()
     res = json.loads(Path(args.results).read_text())
-    d = [c["render_snr"] - c["cos_snr"] for c in res["cells"].values()
+    snr = {k: (c.get("renders") or {}).get(args.scene, {}).get("snr_object", math.nan)
+           for k, c in res["cells"].items()}
+    d = [snr[k] - c["cos_snr"] for k, c in res["cells"].items()
          if c["model"].startswith("sparse") and c.get("status") == "finished"
-         and math.isfinite(c.get("render_snr", math.nan)) and math.isfinite(c["cos_snr"])]
+         and math.isfinite(snr[k]) and math.isfinite(c["cos_snr"])]
     if not d:
         raise SystemExit(f"{args.results}: no finished sparse cells with renders")
     cal = {"offset_db": float(np.median(d)), "spread_db": [float(np.percentile(d, 10)),
                                                           float(np.percentile(d, 90))],
-           "cells": len(d), "bench": res["config"], "date": time.strftime("%Y-%m-%d")}
+           "cells": len(d), "scene": args.scene, "form": "object-only",
+           "bench": res["config"], "date": time.strftime("%Y-%m-%d")}
     TARGET.write_text(json.dumps(cal, indent=1))
     print(f"offset {cal['offset_db']:+.1f} dB (10-90 %: {cal['spread_db'][0]:+.1f} to "
           f"{cal['spread_db'][1]:+.1f}) from {len(d)} cells; wrote {TARGET}")

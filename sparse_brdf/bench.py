@@ -3,10 +3,16 @@
 ``sparse-brdf bench [CONFIG.toml]`` runs a suite and writes ``results.csv``,
 ``results.json`` and ``report.md`` with PNG figures into the output folder. Finished
 cells (material x model) are kept in ``results.json`` and skipped on a re-run, so an
-interrupted bench resumes. Every model is rendered through the same scene, sampler and
-seed as the reference (the full tabulated BRDF), so the Monte Carlo noise cancels in the
-difference; the noise floor (two reference renders with different seeds) is reported
-beside every SNR.
+interrupted bench resumes. Every model is rendered in every scene of the config through
+the same sampler and seed as the reference (the full tabulated BRDF), so the Monte Carlo
+noise cancels in the difference; each rendering SNR is recorded in both forms
+(whole-image, the paper's; object-only, the strict one), beside the noise floor (two
+reference renders with different seeds). A scene whose data is absent (the paper's scene
+without the Grace Cathedral map) is skipped with a one-line reason. Each model's speed
+is its own evaluation rate (evaluations per second, :mod:`sparse_brdf.speed`).
+
+Fairness: a model that learns from a training set (PCA) is trained only on materials
+that the bench does not evaluate; a config that leaves none is refused.
 """
 
 from __future__ import annotations
@@ -14,6 +20,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import sys
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -31,10 +38,12 @@ from .baselines import (
     TuckerModel,
 )
 from .corpora import get_corpus
+from .errors import MissingDataError
 from .fileio import atomic_write
 from .metrics import cosine_weighted_snr, gamma_mse, rae
+from .render import SCENES_DIR, find_scene
 
-SCENES_DIR = Path(__file__).resolve().parent.parent / "scenes"
+__all__ = ["SCENES_DIR", "Bench", "BenchConfig", "make_model", "write_csv"]
 
 
 @dataclass
@@ -49,7 +58,7 @@ class BenchConfig:
         "sparse:262:log-plus-cosine", "naive", "cpd:1", "tucker:1x1x1", "pca:40", "pca:300",
         "tabulated"])
     curve_coeffs: list[int] = field(default_factory=lambda: [16, 32, 64, 128, 262, 512, 1024])
-    scene: str = "sphere.xml"
+    scenes: list[str] = field(default_factory=lambda: ["sphere.xml", "paper_sphere.xml"])
     spp: int = 16
     res: int = 128
     seed: int = 0
@@ -58,6 +67,8 @@ class BenchConfig:
     pca_train_max: int | None = None  # cap on PCA training materials (memory: ~17 MB each)
     out: str = "bench_out"
     render: bool = True
+    speed: bool = True  # evaluations per second of each model's own evaluator
+    speed_evals: int = 1 << 20
     stability: bool = True
     stability_models: list[str] = field(default_factory=lambda: [
         "sparse:262", "naive", "cpd:1", "pca:40"])
@@ -66,8 +77,13 @@ class BenchConfig:
     def load(cls, path: str | os.PathLike | None) -> BenchConfig:
         if path is None:
             return cls()
-        with open(path, "rb") as f:
-            data = tomllib.load(f)
+        try:
+            with open(path, "rb") as f:
+                data = tomllib.load(f)
+        except tomllib.TOMLDecodeError as exc:
+            raise ValueError(f"{path}: not a valid TOML file: {exc}") from exc
+        if "scene" in data:  # the one-scene form of earlier configs
+            data.setdefault("scenes", [data.pop("scene")])
         unknown = set(data) - set(cls.__dataclass_fields__)
         if unknown:
             raise ValueError(f"{path}: unknown bench settings {sorted(unknown)}")
@@ -95,9 +111,12 @@ def make_model(spec: str, ensemble=None) -> BRDFModel:
                      "pca:N or tabulated")
 
 
-def _scene_path(cfg: BenchConfig) -> Path:
-    p = Path(cfg.scene)
-    return p if p.is_file() else SCENES_DIR / cfg.scene
+def _key(m) -> str:
+    return f"{m.corpus}/{m.name}"
+
+
+def _stem(key: str) -> str:
+    return key.replace("/", "__")
 
 
 class Bench:
@@ -109,6 +128,8 @@ class Bench:
         self.work = self.out / "work"
         self.progress = progress
         self.results = self._load_results()
+        self.scenes: dict[str, Path] = {}  # scene name -> path, the scenes that can run
+        self._masks: dict[str, np.ndarray] = {}
 
     # ------------------------------------------------------------------ bookkeeping
     def _load_results(self) -> dict:
@@ -117,7 +138,8 @@ class Bench:
             data = json.loads(p.read_text())
             if data.get("config") == asdict(self.cfg):
                 return data
-        return {"config": asdict(self.cfg), "cells": {}, "curves": {}, "noise_floor": {}}
+        return {"config": asdict(self.cfg), "cells": {}, "curves": {}, "noise_floor": {},
+                "speed": {}, "skipped_scenes": {}}
 
     def _save(self) -> None:
         with atomic_write(self.out / "results.json", "w") as f:
@@ -129,6 +151,29 @@ class Bench:
             mats += get_corpus(c).split(self.cfg.split)[: self.cfg.max_materials]
         return mats
 
+    def training_materials(self, evaluated) -> list:
+        """Training materials for learned models: the corpora's training splits, minus
+        every evaluated material (a model never sees what it is scored on)."""
+        seen = {_key(m) for m in evaluated}
+        train = []
+        for c in self.cfg.corpora:
+            train += [m for m in get_corpus(c).split("train") if _key(m) not in seen]
+        return train[: self.cfg.pca_train_max]
+
+    def _resolve_scenes(self) -> None:
+        """The config's scenes that can run here; the others are skipped with a reason."""
+        from .render import check_scene_data
+
+        for name in self.cfg.scenes:
+            path = find_scene(name)
+            try:
+                check_scene_data(path)
+            except MissingDataError as exc:
+                self.results["skipped_scenes"][path.stem] = str(exc)
+                print(f"bench: skipping scene {path.name}: {exc}", file=sys.stderr)
+                continue
+            self.scenes[path.stem] = path
+
     # ------------------------------------------------------------------ running
     def run(self) -> dict:
         from tqdm.auto import tqdm
@@ -137,22 +182,23 @@ class Bench:
 
         self.out.mkdir(parents=True, exist_ok=True)
         self.work.mkdir(parents=True, exist_ok=True)
+        if self.cfg.render:
+            self._resolve_scenes()
         ens = Ensemble.load(self.cfg.ensemble) if self.cfg.ensemble else Ensemble.default()
         models = [make_model(s, ens) for s in self.cfg.models]
-        self._train(models)
         mats = self.materials()
+        self._train(models, mats)
         todo = [(m, mod) for m in mats for mod in models
-                if f"{m.corpus}/{m.name}|{mod.name}" not in self.results["cells"]]
+                if f"{_key(m)}|{mod.name}" not in self.results["cells"]]
         bar = tqdm(total=len(todo) + len(mats), desc="bench", disable=not self.progress)
         for m in mats:
-            key = f"{m.corpus}/{m.name}"
+            key = _key(m)
             brdf = None
-            if key not in self.results["curves"] or (
-                    self.cfg.render and key not in self.results["noise_floor"]):
+            if key not in self.results["curves"] or any(
+                    key not in self.results["noise_floor"].get(s, {}) for s in self.scenes):
                 brdf = m.load()
-                self._curve(key, brdf, ens)
-                if self.cfg.render:
-                    self._reference(key, m)
+                self.results["curves"][key] = self._curve(brdf, ens)
+                self._references(key, brdf)
                 self._save()
             bar.update(1)
             for mod in models:
@@ -160,7 +206,7 @@ class Bench:
                 if cell in self.results["cells"]:
                     continue
                 brdf = brdf or m.load()
-                self.results["cells"][cell] = self._cell(key, m, brdf, mod)
+                self.results["cells"][cell] = self._cell(key, brdf, mod)
                 self._save()
                 bar.update(1)
         bar.close()
@@ -168,9 +214,9 @@ class Bench:
             from .stability import run_stability
 
             smodels = [make_model(s, ens) for s in self.cfg.stability_models]
-            self._train(smodels)
+            self._train(smodels, mats)
             self.results["stability"] = {
-                "material": f"{mats[0].corpus}/{mats[0].name}",
+                "material": _key(mats[0]),
                 "rows": run_stability(mats[0].load(), smodels, self.work / "stability")}
             self._save()
         from .report import write_report
@@ -178,53 +224,96 @@ class Bench:
         write_report(self.results, self.out)
         return self.results
 
-    def _train(self, models) -> None:
+    def _train(self, models, evaluated) -> None:
         needs = [m for m in models if isinstance(m, PCAModel)]
         if not needs:
             return
-        train = []
-        for c in self.cfg.corpora:
-            train += get_corpus(c).split("train")[: self.cfg.pca_train_max]
+        train = self.training_materials(evaluated)
+        overlap = {_key(m) for m in train} & {_key(m) for m in evaluated}
+        assert not overlap, f"training and evaluated materials overlap: {sorted(overlap)}"
+        if len(train) < 2:
+            raise ValueError(
+                f"{needs[0].name}: needs at least 2 training materials that the bench does not "
+                f"evaluate; corpora {self.cfg.corpora} with split = {self.cfg.split!r} leave "
+                f"{len(train)} (use split = 'test', or drop the PCA models)")
         brdfs = [m.load() for m in train]
         for m in needs:
             m.train(brdfs)
+            m.trained_on = [_key(t) for t in train]
 
-    def _curve(self, key, brdf, ens) -> None:
+    def _curve(self, brdf, ens) -> dict:
         """Error against coefficients and the transform choices (Fig. 2, Table 2)."""
         from .encode import error_curve
 
-        self.results["curves"][key] = error_curve(brdf, ens, self.cfg.curve_coeffs)
+        return error_curve(brdf, ens, self.cfg.curve_coeffs)
 
-    def _render(self, key, m, filename: str, seed: int, tag: str) -> tuple[np.ndarray, float]:
+    # ------------------------------------------------------------------ rendering
+    def _mask(self, scene: str) -> np.ndarray:
+        """The object pixels of ``scene`` at the bench's resolution (cached on disk)."""
+        if scene not in self._masks:
+            from .render import object_mask
+
+            path = self.work / scene / "object_mask.npy"
+            if path.is_file():
+                mask = np.load(path)
+            else:
+                mask = object_mask(self.scenes[scene], res=self.cfg.res)
+                path.parent.mkdir(parents=True, exist_ok=True)
+                with atomic_write(path, "wb") as f:
+                    np.save(f, mask)
+            self._masks[scene] = mask
+        return self._masks[scene]
+
+    def _render(self, scene: str, key: str, filename: str, seed: int,
+                tag: str) -> tuple[np.ndarray, float]:
         from .render import read_exr, render_scene, write_exr
 
-        exr = self.work / f"{key.replace('/', '__')}__{tag}.exr"
+        exr = self.work / scene / f"{_stem(key)}__{tag}.exr"
         if exr.is_file():
             meta = json.loads(exr.with_suffix(".json").read_text())
             return read_exr(exr), meta["seconds"]
         t0 = time.perf_counter()
-        img = render_scene(_scene_path(self.cfg), {"material": filename}, spp=self.cfg.spp,
+        img = render_scene(self.scenes[scene], {"material": filename}, spp=self.cfg.spp,
                            seed=seed, res=self.cfg.res)
         seconds = time.perf_counter() - t0
         write_exr(exr, img)
-        exr.with_suffix(".json").write_text(json.dumps({"seconds": seconds}))
+        with atomic_write(exr.with_suffix(".json"), "w") as f:
+            json.dump({"seconds": seconds}, f)
         return img, seconds
 
-    def _reference(self, key, m) -> None:
+    def _reference_file(self, key: str, brdf) -> str:
         from .merl import write_merl
 
-        ref_file = self.work / f"{key.replace('/', '__')}__reference.binary"
+        ref_file = self.work / f"{_stem(key)}__reference.binary"
         if not ref_file.is_file():
-            write_merl(ref_file, m.load())
-        ref, _ = self._render(key, m, str(ref_file), self.cfg.seed, "reference")
-        alt, _ = self._render(key, m, str(ref_file), self.cfg.noise_seed, "reference-seed2")
-        from .metrics import render_snr
+            write_merl(ref_file, brdf)
+        return str(ref_file)
 
-        self.results["noise_floor"][key] = render_snr(ref, alt)
+    def _references(self, key: str, brdf) -> None:
+        """Reference renders of every scene, and the noise floor (both SNR forms)."""
+        from .metrics import snr_forms
 
-    def _cell(self, key, m, brdf, model: BRDFModel) -> dict:
+        if not self.cfg.render:
+            return
+        ref_file = self._reference_file(key, brdf)
+        for scene in self.scenes:
+            ref, _ = self._render(scene, key, ref_file, self.cfg.seed, "reference")
+            alt, _ = self._render(scene, key, ref_file, self.cfg.noise_seed, "reference-seed2")
+            self.results["noise_floor"].setdefault(scene, {})[key] = snr_forms(
+                ref, alt, self._mask(scene)).as_dict()
+
+    def _speed(self, model: BRDFModel, compact) -> None:
+        """Evaluations per second of ``model``'s own evaluator, measured once per model."""
+        if not self.cfg.speed or model.name in self.results["speed"]:
+            return
+        from .speed import evals_per_second
+
+        self.results["speed"][model.name] = evals_per_second(
+            compact, n=self.cfg.speed_evals, ensemble=getattr(model, "ensemble", None))
+
+    def _cell(self, key: str, brdf, model: BRDFModel) -> dict:
         from .merl import write_merl
-        from .metrics import render_snr
+        from .metrics import snr_forms
         from .sbrdf import save_sbrdf
 
         row = {"material": key, "model": model.name}
@@ -240,8 +329,8 @@ class Bench:
                        gamma_mse=gamma_mse(brdf.values, rec, brdf.valid))
             if compact.info and "transform" in compact.info:
                 row["transform"] = compact.info["transform"]
-            if self.cfg.render:
-                base = self.work / f"{key.replace('/', '__')}__{model.name}"
+            if self.cfg.render and self.scenes:
+                base = self.work / f"{_stem(key)}__{model.name}"
                 if compact.info and "model" in compact.info:
                     path = str(save_sbrdf(base.with_suffix(".sbrdf"), compact.info["model"]))
                 else:
@@ -249,11 +338,14 @@ class Bench:
 
                     path = str(write_merl(base.with_suffix(".binary"),
                                           BRDF(rec, brdf.valid, brdf.name)))
-                ref, _ = self._render(key, m, str(self.work / f"{key.replace('/', '__')}"
-                                                    "__reference.binary"),
-                                      self.cfg.seed, "reference")
-                img, secs = self._render(key, m, path, self.cfg.seed, model.name)
-                row.update(render_snr=render_snr(ref, img), render_s=secs)
+                ref_file = self._reference_file(key, brdf)
+                row["renders"] = {}
+                for scene in self.scenes:
+                    ref, _ = self._render(scene, key, ref_file, self.cfg.seed, "reference")
+                    img, secs = self._render(scene, key, path, self.cfg.seed, model.name)
+                    row["renders"][scene] = {**snr_forms(ref, img, self._mask(scene)).as_dict(),
+                                             "render_s": secs}
+            self._speed(model, compact)
             row["status"] = "finished"
         except Exception as exc:  # noqa: BLE001 - one model's failure never stops the run
             row["status"] = "failed"
@@ -261,8 +353,21 @@ class Bench:
         return row
 
 
+def flat_rows(results: dict) -> list[dict]:
+    """One flat row per cell: per-scene SNRs as ``snr_whole@SCENE``/``snr_object@SCENE``."""
+    out = []
+    for r in results["cells"].values():
+        row = {k: v for k, v in r.items() if k != "renders"}
+        for scene, vals in (r.get("renders") or {}).items():
+            for k, v in vals.items():
+                row[f"{k}@{scene}"] = v
+        row["evals_per_s"] = results.get("speed", {}).get(r["model"])
+        out.append(row)
+    return out
+
+
 def write_csv(results: dict, path: Path) -> None:
-    rows = list(results["cells"].values())
+    rows = flat_rows(results)
     keys = sorted({k for r in rows for k in r})
     with atomic_write(path, "w") as f:
         w = csv.DictWriter(f, fieldnames=keys)

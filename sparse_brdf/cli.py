@@ -146,10 +146,9 @@ def cmd_blend(args: argparse.Namespace) -> int:
 
 def _scene(path: str) -> str:
     """A scene path as given, or the shipped scene of that name."""
-    from .bench import SCENES_DIR
+    from .render import find_scene
 
-    p = Path(path)
-    return str(SCENES_DIR / path) if not p.is_file() and (SCENES_DIR / path).is_file() else path
+    return str(find_scene(path))
 
 
 def cmd_render(args: argparse.Namespace) -> int:
@@ -166,21 +165,43 @@ def cmd_render(args: argparse.Namespace) -> int:
     write_exr(args.output, img)
     print(f"wrote {args.output} ({img.shape[1]}x{img.shape[0]}, {args.spp} spp, "
           f"{seconds:.2f} s)")
+    if args.mask:
+        from .render import object_mask, write_mask
+
+        write_mask(args.mask, object_mask(_scene(args.scene), res=img.shape[0]))
+        print(f"wrote {args.mask} (object mask: pixels whose camera rays hit the geometry)")
     return 0
 
 
 def cmd_snr(args: argparse.Namespace) -> int:
-    from .metrics import render_snr
-    from .render import read_exr
+    from .metrics import snr_forms
+    from .render import object_mask, read_exr, read_mask
 
-    snr = render_snr(read_exr(args.reference), read_exr(args.image))
-    floor = None
-    if args.reference2:
-        floor = render_snr(read_exr(args.reference), read_exr(args.reference2))
-    if args.json:
-        print(json.dumps({"snr_db": snr, "noise_floor_db": floor}))
+    ref, img = read_exr(args.reference), read_exr(args.image)
+    if args.mask:
+        mask = read_mask(args.mask)
+    elif args.scene:
+        if ref.shape[0] != ref.shape[1]:
+            raise ValueError(f"{args.reference}: --scene needs a square image (the shipped "
+                             f"scenes render res x res), got {ref.shape[1]}x{ref.shape[0]}: "
+                             "give --mask instead")
+        mask = object_mask(_scene(args.scene), res=ref.shape[0])
     else:
-        print(f"{snr:.2f} dB" + (f" (noise floor {floor:.2f} dB)" if floor is not None else ""))
+        raise ValueError("snr: the object-only SNR needs the object's pixels: give --scene "
+                         "SCENE (traced from the scene) or --mask FILE")
+    if mask.shape != ref.shape[:2]:
+        raise ValueError(f"{args.mask or args.scene}: mask is {mask.shape[1]}x{mask.shape[0]}, "
+                         f"the images {ref.shape[1]}x{ref.shape[0]}")
+    snr = snr_forms(ref, img, mask)
+    floor = snr_forms(ref, read_exr(args.reference2), mask) if args.reference2 else None
+    if args.json:
+        out = {"snr_whole_db": snr.whole, "snr_object_db": snr.object,
+               "object_pixels": int(mask.sum()), "pixels": int(mask.size)}
+        if floor is not None:
+            out.update(noise_floor_whole_db=floor.whole, noise_floor_object_db=floor.object)
+        print(json.dumps(out))
+    else:
+        print(str(snr) + (f" (noise floor: {floor})" if floor is not None else ""))
     return 0
 
 
@@ -191,7 +212,9 @@ def cmd_fit_scene(args: argparse.Namespace) -> int:
     rep = fit_scene(_scene(args.scene), args.target_snr, parse_overrides(args.material),
                     args.output, ensemble_path=args.ensemble, spp=args.spp, res=args.res,
                     seed=args.seed)
-    print(f"scene SNR with every material sparse: {rep['scene_snr_all_sparse']:.1f} dB; "
+    print(f"scene SNR with every material sparse: object-only "
+          f"{rep['scene_snr_all_sparse']:.1f} dB, whole-image "
+          f"{rep['scene_snr_all_sparse_whole']:.1f} dB; "
           f"{rep['bytes_total']} bytes of coefficients; wrote {args.output}/fit-scene.md")
     return 0
 
@@ -295,11 +318,29 @@ def build_parser() -> argparse.ArgumentParser:
                    help="cosine: shared sample paths (for SNR); lobe: lower variance")
     r.add_argument("--decoder", default="auto", choices=["auto", "grouped", "strict"])
     r.add_argument("--ensemble", help="ensemble .npz (default: the shipped one)")
+    r.add_argument("--mask", metavar="MASK.exr",
+                   help="also write the object mask (1 where camera rays hit the geometry), "
+                        "for `sparse-brdf snr --mask`")
     r.set_defaults(func=cmd_render)
 
-    n = sub.add_parser("snr", help="rendering SNR (dB) of an image against a reference")
+    n = sub.add_parser(
+        "snr", help="rendering SNR (dB) of an image against a reference, in both forms",
+        description="Rendering SNR 10 log10(sum ref^2 / sum (ref - img)^2) in two forms: "
+                    "whole-image (every pixel, background included: the paper's form) and "
+                    "object-only (the pixels whose camera rays hit the object; the strict "
+                    "form). The object pixels come from the scene (--scene, traced at the "
+                    "image's resolution) or from a mask file (--mask, e.g. written by "
+                    "`sparse-brdf render --mask`).",
+        epilog="example:\n  sparse-brdf snr ref.exr model.exr --scene paper_sphere "
+               "--reference2 ref-seed1.exr",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
     n.add_argument("reference", help="reference EXR")
     n.add_argument("image", help="image EXR")
+    where = n.add_mutually_exclusive_group()
+    where.add_argument("--scene", help="the scene the images were rendered from (a path or a "
+                                       "shipped scene name): its object mask is traced")
+    where.add_argument("--mask", help="object mask: an EXR (nonzero = object) or a .npy of "
+                                      "booleans, the images' size")
     n.add_argument("--reference2", help="a second reference (other seed): prints the noise "
                                         "floor beside the SNR")
     n.add_argument("--json", action="store_true")

@@ -40,6 +40,18 @@ def shared_data_dir() -> Path | None:
     return None
 
 
+def shared_envmaps_dir() -> Path | None:
+    """The shared environment maps (``<shared data>/envmaps``), or None when absent."""
+    candidates = []
+    if os.environ.get("SPARSE_BRDF_DATA"):
+        candidates.append(Path(os.environ["SPARSE_BRDF_DATA"]) / "envmaps")
+    candidates += [
+        Path(__file__).resolve().parents[2] / "shared" / "data" / "envmaps",
+        Path.cwd().parent / "shared" / "data" / "envmaps",
+    ]
+    return next((c for c in candidates if c.is_dir()), None)
+
+
 def _conductors() -> dict[str, dict]:
     out = {}
     for mat, alphas in {
@@ -131,6 +143,7 @@ class Corpus:
     name: str
     description: str
     materials: tuple[Material, ...]
+    test_only: bool = False  # every material is unseen (e.g. the shipped demo materials)
 
     def split(self, which: str = "all") -> list[Material]:
         """``"train"``, ``"test"`` or ``"all"`` materials, in name order."""
@@ -138,6 +151,8 @@ class Corpus:
             return list(self.materials)
         if which not in ("train", "test"):
             raise ValueError(f"split must be 'train', 'test' or 'all', got {which!r}")
+        if self.test_only:
+            return list(self.materials) if which == "test" else []
         test = set(test_names(self.name, [m.name for m in self.materials]))
         return [m for m in self.materials if (m.name in test) == (which == "test")]
 
@@ -157,9 +172,24 @@ def _folder_corpus(name: str, folder: Path, description: str) -> Corpus:
     return Corpus(name, description, mats)
 
 
+#: The measured materials shipped with the package (six ``merl`` test-split Neural-BRDF
+#: networks, see ``data/materials/LICENSE.md``): the demo's default materials.
+DEMO_MATERIALS_DIR = Path(__file__).resolve().parent / "data" / "materials"
+
+
+def _demo_corpus() -> Corpus:
+    """Built-in ``merl-demo``: the shipped networks, all test materials of ``merl``; their
+    keys are ``merl/<name>``, as in the full corpus."""
+    files = sorted(DEMO_MATERIALS_DIR.glob("*.h5"))
+    mats = tuple(Material(p.stem, "merl", str(p)) for p in files)
+    return Corpus("merl-demo", list_corpora()["merl-demo"], mats, test_only=True)
+
+
 def list_corpora() -> dict[str, str]:
     """Name -> description of every corpus available on this machine."""
-    out = {"mitsuba": f"built-in: {len(mitsuba_catalog())} Mitsuba 3 BSDFs tabulated on the grid"}
+    out = {"mitsuba": f"built-in: {len(mitsuba_catalog())} Mitsuba 3 BSDFs tabulated on the grid",
+           "merl-demo": f"built-in: {len(list(DEMO_MATERIALS_DIR.glob('*.h5')))} measured MERL "
+                        "materials (Neural-BRDF fits, merl test split), shipped for the demo"}
     data = shared_data_dir()
     for name in ("merl", "rgl"):
         if data and (data / "nbrdf" / name).is_dir():
@@ -175,6 +205,8 @@ def get_corpus(name: str) -> Corpus:
     if name == "mitsuba":
         mats = tuple(Material(n, "mitsuba", f"mitsuba:{n}") for n in sorted(mitsuba_catalog()))
         return Corpus("mitsuba", list_corpora()["mitsuba"], mats)
+    if name == "merl-demo":
+        return _demo_corpus()
     if name in ("merl", "rgl"):
         data = shared_data_dir()
         if data is None or not (data / "nbrdf" / name).is_dir():

@@ -15,3 +15,8 @@ class EnsembleMismatchError(SparseBRDFError, ValueError):
 
 class InvalidBRDFError(SparseBRDFError, ValueError):
     """BRDF values are unusable (NaN/inf, wrong shape, no valid bins)."""
+
+
+class MissingDataError(SparseBRDFError, FileNotFoundError):
+    """Data a scene or corpus needs is not on this machine (e.g. the paper's Grace
+    Cathedral map, which is not redistributable and is read from the shared data folder)."""

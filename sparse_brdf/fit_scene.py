@@ -8,7 +8,9 @@ For every measured material of a scene, :func:`fit_scene`
    writes ``sparse_brdf/data/snr_calibration.json``; 0 dB without it);
 2. *verifies* with a low-spp render of the scene in which only that material is the
    sparse model and every other material is tabulated, against the all-tabulated
-   reference (same seed and sampling, so the noise cancels);
+   reference (same seed and sampling, so the noise cancels); the SNR it targets is the
+   object-only one (pixels whose camera rays hit geometry), the whole-image SNR is
+   recorded beside it;
 3. *refines*: climbs the ladder until the verified SNR reaches the target (or the
    ladder ends), and steps down while a smaller budget still verifies; then renders the
    scene with every material sparse and, while that misses the target (the materials'
@@ -32,7 +34,7 @@ from .encode import choose_transform, project_all, select
 from .ensemble import Ensemble
 from .fileio import atomic_write
 from .io import load_brdf
-from .metrics import cosine_weighted_snr, render_snr
+from .metrics import OBJECT_ONLY, WHOLE_IMAGE, cosine_weighted_snr, snr_forms
 from .sbrdf import file_size, save_sbrdf
 from .transforms import TRANSFORMS
 
@@ -96,7 +98,7 @@ def fit_scene(
     """Fit every measured material of ``scene`` to ``target_snr`` dB; see module doc."""
     from mitsuba_plugin.data import channel_terms, grouped_bytes, strict_channel
 
-    from .render import render_scene
+    from .render import object_mask, render_scene
 
     ens = ensemble or (Ensemble.load(ensemble_path) if ensemble_path else Ensemble.default())
     out = Path(out)
@@ -110,6 +112,7 @@ def fit_scene(
         return render_scene(scene, materials, spp=spp, seed=seed, res=res, sparse_options=opts)
 
     reference = render(mats)
+    mask = object_mask(scene, res=res)
     fitted = {}  # id -> (brdf, candidates, predictions, verified SNRs, chosen index)
     for mid, src in mats.items():
         brdf = load_brdf(src)
@@ -120,8 +123,8 @@ def fit_scene(
         _, cands, _, verified, _ = fitted[mid]
         if k not in verified:
             path = save_sbrdf(out / f"{mid}.candidate.sbrdf", cands[k])
-            verified[k] = render_snr(reference, render({**mats, mid: str(path)}))
-        return verified[k]
+            verified[k] = snr_forms(reference, render({**mats, mid: str(path)}), mask)
+        return verified[k].object
 
     # Per-material targets start at the scene target; while the scene with every
     # material sparse misses it (the errors add up), they are raised by the shortfall.
@@ -137,10 +140,13 @@ def fit_scene(
             f[4] = i
         files = {mid: str(save_sbrdf(out / f"{mid}.sbrdf", f[1][f[4]]))
                  for mid, f in fitted.items()}
-        scene_snr = render_snr(reference, render({**mats, **files}))
-        rounds.append({"per_material_target": goal, "scene_snr": scene_snr})
+        forms = snr_forms(reference, render({**mats, **files}), mask)
+        scene_snr = forms.object
+        rounds.append({"per_material_target": goal, "scene_snr": scene_snr,
+                       "scene_snr_whole": forms.whole})
         if progress:
-            print(f"  per-material target {goal:.1f} dB -> scene {scene_snr:.1f} dB")
+            print(f"  per-material target {goal:.1f} dB -> scene {OBJECT_ONLY} "
+                  f"{scene_snr:.1f} dB ({WHOLE_IMAGE} {forms.whole:.1f} dB)")
         if scene_snr >= target_snr or all(f[4] == len(f[1]) - 1 for f in fitted.values()):
             break
         margin += target_snr - scene_snr + 0.5
@@ -154,7 +160,7 @@ def fit_scene(
             "id": mid, "source": str(mats[mid]), "coefficients": int(ladder[i]),
             "transform": model.transform, "file": str(final),
             "bytes": final.stat().st_size, "predicted_snr": preds[i],
-            "verified_snr": verified[i],
+            "verified_snr": verified[i].object, "verified_snr_whole": verified[i].whole,
             "renders": len(verified), "memory_strict": int(strict),
             "memory_grouped": grouped_bytes(model, ens),
             "memory_tabulated": int(np.prod(brdf.shape)) * 3 * 4,
@@ -162,12 +168,14 @@ def fit_scene(
         rows.append(row)
         if progress:
             print(f"  {mid}: {row['coefficients']} coefficients/channel, predicted "
-                  f"{row['predicted_snr']:.1f} dB, verified alone {row['verified_snr']:.1f} dB "
-                  f"({row['renders']} renders)")
+                  f"{row['predicted_snr']:.1f} dB, verified alone {OBJECT_ONLY} "
+                  f"{row['verified_snr']:.1f} dB ({WHOLE_IMAGE} {row['verified_snr_whole']:.1f}"
+                  f" dB; {row['renders']} renders)")
     report = {
         "scene": str(scene), "target_snr": target_snr, "offset_db": offset, "spp": spp,
         "res": res, "seed": seed, "materials": rows,
-        "scene_snr_all_sparse": rounds[-1]["scene_snr"], "rounds": rounds,
+        "scene_snr_all_sparse": rounds[-1]["scene_snr"],
+        "scene_snr_all_sparse_whole": rounds[-1]["scene_snr_whole"], "rounds": rounds,
         "bytes_total": sum(r["bytes"] for r in rows),
         "bytes_fixed_262": sum(file_size(3 * 262, len(r["id"])) for r in rows),
         "bytes_tabulated_merl": len(rows) * (12 + 8 * 3 * int(np.prod(ens.shape))),
@@ -185,21 +193,26 @@ def _write(rep: dict, out: Path) -> None:
     lines = [
         f"# fit-scene: {rep['scene']} at {rep['target_snr']:.1f} dB", "",
         f"Verification renders: {rep['res']}x{rep['res']}, {rep['spp']} spp, seed "
-        f"{rep['seed']}; proxy offset {rep['offset_db']:+.1f} dB.", "",
+        f"{rep['seed']}; proxy offset {rep['offset_db']:+.1f} dB. SNRs target the "
+        f"{OBJECT_ONLY} form (pixels whose camera rays hit geometry); the {WHOLE_IMAGE} form "
+        "(every pixel) is given beside it.", "",
         "| material | coefficients/channel | transform | bytes | predicted SNR | verified SNR "
-        "(this material sparse) | "
-        "memory strict | memory grouped |", "|---|---|---|---|---|---|---|---|"]
+        f"{OBJECT_ONLY} (this material sparse) | {WHOLE_IMAGE} | "
+        "memory strict | memory grouped |", "|---|---|---|---|---|---|---|---|---|"]
     for r in rep["materials"]:
         lines.append(f"| {r['id']} | {r['coefficients']} | {r['transform']} | {r['bytes']} | "
-                     f"{r['predicted_snr']:.1f} | {r['verified_snr']:.1f}"
-                     f" | {r['memory_strict']} | "
+                     f"{r['predicted_snr']:.1f} | {r['verified_snr']:.1f} | "
+                     f"{r['verified_snr_whole']:.1f} | {r['memory_strict']} | "
                      f"{r['memory_grouped']} |")
     mem = rep["memory_strict_total"] / rep["memory_tabulated_total"]
     lines += [""] + [f"Round {k + 1}: per-material target {r['per_material_target']:.1f} dB, "
-                     f"scene with every material sparse {r['scene_snr']:.1f} dB."
+                     f"scene with every material sparse {OBJECT_ONLY} {r['scene_snr']:.1f} dB, "
+                     f"{WHOLE_IMAGE} {r['scene_snr_whole']:.1f} dB."
                      for k, r in enumerate(rep["rounds"])]
     lines += [
-        "", f"Whole scene with every material sparse: {rep['scene_snr_all_sparse']:.1f} dB.",
+        "", f"Scene with every material sparse: {OBJECT_ONLY} "
+            f"{rep['scene_snr_all_sparse']:.1f} dB, {WHOLE_IMAGE} "
+            f"{rep['scene_snr_all_sparse_whole']:.1f} dB.",
         f"Files: {rep['bytes_total']} bytes, against {rep['bytes_fixed_262']} at a fixed 262 "
         f"coefficients and {rep['bytes_tabulated_merl']} as MERL files.",
         f"Memory (strict decoder, atoms used only): {rep['memory_strict_total']} bytes, "

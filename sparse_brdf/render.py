@@ -19,11 +19,29 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import SparseBRDFError
-from .metrics import render_snr
+from .corpora import shared_envmaps_dir
+from .errors import MissingDataError, SparseBRDFError
+from .metrics import SNRForms, snr_forms
 from .mitsuba_env import DEFAULT_VARIANT, set_variant
 
 SPARSE_SUFFIX = ".sbrdf"
+#: The shipped scenes: ``sphere.xml`` (CC0 studio map), ``spheres.xml`` (three materials),
+#: ``paper_sphere.xml`` (the paper's scene; needs the shared Grace Cathedral map).
+SCENES_DIR = Path(__file__).resolve().parent.parent / "scenes"
+
+
+def find_scene(name: str | os.PathLike) -> Path:
+    """A scene file: ``name`` as a path if it exists, else the shipped scene of that name
+    (``paper_sphere`` and ``paper_sphere.xml`` both work)."""
+    p = Path(name)
+    if p.is_file():
+        return p
+    for cand in (SCENES_DIR / p, SCENES_DIR / f"{p}.xml"):
+        if cand.is_file():
+            return cand
+    shipped = ", ".join(sorted(q.stem for q in SCENES_DIR.glob("*.xml")))
+    raise FileNotFoundError(f"{name}: no such scene file, and no shipped scene of that name "
+                            f"(shipped: {shipped})")
 
 
 class RenderError(SparseBRDFError, RuntimeError):
@@ -121,13 +139,60 @@ def _find_by_id(root: ET.Element, mid: str):
     return None, None
 
 
+def _defaults(root: ET.Element, params: Mapping[str, object] | None) -> dict[str, str]:
+    """The scene's ``<default>`` values with ``params`` on top."""
+    out = {d.get("name"): d.get("value", "") for d in root.iter("default")}
+    out.update({k: str(v) for k, v in (params or {}).items()})
+    return out
+
+
+def data_search_path(scene_path: str | os.PathLike) -> list[Path]:
+    """Folders a scene's relative data files are looked up in, in order: the scene's own
+    folder, then the shared environment maps (where the non-redistributable Grace Cathedral
+    map of the paper's scene lives)."""
+    folders = [Path(scene_path).resolve().parent]
+    shared = shared_envmaps_dir()
+    if shared is not None:
+        folders.append(shared)
+    return folders
+
+
+def check_scene_data(scene_path: str | os.PathLike,
+                     params: Mapping[str, object] | None = None) -> None:
+    """Raise :class:`MissingDataError` (one line) when an emitter's image file of the scene
+    is on none of :func:`data_search_path`'s folders (e.g. ``paper_sphere.xml`` without
+    ``../shared/data/envmaps/grace_latlong.exr``)."""
+    scene_path = Path(scene_path)
+    root = ET.parse(scene_path).getroot()
+    values = _defaults(root, params)
+    for em in root.iter("emitter"):
+        for el in em.iter("string"):
+            if el.get("name") != "filename":
+                continue
+            name = el.get("value", "")
+            if name.startswith("$"):
+                name = values.get(name[1:], name)
+            p = Path(name).expanduser()
+            if p.is_absolute() and p.is_file():
+                continue
+            if any((f / p).is_file() for f in data_search_path(scene_path)):
+                continue
+            raise MissingDataError(
+                f"{scene_path.name}: its environment map {name} is not on this machine "
+                f"(looked in {', '.join(str(f) for f in data_search_path(scene_path))}); "
+                "the paper's Grace Cathedral map is not redistributable: put the shared data "
+                "folder at ../shared/data or point SPARSE_BRDF_DATA to it")
+
+
 @contextlib.contextmanager
-def _scene_dir_resolver(folder: Path) -> Iterator[None]:
-    """Let Mitsuba resolve the scene's relative paths (envmaps/...) from ``folder``."""
+def _scene_dir_resolver(scene_path: Path) -> Iterator[None]:
+    """Let Mitsuba resolve the scene's relative paths (envmaps/...) from
+    :func:`data_search_path`."""
     import mitsuba as mi
 
     saved = mi.FileResolver(mi.file_resolver())
-    mi.file_resolver().prepend(str(folder.resolve()))
+    for folder in reversed(data_search_path(scene_path)):
+        mi.file_resolver().prepend(str(folder))
     try:
         yield
     finally:
@@ -153,15 +218,16 @@ def load_scene(
     scene_path = Path(scene_path)
     if not scene_path.is_file():
         raise FileNotFoundError(f"{scene_path}: no such scene file")
-    set_variant(variant)
-    mitsuba_plugin.register()
-    xml = scene_xml(scene_path, materials, sparse_options, tabulated_options)
     kwargs = {k: str(v) for k, v in (params or {}).items()}
     for key, val in (("spp", spp), ("seed", seed), ("res", res)):
         if val is not None:
             kwargs[key] = str(int(val))
+    check_scene_data(scene_path, kwargs)
+    set_variant(variant)
+    mitsuba_plugin.register()
+    xml = scene_xml(scene_path, materials, sparse_options, tabulated_options)
     try:
-        with _scene_dir_resolver(scene_path.parent):
+        with _scene_dir_resolver(scene_path):
             return mi.load_string(xml, **kwargs)
     except Exception as exc:  # noqa: BLE001 - re-raised with the cause's message
         raise RenderError(f"{scene_path}: cannot load the scene: {_cause_message(exc)}") from exc
@@ -203,23 +269,59 @@ def render_scene(
     return np.ascontiguousarray(out[..., :3])
 
 
+def object_mask(
+    scene_path: str | os.PathLike,
+    res: int | None = None,
+    params: Mapping[str, object] | None = None,
+    subsamples: int = 4,
+    variant: str = DEFAULT_VARIANT,
+) -> np.ndarray:
+    """Pixels whose camera rays hit the scene's geometry: bool (H, W).
+
+    Traces ``subsamples`` x ``subsamples`` stratified camera rays through every pixel of the
+    scene's first sensor (at resolution ``res``, or the scene's own); a pixel is an object
+    pixel when any of them hits a shape. The mask comes from the scene itself, never from
+    image values; it selects the pixels of the *object-only* SNR.
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    n = int(subsamples)
+    if n < 1:
+        raise ValueError(f"object_mask: subsamples must be >= 1, got {n}")
+    scene = load_scene(scene_path, None, spp=1, res=res, variant=variant, params=params)
+    sensor = scene.sensors()[0]
+    width, height = (int(v) for v in sensor.film().crop_size())
+    ys, xs, sy, sx = np.meshgrid(np.arange(height), np.arange(width), np.arange(n),
+                                 np.arange(n), indexing="ij")
+    u = ((xs + (sx + 0.5) / n) / width).ravel().astype(np.float32)
+    v = ((ys + (sy + 0.5) / n) / height).ravel().astype(np.float32)
+    ray, _ = sensor.sample_ray(mi.Float(0.0), mi.Float(0.5), mi.Point2f(u, v),
+                               mi.Point2f(0.5, 0.5))
+    hit = scene.ray_intersect_preliminary(ray).is_valid()
+    dr.eval(hit)
+    return np.asarray(hit, dtype=bool).reshape(height, width, n * n).any(-1)
+
+
 def noise_floor(
     scene_path: str | os.PathLike,
     materials: Mapping[str, str] | None = None,
     spp: int = 64,
     seeds: tuple[int, int] = (0, 1),
+    mask: np.ndarray | None = None,
     **kwargs,
-) -> float:
-    """SNR (dB) between two renders of the same (reference) materials with two seeds.
-
-    The Monte Carlo noise level a model-vs-reference comparison must be read against
-    when seeds are not shared (SPEC section 8).
-    """
+) -> SNRForms:
+    """SNR (dB, both forms) between two renders of the same (reference) materials with two
+    seeds: the Monte Carlo noise level that a model-vs-reference comparison must be read
+    against when seeds are not shared. ``mask``: the object pixels (see
+    :func:`object_mask`); None computes it from the scene."""
     if seeds[0] == seeds[1]:
         raise ValueError("noise_floor needs two different seeds")
     a = render_scene(scene_path, materials, spp=spp, seed=seeds[0], **kwargs)
     b = render_scene(scene_path, materials, spp=spp, seed=seeds[1], **kwargs)
-    return render_snr(a, b)
+    if mask is None:
+        mask = object_mask(scene_path, res=kwargs.get("res"), params=kwargs.get("params"))
+    return snr_forms(a, b, mask)
 
 
 # ------------------------------------------------------------------------------- EXR
@@ -267,3 +369,37 @@ def read_exr(path: str | os.PathLike) -> np.ndarray:
     except Exception as exc:  # noqa: BLE001 - OpenEXR raises plain exceptions
         raise ValueError(f"{path}: cannot read EXR: {exc}") from exc
     return np.ascontiguousarray(arr, dtype=np.float32)
+
+
+def write_mask(path: str | os.PathLike, mask: np.ndarray) -> Path:
+    """Write a bool mask (H, W) as an EXR (1.0 = object, in every channel) or, for a
+    ``.npy`` path, as a numpy array; atomically."""
+    path = Path(path)
+    mask = np.asarray(mask, dtype=bool)
+    if path.suffix.lower() == ".npy":
+        from .fileio import atomic_write
+
+        with atomic_write(path, "wb") as f:
+            np.save(f, mask)
+        return path
+    return write_exr(path, np.repeat(mask[..., None], 3, -1).astype(np.float32))
+
+
+def read_mask(path: str | os.PathLike) -> np.ndarray:
+    """An object mask, bool (H, W), from an EXR (nonzero in any channel = object) or a
+    ``.npy`` file of booleans."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such mask file")
+    if path.suffix.lower() == ".npy":
+        try:
+            mask = np.load(path, allow_pickle=False)
+        except Exception as exc:  # noqa: BLE001 - numpy raises several kinds
+            raise ValueError(f"{path}: cannot read mask: {exc}") from exc
+        if mask.ndim != 2:
+            raise ValueError(f"{path}: a mask must be 2-D (H, W), got shape {mask.shape}")
+        return mask.astype(bool)
+    img = read_exr(path)
+    if not np.all(np.isfinite(img)):
+        raise ValueError(f"{path}: mask holds NaN/inf values")
+    return np.any(img != 0, axis=-1)

@@ -16,6 +16,45 @@ def test_pareto_front():
     assert pareto(pts) == [0, 1, 3]
 
 
+def test_pareto_front_faster_is_better():
+    pts = [(1e6, 10.0), (1e7, 20.0), (1e5, 30.0), (1e7, 5.0)]
+    assert pareto(pts, higher_x=True) == [1, 2]
+
+
+def test_learned_models_never_train_on_evaluated_materials(tmp_path):
+    """PCA trains on the training split minus every evaluated material, and a config that
+    leaves no disjoint training set is refused (it used to train on its test materials)."""
+    cfg = BenchConfig(corpora=["mitsuba"], split="all", models=["pca:4"], render=False,
+                      stability=False, speed=False, out=str(tmp_path / "b"))
+    bench = Bench(cfg, progress=False)
+    with pytest.raises(ValueError, match="disjoint|does not evaluate"):
+        bench.run()
+    cfg = BenchConfig(corpora=["mitsuba"], split="test", max_materials=1, models=["pca:4"],
+                      render=False, stability=False, speed=False, out=str(tmp_path / "c"),
+                      pca_train_max=3)
+    bench = Bench(cfg, progress=False)
+    evaluated = bench.materials()
+    train = bench.training_materials(evaluated)
+    assert len(train) == 3
+    assert not {(m.corpus, m.name) for m in train} & {(m.corpus, m.name) for m in evaluated}
+    # even when the evaluated set includes training-split materials, they are left out
+    cfg.split = "train"
+    cfg.max_materials = 2
+    evaluated = bench.materials()
+    assert not {m.name for m in bench.training_materials(evaluated)} & {
+        m.name for m in evaluated}
+
+
+def test_old_one_scene_configs_still_load(tmp_path):
+    old = tmp_path / "old.toml"
+    old.write_text('scene = "sphere.xml"\nspp = 4\n')
+    assert BenchConfig.load(old).scenes == ["sphere.xml"]
+    broken = tmp_path / "broken.toml"
+    broken.write_text("spp = \n")
+    with pytest.raises(ValueError, match="broken.toml"):
+        BenchConfig.load(broken)
+
+
 def test_unknown_model_and_setting(tmp_path):
     with pytest.raises(ValueError, match="unknown model 'svd'"):
         make_model("svd")
@@ -34,19 +73,28 @@ def test_ci_bench_report(tmp_path):
     cells = results["cells"]
     assert len(cells) == 2 * len(cfg.models)
     assert all(c["status"] == "finished" for c in cells.values()), cells
-    for name in ("report.md", "results.csv", "results.json", "speed_accuracy.png",
-                 "error_vs_coeffs.png"):
+    scenes = ["sphere"] + (["paper_sphere"] if "paper_sphere" not in
+                           results["skipped_scenes"] else [])
+    for name in ("report.md", "results.csv", "results.json", "error_vs_coeffs.png",
+                 *(f"speed_accuracy-{s}.png" for s in scenes)):
         assert (out / name).is_file(), name
     report = (out / "report.md").read_text()
-    for heading in ("Table 3", "Table 4", "Table 2", "Fig. 2", "Stability", "Noise floor"):
+    for heading in ("Table 3", "Table 4", "Table 2", "Fig. 2", "Stability", "Noise floor",
+                    "object-only", "whole-image", *scenes):
         assert heading in report, heading
-    # the tabulated model renders exactly like the reference (same seed, same table)
-    tab = [c for c in cells.values() if c["model"] == "tabulated"]
-    assert all(c["render_snr"] == float("inf") or c["render_snr"] > 100 for c in tab)
-    # more coefficients, better renders
-    for mat in {c["material"] for c in cells.values()}:
-        assert cells[f"{mat}|sparse-262"]["render_snr"] > cells[f"{mat}|sparse-64"][
-            "render_snr"] - 0.5
+    # every model has its own evaluation speed
+    assert set(results["speed"]) == {c["model"] for c in cells.values()}
+    assert all(v > 0 for v in results["speed"].values())
+    for scene in scenes:
+        # the tabulated model renders exactly like the reference (same seed, same table)
+        tab = [c["renders"][scene] for c in cells.values() if c["model"] == "tabulated"]
+        assert all(t[f] == float("inf") or t[f] > 100 for t in tab
+                   for f in ("snr_whole", "snr_object"))
+        for mat in {c["material"] for c in cells.values()}:
+            r262, r64 = (cells[f"{mat}|sparse-{n}"]["renders"][scene] for n in (262, 64))
+            # more coefficients, better renders; the background adds signal, never error
+            assert r262["snr_object"] > r64["snr_object"] - 0.5
+            assert r262["snr_whole"] >= r262["snr_object"] - 0.1
     # a re-run skips every finished cell
     before = json.loads((out / "results.json").read_text())
     again = Bench(cfg, progress=False)

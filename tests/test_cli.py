@@ -79,12 +79,25 @@ def test_render_and_snr(tmp_path, capsys):
     common = ["--material", "material=mitsuba:plastic-red-ggx-0.3", "--spp", "4", "--res", "24"]
     assert main(["render", "sphere.xml", "-o", str(a), *common]) == 0
     assert main(["render", "sphere.xml", "-o", str(b), "--seed", "3", *common]) == 0
+    mask = tmp_path / "mask.exr"
+    assert main(["render", "sphere.xml", "-o", str(a), "--mask", str(mask), *common]) == 0
     capsys.readouterr()
-    assert main(["snr", str(a), str(a), "--json"]) == 0
-    assert json.loads(capsys.readouterr().out)["snr_db"] == float("inf")
-    assert main(["snr", str(a), str(b)]) == 0
-    snr = float(capsys.readouterr().out.split()[0])
-    assert 0 < snr < 60  # different seeds: finite, noise-limited
+    assert main(["snr", str(a), str(a), "--json", "--scene", "sphere"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["snr_whole_db"] == out["snr_object_db"] == float("inf")
+    assert 0 < out["object_pixels"] < out["pixels"] == 24 * 24
+    assert main(["snr", str(a), str(b), "--mask", str(mask), "--json"]) == 0
+    by_mask = json.loads(capsys.readouterr().out)
+    assert main(["snr", str(a), str(b), "--scene", "sphere.xml", "--json"]) == 0
+    by_scene = json.loads(capsys.readouterr().out)
+    assert by_mask == by_scene  # the written mask is the scene's
+    # different seeds: finite, noise-limited; the background adds signal and no error
+    assert 0 < by_scene["snr_object_db"] <= by_scene["snr_whole_db"] < 60
+    assert main(["snr", str(a), str(b), "--scene", "sphere"]) == 0
+    line = capsys.readouterr().out
+    assert "whole-image" in line and "object-only" in line
+    assert main(["snr", str(a), str(b)]) == 2  # no way to tell the object's pixels
+    assert "--scene" in capsys.readouterr().err
     assert main(["render", "sphere.xml", "-o", str(a), "--material",
                  f"material={tmp_path / 'missing.sbrdf'}"]) == 2
     assert "missing.sbrdf" in capsys.readouterr().err
