@@ -36,6 +36,7 @@ from sparse_brdf.ensemble import Ensemble
 from sparse_brdf.fileio import atomic_write
 from sparse_brdf.io import load_brdf
 from sparse_brdf.sbrdf import save_sbrdf
+from sparse_brdf.speed import eval_rate
 
 
 def timed_render(scene, spp, repeats):
@@ -61,42 +62,6 @@ def timed_render(scene, spp, repeats):
         dr.sync_thread()
         times.append(time.perf_counter() - t0)
     return compile_s, float(np.median(times)) if times else float("nan")
-
-
-def random_directions(n: int, rng):
-    """A SurfaceInteraction3f with ``n`` random upper-hemisphere wi (local frame) and
-    ``n`` random upper-hemisphere wo."""
-    import drjit as dr
-    import mitsuba as mi
-
-    v = rng.standard_normal((2, n, 3))
-    v[..., 2] = np.abs(v[..., 2])
-    v /= np.linalg.norm(v, axis=-1, keepdims=True)
-    si = dr.zeros(mi.SurfaceInteraction3f, n)
-    si.wi = mi.Vector3f(v[0].T.astype(np.float32))
-    si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
-    return si, mi.Vector3f(v[1].T.astype(np.float32))
-
-
-def eval_rate(bsdf, n=1 << 20, repeats=5):
-    """BSDF evaluations per second at random direction pairs (fresh inputs each time, so
-    that Dr.Jit cannot reuse an earlier result)."""
-    import drjit as dr
-    import mitsuba as mi
-
-    rng = np.random.default_rng(0)
-    ctx = mi.BSDFContext()
-    total = 0.0
-    for r in range(repeats + 1):
-        si, wo = random_directions(n, rng)
-        dr.eval(si, wo)
-        dr.sync_thread()
-        t0 = time.perf_counter()
-        dr.eval(bsdf.eval(ctx, si, wo))
-        dr.sync_thread()
-        if r:  # the first one compiles
-            total += time.perf_counter() - t0
-    return repeats * n / total
 
 
 def scene_args(doc: str) -> argparse.ArgumentParser:

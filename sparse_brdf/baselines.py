@@ -3,8 +3,10 @@
 Every model is a :class:`BRDFModel`: ``fit(brdf)`` returns a :class:`Compact` with
 ``reconstruct()`` (linear RGB values of the BRDF's grid shape, (n1, n2, n3, 3)) and
 ``nbytes`` (exact storage of what the model keeps per material, float32 numbers; shared
-bases such as a PCA basis or an ensemble are not counted, as in the paper). Models that
-learn from a training set (PCA) have ``train(brdfs)``; using them untrained raises.
+bases such as a PCA basis or an ensemble are not counted, as in the paper) and ``params``
+(those stored numbers themselves, which :mod:`mitsuba_plugin.evaluators` evaluates at
+direction pairs without a dense reconstruction). Models that learn from a training set
+(PCA) have ``train(brdfs)``; using them untrained raises.
 
 - :class:`SparseModel`   the paper's model over an ensemble (8 bytes per coefficient)
 - :class:`NaiveModel`    Bagher et al. 2016: kd + ks a(theta_h) b(theta_d) c(phi_d) per
@@ -31,14 +33,68 @@ from .transforms import cosine_weight, forward, inverse
 _F32 = 4
 
 
+def _f32(a) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=np.float32)
+
+
+def _naive_params(per_channel) -> dict[str, np.ndarray]:
+    """The naive model's stored numbers from per-channel fits (kd, a, b, c), or (kd, ks,
+    a, b, c): kd (3,), ks (3,), a (3, n1), b (3, n2), c (3, n3), float32, with a, b, c
+    of unit norm and their scale in ks, so that rho = kd + ks a[i] b[j] c[k] per channel
+    (2 + n1 + n2 + n3 numbers per channel, as the model's ``nbytes`` counts)."""
+    out: dict[str, list] = {"kd": [], "ks": [], "a": [], "b": [], "c": []}
+    for fit in per_channel:
+        kd, ks, *factors = fit if len(fit) == 5 else (fit[0], 1.0, *fit[1:])
+        norms = [float(np.linalg.norm(f)) for f in factors]
+        out["kd"].append(kd)
+        out["ks"].append(ks * float(np.prod(norms)))
+        for key, f, nrm in zip("abc", factors, norms, strict=True):
+            out[key].append(np.asarray(f, np.float64) / nrm if nrm > 0 else np.zeros(len(f)))
+    return {k: _f32(v) for k, v in out.items()}
+
+
 @dataclass
 class Compact:
-    """A fitted compact model of one BRDF."""
+    """A fitted compact model of one BRDF.
+
+    Attributes
+    ----------
+    model : str
+        The model's name (``"naive"``, ``"cpd-1"``, ``"tucker-1x1x1"``, ``"pca-40"``,
+        ``"tabulated"``, ``"sparse-262"``, ...); the part before the first ``-`` is its kind.
+    nbytes : int
+        Storage of the numbers kept per material (float32): the bytes of the arrays in
+        ``params`` whose keys do not start with ``shared_``.
+    reconstruct : callable
+        Returns the dense linear RGB tensor, shape (n1, n2, n3, 3).
+    info : dict or None
+        Extra results (e.g. the sparse model itself under ``"model"``).
+    params : dict of str to ndarray, or None
+        Exactly the numbers the model stores per material, as float32 arrays (see each
+        model's ``fit``); shared state the model needs to evaluate (e.g. a PCA basis) is
+        referenced under keys prefixed ``shared_`` and not counted in ``nbytes``. What
+        :mod:`mitsuba_plugin.evaluators` evaluates from. None for the sparse model (its
+        :class:`~sparse_brdf.sparse.SparseBRDF` is ``info["model"]``).
+    """
 
     model: str
     nbytes: int
     reconstruct: Callable[[], np.ndarray]
     info: dict | None = None
+    params: dict[str, np.ndarray] | None = None
+
+    @property
+    def kind(self) -> str:
+        """The model family: ``naive``, ``cpd``, ``tucker``, ``pca``, ``tabulated``,
+        ``sparse`` (the name up to its first ``-``)."""
+        return self.model.split("-", 1)[0]
+
+    def param_nbytes(self) -> int:
+        """Bytes of the per-material arrays in ``params`` (keys not prefixed ``shared_``)."""
+        if self.params is None:
+            raise ValueError(f"{self.model}: this compact model has no params")
+        return sum(int(v.nbytes) for k, v in self.params.items()
+                   if not k.startswith("shared_"))
 
 
 class BRDFModel(ABC):
@@ -62,7 +118,7 @@ class TabulatedModel(BRDFModel):
 
     def fit(self, brdf: BRDF) -> Compact:
         v = brdf.values.copy()
-        return Compact(self.name, v.nbytes, lambda: v)
+        return Compact(self.name, v.nbytes, lambda: v, params={"table": v})
 
 
 class SparseModel(BRDFModel):
@@ -110,7 +166,7 @@ class NaiveModel(BRDFModel):
             out.append(kd + np.einsum("i,j,k->ijk", a, b, cc))
         n = sum(1 + 1 + a.size + b.size + cc.size for _, a, b, cc in params)
         rec = np.maximum(np.stack(out, -1), 0).astype(np.float32)
-        return Compact(self.name, n * _F32, lambda: rec)
+        return Compact(self.name, n * _F32, lambda: rec, params=_naive_params(params))
 
     def _fit_channel(self, rho, w):
         n1, n2, n3 = rho.shape
@@ -150,13 +206,18 @@ class CPDModel(BRDFModel):
         y = _log_plus_channels(brdf)
         rec = np.empty_like(y)
         mask = np.broadcast_to(brdf.valid, y.shape[1:])
+        kept = []
         for c in range(3):
             cp = parafac(tl.tensor(y[c]), self.rank, n_iter_max=self.n_iter,
                          init="random", mask=mask.astype(float), random_state=self.seed)
             rec[c] = tl.cp_to_tensor(cp)
+            kept.append((tl.to_numpy(cp.weights), *map(tl.to_numpy, cp.factors)))
         n = 3 * self.rank * (sum(brdf.shape) + 1)
         out = np.moveaxis(inverse(rec, "log-plus"), 0, -1)
-        return Compact(self.name, n * _F32, lambda: out)
+        # X[i, j, k] = sum_r weights[r] a[i, r] b[j, r] c[k, r], rho = exp(X) - 1
+        params = {key: _f32([ch[m] for ch in kept])
+                  for m, key in enumerate(("weights", "a", "b", "c"))}
+        return Compact(self.name, n * _F32, lambda: out, params=params)
 
 
 class TuckerModel(BRDFModel):
@@ -173,16 +234,21 @@ class TuckerModel(BRDFModel):
         y = _log_plus_channels(brdf)
         rec = np.empty_like(y)
         mask = np.broadcast_to(brdf.valid, y.shape[1:])
+        kept = []
         for c in range(3):
             core, factors = tucker(tl.tensor(y[c]), rank=list(self.ranks), n_iter_max=30,
                                    init="random",
                                    mask=mask.astype(float), random_state=self.seed)
             rec[c] = tl.tucker_to_tensor((core, factors))
+            kept.append((tl.to_numpy(core), *map(tl.to_numpy, factors)))
         r1, r2, r3 = self.ranks
         n1, n2, n3 = brdf.shape
         n = 3 * (r1 * r2 * r3 + n1 * r1 + n2 * r2 + n3 * r3)
         out = np.moveaxis(inverse(rec, "log-plus"), 0, -1)
-        return Compact(self.name, n * _F32, lambda: out)
+        # X[i, j, k] = sum_pqs core[p, q, s] a[i, p] b[j, q] c[k, s], rho = exp(X) - 1
+        params = {key: _f32([ch[m] for ch in kept])
+                  for m, key in enumerate(("core", "a", "b", "c"))}
+        return Compact(self.name, n * _F32, lambda: out, params=params)
 
 
 class PCAModel(BRDFModel):
@@ -236,4 +302,10 @@ class PCAModel(BRDFModel):
         c = cosine_weight(brdf.shape)[..., None]
         rho = ((np.exp(m) * (self.median_ + self.EPS)) - self.EPS) / c
         rho = np.where(self.mask_, np.maximum(rho, 0), 0).astype(np.float32)
-        return Compact(self.name, k * _F32, lambda: rho, {"n_coeffs": k})
+        # per material only coef; the rest are references to the trained, shared state:
+        # basis (k, M) and mean (M,) over the M masked (bin, channel) entries in C order
+        # of mask (n1, n2, n3, 3); median (n1, n2, n3, 3); eps
+        params = {"coef": _f32(coef), "shared_basis": basis, "shared_mean": self.mean_,
+                  "shared_median": self.median_, "shared_mask": self.mask_,
+                  "shared_eps": np.array(self.EPS, np.float32)}
+        return Compact(self.name, k * _F32, lambda: rho, {"n_coeffs": k}, params)

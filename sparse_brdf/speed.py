@@ -1,0 +1,222 @@
+"""Evaluation speed of BRDF models: evaluations per second at random direction pairs.
+
+Every model is timed with its own evaluator, never through a dense table:
+
+- ``sparse`` (a :class:`~sparse_brdf.sparse.SparseBRDF`, or the ``Compact`` of
+  :class:`~sparse_brdf.baselines.SparseModel`): the ``sparse_brdf`` Mitsuba plugin's
+  ``eval``, with the ``grouped`` or ``strict`` decoder;
+- ``tabulated`` (a :class:`~sparse_brdf.brdf.BRDF`, or the ``Compact`` of
+  :class:`~sparse_brdf.baselines.TabulatedModel`): the ``tabulated_brdf`` plugin's ``eval``;
+- ``naive``, ``cpd``, ``tucker``, ``pca`` (their ``Compact``): the Dr.Jit evaluators of
+  :mod:`mitsuba_plugin.evaluators`, computed from the model's stored ``params``.
+
+The plugins' ``eval`` includes the cosine factor and the evaluators do not; that one
+multiplication is part of the cost. Mitsuba is imported only when a function is called.
+
+>>> from sparse_brdf.baselines import NaiveModel
+>>> rate = evals_per_second(NaiveModel().fit(brdf))     # doctest: +SKIP
+>>> f"{rate / 1e6:.0f} M evaluations/s"                 # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import math
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+#: Decoders of the ``sparse_brdf`` plugin that :func:`evals_per_second` accepts.
+DECODERS = ("grouped", "strict", "auto")
+#: Model kinds :func:`evals_per_second` times (the part of ``Compact.model`` before ``-``).
+KINDS = ("tabulated", "sparse", "naive", "cpd", "tucker", "pca")
+
+
+def random_directions(n: int, rng: np.random.Generator):
+    """``n`` random direction pairs, uniform on the upper hemisphere (local frame).
+
+    Returns ``(si, wo)``: a ``mi.SurfaceInteraction3f`` of width ``n`` whose ``wi`` holds
+    the incident directions (and ``sh_frame`` the identity frame), and a ``mi.Vector3f``
+    of the ``n`` outgoing directions. Needs a JIT Mitsuba variant to be set.
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    v = rng.standard_normal((2, n, 3))
+    v[..., 2] = np.abs(v[..., 2])
+    v /= np.linalg.norm(v, axis=-1, keepdims=True)
+    si = dr.zeros(mi.SurfaceInteraction3f, n)
+    si.wi = mi.Vector3f(v[0].T.astype(np.float32))
+    si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
+    return si, mi.Vector3f(v[1].T.astype(np.float32))
+
+
+def time_evaluations(evaluate: Callable, n: int = 1 << 20, repeats: int = 5,
+                     seed: int = 0) -> float:
+    """Evaluations per second of ``evaluate(si, wo)`` (which returns Dr.Jit arrays).
+
+    Each of ``repeats + 1`` calls gets ``n`` fresh random pairs from
+    :func:`random_directions` (so Dr.Jit cannot reuse an earlier result), made and
+    evaluated before the clock starts. A call is timed from the Python call (tracing
+    included) until its kernel has run (``dr.eval`` then ``dr.sync_thread``). The first
+    call compiles and is not timed. Returns ``n / median(seconds per call)``.
+    """
+    import drjit as dr
+
+    n, repeats = _check_counts(n, repeats)
+    rng = np.random.default_rng(seed)
+    times = []
+    for r in range(repeats + 1):
+        si, wo = random_directions(n, rng)
+        dr.eval(si, wo)
+        dr.sync_thread()
+        t0 = time.perf_counter()
+        dr.eval(evaluate(si, wo))
+        dr.sync_thread()
+        if r:  # the first call compiles
+            times.append(time.perf_counter() - t0)
+    return n / float(np.median(times))
+
+
+def eval_rate(bsdf, n: int = 1 << 20, repeats: int = 5, seed: int = 0) -> float:
+    """``bsdf.eval`` calls per second (a loaded Mitsuba BSDF) at ``n`` random
+    upper-hemisphere pairs: :func:`time_evaluations` of ``bsdf.eval(ctx, si, wo)``."""
+    import mitsuba as mi
+
+    ctx = mi.BSDFContext()
+    return time_evaluations(lambda si, wo: bsdf.eval(ctx, si, wo), n, repeats, seed)
+
+
+def evals_per_second(model, n: int = 1 << 20, repeats: int = 5, ensemble=None, *,
+                     decoder: str = "grouped", variant: str = "llvm_ad_rgb",
+                     seed: int = 0) -> float:
+    """Evaluations per second of ``model`` with its own evaluator (see the module doc).
+
+    Parameters
+    ----------
+    model : Compact, SparseBRDF or BRDF
+        A fitted :class:`~sparse_brdf.baselines.Compact` of any baseline kind (naive,
+        cpd, tucker, pca, tabulated, sparse), a sparse model, or a tabulated BRDF.
+    n : int, default 2**20
+        Random upper-hemisphere direction pairs per timed call.
+    repeats : int, default 5
+        Timed calls (after one untimed call that compiles the kernel).
+    ensemble : Ensemble, optional
+        Sparse models only: the ensemble the model was encoded with (default: the
+        shipped one).
+    decoder : {"grouped", "strict", "auto"}, default "grouped"
+        Sparse models only: the ``sparse_brdf`` plugin's decoder.
+    variant : str, default "llvm_ad_rgb"
+        The (JIT) Mitsuba variant to time in; the previous variant is restored after.
+    seed : int, default 0
+        Seed of the random directions.
+
+    Returns
+    -------
+    float
+        Evaluations (one RGB value of one direction pair) per second of wall time: ``n``
+        divided by the median time of a call, on every core Dr.Jit uses.
+    """
+    import drjit as dr
+
+    from .mitsuba_env import variant as use_variant
+
+    n, repeats = _check_counts(n, repeats)
+    if decoder not in DECODERS:
+        raise ValueError(f"decoder={decoder!r}: expected one of {', '.join(DECODERS)}")
+    if not variant.startswith(("llvm", "cuda")):
+        raise ValueError(f"variant={variant!r}: timing needs a JIT variant (llvm_* or cuda_*)")
+    with use_variant(variant):
+        evaluate = _evaluator(model, ensemble, decoder)
+        rate = time_evaluations(evaluate, n, repeats, seed)
+        del evaluate
+        dr.sync_thread()
+    return rate
+
+
+# ----------------------------------------------------------------------------- helpers
+
+
+def _check_counts(n, repeats) -> tuple[int, int]:
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise ValueError(f"n must be a positive integer (direction pairs), got {n!r}")
+    if isinstance(repeats, bool) or not isinstance(repeats, (int, np.integer)) or repeats < 1:
+        raise ValueError(f"repeats must be a positive integer, got {repeats!r}")
+    return int(n), int(repeats)
+
+
+def _kind(model) -> str:
+    from .baselines import Compact
+    from .brdf import BRDF
+    from .sparse import SparseBRDF
+
+    if isinstance(model, Compact):
+        kind = model.kind
+        if kind not in KINDS:
+            raise ValueError(f"{model.model}: no evaluator for model kind {kind!r} "
+                             f"(expected one of {', '.join(KINDS)})")
+        return kind
+    if isinstance(model, SparseBRDF):
+        return "sparse"
+    if isinstance(model, BRDF):
+        return "tabulated"
+    raise TypeError(f"model must be a Compact, SparseBRDF or BRDF, got {type(model).__name__}")
+
+
+def _evaluator(model, ensemble, decoder: str) -> Callable:
+    """``evaluate(si, wo)`` of ``model`` in the current variant (a plugin's ``eval`` or
+    an evaluator's)."""
+    import mitsuba as mi
+
+    import mitsuba_plugin
+
+    kind = _kind(model)
+    if kind in ("sparse", "tabulated"):
+        mitsuba_plugin.register()
+        with tempfile.TemporaryDirectory(prefix="sparse-brdf-speed-") as tmp:
+            bsdf = mi.load_dict(_plugin_dict(model, kind, ensemble, decoder, Path(tmp)))
+        ctx = mi.BSDFContext()
+        return lambda si, wo: bsdf.eval(ctx, si, wo)
+    from mitsuba_plugin.evaluators import evaluator_for
+
+    ev = evaluator_for(model)
+    return lambda si, wo: ev.eval(si.wi, wo)
+
+
+def _plugin_dict(model, kind: str, ensemble, decoder: str, tmp: Path) -> dict:
+    """The ``mi.load_dict`` dictionary of a sparse or tabulated model, its files in
+    ``tmp`` (the plugins read them at load time)."""
+    from .baselines import Compact
+    from .brdf import BRDF
+    from .coords import geometric_valid
+    from .merl import write_merl
+    from .sbrdf import save_sbrdf
+
+    if kind == "tabulated":
+        if isinstance(model, Compact):
+            if model.params is None or "table" not in model.params:
+                raise ValueError(f"{model.model}: a tabulated Compact needs params['table']")
+            table = model.params["table"]
+            model = BRDF(table, geometric_valid(tuple(table.shape[:3])), name=model.model)
+        return {"type": "tabulated_brdf",
+                "filename": str(write_merl(tmp / "table.binary", model))}
+    if isinstance(model, Compact):
+        if not model.info or "model" not in model.info:
+            raise ValueError(f"{model.model}: a sparse Compact needs info['model']")
+        model = model.info["model"]
+    out = {"type": "sparse_brdf", "decoder": decoder,
+           "filename": str(save_sbrdf(tmp / "model.sbrdf", model))}
+    if ensemble is not None:
+        out["ensemble"] = str(ensemble.save(tmp / "ensemble.npz"))
+    return out
+
+
+def format_rate(rate: float) -> str:
+    """Evaluations per second as ``"12.3 M"`` (or ``"n/a"`` if not finite)."""
+    return f"{rate / 1e6:.1f} M" if math.isfinite(rate) else "n/a"
+
+
+__all__ = ["DECODERS", "KINDS", "random_directions", "time_evaluations", "eval_rate",
+           "evals_per_second", "format_rate"]
