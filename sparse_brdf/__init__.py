@@ -20,7 +20,7 @@ from .errors import BRDFFileError, EnsembleMismatchError, InvalidBRDFError, Spar
 from .interpolate import interpolate
 from .io import load_brdf
 from .merl import read_merl, write_merl
-from .metrics import cosine_weighted_snr, gamma_mse, rae, render_snr
+from .metrics import SNRForms, cosine_weighted_snr, gamma_mse, rae, render_snr, snr_forms
 from .sbrdf import load_sbrdf, save_sbrdf
 from .sparse import SparseBRDF
 from .transforms import TRANSFORMS
@@ -31,10 +31,10 @@ __version__ = "0.1.0"
 
 __all__ = [
     "BRDF", "BRDFFileError", "Corpus", "DEFAULT_N_COEFFS", "Ensemble", "EnsembleMismatchError",
-    "InvalidBRDFError", "Material", "SparseBRDF", "SparseBRDFError", "TRANSFORMS",
+    "InvalidBRDFError", "Material", "SNRForms", "SparseBRDF", "SparseBRDFError", "TRANSFORMS",
     "cosine_weighted_snr", "decode_file", "encode", "gamma_mse", "get_corpus",
     "interpolate", "inverse_transform", "list_corpora", "load_brdf", "load_sbrdf",
     "mitsuba_catalog", "rae",
-    "read_merl", "render_snr", "save_sbrdf", "train_dictionaries", "train_ensemble",
+    "read_merl", "render_snr", "save_sbrdf", "snr_forms", "train_dictionaries", "train_ensemble",
     "transform", "write_merl",
 ]

@@ -210,6 +210,12 @@ class Bench:
                 self._save()
                 bar.update(1)
         bar.close()
+        missing = [mod for mod in models if mod.name not in self.results["speed"]]
+        if self.cfg.speed and missing and mats:  # e.g. measurements deleted to redo them
+            brdf = mats[0].load()
+            for mod in missing:
+                self._speed(mod, mod.fit(brdf))
+                self._save()
         if self.cfg.stability and "stability" not in self.results and mats:
             from .stability import run_stability
 

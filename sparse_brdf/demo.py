@@ -174,7 +174,7 @@ def main(argv: list[str] | None = None) -> int:
     print("== 2. render them: sparse model and baselines against the tabulated reference "
           "(benchmarks/demo.toml)")
     bench = run_bench("demo.toml", out / "bench")
-    models = ["sparse-262", "sparse-1024", "naive", "cpd-1", "tucker-1x1x1"]
+    models = ["sparse-128", "sparse-262", "sparse-1024", "naive", "cpd-1"]
     table = render_table(bench, models)
     _print(table)
     md = ["# sparse-brdf demo", "",
@@ -201,7 +201,6 @@ def main(argv: list[str] | None = None) -> int:
     if not args.no_analytic:
         print("== 3. the analytic corpus (built-in Mitsuba BSDFs), where the naive model is "
               "nearly exact (benchmarks/demo_analytic.toml)")
-        encode_materials(out, "mitsuba", ens)
         analytic = run_bench("demo_analytic.toml", out / "bench_analytic")
         table2 = render_table(analytic, ["sparse-262", "sparse-1024", "naive", "pca-40"])
         _print(table2)

@@ -57,12 +57,21 @@ def scenes_of(results: dict) -> list[str]:
     return list(out)
 
 
-def summary_table(results: dict, scene: str | None = None) -> list[dict]:
+def corpora_of(results: dict) -> list[str]:
+    """Corpora of the materials in ``results`` (the part of ``corpus/name`` keys before
+    the slash), in first-seen order."""
+    return list(dict.fromkeys(r["material"].split("/", 1)[0] for r in results["cells"].values()))
+
+
+def summary_table(results: dict, scene: str | None = None,
+                  corpus: str | None = None) -> list[dict]:
     """Per model: bytes, speed, RAE, and rendering SNR statistics of both forms in
-    ``scene`` (Table 3); rows sorted by object-only mean SNR."""
+    ``scene`` (Table 3), over every material or those of ``corpus``; rows sorted by
+    object-only mean SNR."""
     by_model: dict[str, list[dict]] = {}
     for r in results["cells"].values():
-        by_model.setdefault(r["model"], []).append(r)
+        if corpus is None or r["material"].split("/", 1)[0] == corpus:
+            by_model.setdefault(r["model"], []).append(r)
     speed = results.get("speed", {})
     rows = []
     for model, cells in by_model.items():
@@ -123,6 +132,7 @@ def speed_accuracy_chart(rows: list[dict], path: Path, title: str = "") -> bool:
             ax.plot([p[0] for p in fx], [p[1] for p in fx], "--", color="grey", lw=1,
                     label="Pareto front")
             ax.set_xscale("log")
+            ax.xaxis.set_minor_formatter(plt.NullFormatter())
             ax.set_xlabel(xlabel)
             ax.set_ylabel(f"mean rendering SNR, {label} (dB)")
             ax.legend(fontsize=8)
@@ -254,6 +264,21 @@ def _scene_section(results: dict, out: Path, scene: str) -> list[str]:
             f"{_f(r.get('snr_object_std'))} | {_f(r.get('snr_object_min'))} | "
             f"{_f(r.get('snr_object_max'))} | {_f(r.get('snr_whole_mean'))} | "
             f"{_f(r.get('snr_whole_min'))} | {_f(r.get('snr_whole_max'))} |")
+    corpora = corpora_of(results)
+    if len(corpora) > 1:
+        md += ["", f"### Per corpus, `{scene}` (the paper's Table 3 is MERL, Table 6 RGL-EPFL)",
+               "", "Mean (min) rendering SNR in dB.", "",
+               "| model | " + " | ".join(f"{c}: {OBJECT_ONLY} | {c}: {WHOLE_IMAGE}"
+                                       for c in corpora) + " |",
+               "|---" * (1 + 2 * len(corpora)) + "|"]
+        per = {c: {r["model"]: r for r in summary_table(results, scene, c)} for c in corpora}
+        for r in rows:
+            cols = []
+            for c in corpora:
+                x = per[c].get(r["model"], {})
+                cols += [f"{_f(x.get(f'{k}_mean'))} ({_f(x.get(f'{k}_min'))})"
+                         for k in ("snr_object", "snr_whole")]
+            md.append(f"| {r['model']} | " + " | ".join(cols) + " |")
     chart = out / f"speed_accuracy-{scene}.png"
     if speed_accuracy_chart(rows, chart, f" in {scene}"):
         md += ["", f"![speed and size against accuracy in {scene}]({chart.name})"]
