@@ -10,7 +10,8 @@ direction pairs without a dense reconstruction). Models that learn from a traini
 
 - :class:`SparseModel`   the paper's model over an ensemble (8 bytes per coefficient)
 - :class:`NaiveModel`    Bagher et al. 2016: kd + ks a(theta_h) b(theta_d) c(phi_d) per
-  channel (362 numbers), alternating weighted least squares
+  channel (362 numbers), non-negative alternating weighted least squares
+  (:func:`fit_separable`) with solid-angle and cosine weights
 - :class:`CPDModel`      rank-L CPD of the log-plus tensor per channel (360 L numbers),
   via tensorly
 - :class:`TuckerModel`   Tucker of the log-plus tensor per channel, via tensorly
@@ -28,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .brdf import BRDF
+from .coords import cosine_product
 from .transforms import cosine_weight, forward, inverse
 
 _F32 = 4
@@ -142,47 +144,197 @@ class SparseModel(BRDFModel):
                        {"transform": m.transform, "model": m})
 
 
-class NaiveModel(BRDFModel):
-    """Bagher et al. 2016 "naive" model, per channel rho ~ kd + ks a(th) b(td) c(pd).
+def bin_solid_angle(shape: tuple[int, int, int]) -> np.ndarray:
+    """Measure of each grid bin in (wi, wo) space (sr^2), float64 array of ``shape``.
 
-    Fitted by alternating weighted least squares (weights: valid bins times
-    clip(cos_i cos_o, 0.01, 1), so that what the renderer integrates dominates).
-    kd is kept >= 0; ks is folded into the unit-norm factors' scale.
+    d(wi) d(wo) = 4 cos(theta_d) sin(theta_h) sin(theta_d) d(theta_h) d(phi_h) d(theta_d)
+    d(phi_d), integrated exactly over each bin's angle ranges (SPEC section 1: theta_h
+    edges (i/n1)^2 pi/2, theta_d edges j/n2 pi/2, phi_d edges k/n3 pi), phi_h over 2 pi and
+    phi_d doubled for the reciprocal half folded onto [0, pi). The first theta_h bins of
+    the MERL grid are tiny (the square-root spacing): bin 0 measures ~1e-11 of bin 45.
+    """
+    n1, n2, n3 = shape
+    th = (np.arange(n1 + 1) / n1) ** 2 * (np.pi / 2)
+    td = np.arange(n2 + 1) / n2 * (np.pi / 2)
+    per_h = np.cos(th[:-1]) - np.cos(th[1:])
+    per_d = 0.5 * (np.sin(td[1:]) ** 2 - np.sin(td[:-1]) ** 2)
+    hd = (4.0 * 2.0 * np.pi * 2.0 * np.pi / n3) * per_h[:, None] * per_d[None, :]
+    return np.repeat(hd[:, :, None], n3, axis=2)
+
+
+def _axis_sums(t: np.ndarray, x: np.ndarray, y: np.ndarray, axis: int) -> np.ndarray:
+    """sum over the two axes other than ``axis`` of t * x[., m] * y[., m], for each column
+    m of x (length of the first other axis) and y (the second): (t.shape[axis], m)."""
+    n1, n2, n3 = t.shape
+    if axis == 2:
+        u = (x.T @ t.reshape(n1, n2 * n3)).reshape(-1, n2, n3)
+        return np.einsum("mjk,jm->km", u, y)
+    u = (t.reshape(n1 * n2, n3) @ y).reshape(n1, n2, -1)
+    return np.einsum("ijm,jm->im" if axis == 0 else "ijm,im->jm", u, x)
+
+
+def _kd_and_factor(n, cross, d, m, s, steps: int = 80):
+    """Exact block update of (kd, f) for sum w (z - kd - f[i] g)^2 with kd, f >= 0, where
+    n_i = sum w z g, cross_i = sum w g, d_i = sum w g^2 (over bins of row i), m = sum w z,
+    s = sum w. Given kd, f_i = max((n_i - cross_i kd) / d_i, 0); the reduced objective is
+    convex in kd with derivative s kd - m + sum_i cross_i f_i(kd) (nondecreasing), whose
+    root on kd >= 0 is found by bisection."""
+    def slope(kd):
+        return s * kd - m + np.sum(cross * np.maximum(n - cross * kd, 0.0) / d)
+
+    kd = 0.0
+    if slope(0.0) < 0.0:
+        pos = cross > 0
+        lo, hi = 0.0, max(m / s, float(np.max(n[pos] / cross[pos])) if pos.any() else 0.0)
+        for _ in range(steps):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if slope(mid) < 0.0 else (lo, mid)
+        kd = 0.5 * (lo + hi)
+    return kd, np.maximum((n - cross * kd) / d, 0.0)
+
+
+def fit_separable(rho: np.ndarray, w: np.ndarray, n_iter: int = 100, tol: float = 1e-6):
+    """Weighted non-negative fit of one channel: rho[i, j, k] ~ kd + a[i] b[j] c[k].
+
+    Minimises E = sum w (rho - kd - a[i] b[j] c[k])^2 subject to kd >= 0, a, b, c >= 0,
+    by alternating weighted least squares: each step solves one block (kd together with
+    one factor) exactly, so E never increases; it starts from a = b = c = 1 and stops
+    when E falls by less than ``tol`` (relative) in a sweep, or after ``n_iter`` sweeps.
+
+    Parameters
+    ----------
+    rho : ndarray of shape (n1, n2, n3)
+        Values (finite wherever ``w > 0``).
+    w : ndarray of shape (n1, n2, n3)
+        Non-negative weights; bins of weight 0 are ignored.
+
+    Returns
+    -------
+    kd, (a, b, c), E, sweeps : float, three 1-D arrays, float, int
+    """
+    rho = np.where(w > 0, rho, 0.0)
+    wz = w * rho
+    s, m, mzz = float(w.sum()), float(wz.sum()), float((wz * rho).sum())
+    if s <= 0:
+        return 0.0, tuple(np.zeros(n) for n in rho.shape), 0.0, 0
+    f = [np.ones(n) for n in rho.shape]
+    kd, prev, err, sweeps = 0.0, np.inf, mzz, 0
+    while sweeps < n_iter:
+        sweeps += 1
+        for ax in range(3):
+            x, y = (f[k] for k in range(3) if k != ax)
+            if not (x.any() and y.any()):
+                continue  # a zero factor: the block is undetermined, keep it
+            n = _axis_sums(wz, x[:, None], y[:, None], ax)[:, 0]
+            cd = _axis_sums(w, np.stack([x, x * x], 1), np.stack([y, y * y], 1), ax)
+            cross, d = cd[:, 0], np.maximum(cd[:, 1], 1e-300)
+            kd, f[ax] = _kd_and_factor(n, cross, d, m, s)
+            # E from this block's sums (no extra pass over the grid)
+            err = (mzz + kd * kd * s - 2 * kd * m + float(np.sum(f[ax] ** 2 * d))
+                   - 2 * float(np.sum(f[ax] * n)) + 2 * kd * float(np.sum(f[ax] * cross)))
+        norms = [float(np.linalg.norm(v)) for v in f]
+        if min(norms) > 0:  # balance the factors' scales (the product is unchanged)
+            scale = float(np.prod(norms)) ** (1 / 3)
+            f = [v * (scale / nv) for v, nv in zip(f, norms, strict=True)]
+        if sweeps > 1 and prev - err <= tol * prev:
+            break
+        prev = err
+    return kd, tuple(f), max(err, 0.0), sweeps
+
+
+class NaiveModel(BRDFModel):
+    """Bagher et al. 2016 "naive" model: per channel rho ~ kd + ks a(th) b(td) c(pd).
+
+    M. M. Bagher, J. Snyder, D. Nowrouzezahrai, "A Non-Parametric Factor Microfacet Model
+    for Isotropic BRDFs", ACM TOG 35(5), 2016, in the form the paper compares against: per
+    colour channel a diffuse constant kd plus one separable product of tabulated factors on
+    the grid, a(theta_h) (n1 numbers), b(theta_d) (n2), c(phi_d) (n3), scaled by ks;
+    2 + n1 + n2 + n3 numbers per channel (362 on the MERL grid), linear BRDF units (1/sr).
+
+    Objective, per channel (``fit_separable``; AWLS, alternating weighted least squares)::
+
+        min  sum_bins  w (rho - kd - a[i] b[j] c[k])^2     s.t. kd >= 0, a, b, c >= 0
+        w  = valid * Omega^solid_angle_power * (cos_i cos_o)^cos_power
+                   * (rho + eps)^(2 q - 2)
+
+    - valid: only measured, above-horizon bins count (``brdf.valid``).
+    - Omega (:func:`bin_solid_angle`): the bin's measure in (wi, wo) space. A renderer
+      integrates the BRDF over directions, so a bin matters in proportion to the directions
+      it covers; without it the tiny first theta_h bins of the MERL grid (square-root
+      spacing) dominate the fit.
+    - (cos_i cos_o)^1.5 (unclipped cosines at the bin's angles): under direct lighting a
+      light sample's error is Delta rho cos_i, squared, and a sphere's pixels per unit
+      solid angle of view grow with cos_o; cos_i^2 cos_o, symmetrised by reciprocity.
+    - (rho + eps)^(2q - 2): Bagher et al.'s compressive weighting (weights decreasing with
+      the measured value, so that the residual approximates the error of the compressed
+      value rho^q; q = 0 is relative error, q = 1 plain least squares). Off by default
+      (q = 1): in the paper's protocol it lowered the rendering SNR.
+
+    The exponents are the best measured: ``benchmarks/naive_fit.py`` (paper scene, MERL
+    test split, res 96, 16 spp) gives a whole-image mean SNR of 39.4 dB (object-only
+    22.9), against 32.7 (16.2) for the former fit (weights clip(cos_i cos_o, 0.01, 1),
+    kd >= 0 only); see docs. A fit takes about 0.5 s per MERL material.
+
+    Parameters
+    ----------
+    n_iter : int, default 100
+        Maximum number of sweeps (each updates kd with a, then b, then c).
+    tol : float, default 1e-6
+        Stop when a sweep lowers the objective by less than this fraction.
+    cos_power, solid_angle_power : float, default 1.5 and 1.25
+        Exponents of the cosine and solid-angle factors of the weights.
+    q : float in [0, 1], default 1.0
+        Compression exponent of the compressive weighting (1: none).
+    eps : float, default 1e-3
+        Offset of the compressive weighting (1/sr); used only when q < 1.
     """
 
     name = "naive"
 
-    def __init__(self, n_iter: int = 30):
-        self.n_iter = n_iter
+    def __init__(self, n_iter: int = 100, tol: float = 1e-6, cos_power: float = 1.5,
+                 solid_angle_power: float = 1.25, q: float = 1.0, eps: float = 1e-3):
+        checks = (("n_iter", n_iter, n_iter >= 1 and int(n_iter) == n_iter, "an integer >= 1"),
+                  ("tol", tol, tol >= 0, ">= 0"),
+                  ("cos_power", cos_power, cos_power >= 0, ">= 0"),
+                  ("solid_angle_power", solid_angle_power, solid_angle_power >= 0, ">= 0"),
+                  ("q", q, 0 <= q <= 1, "in [0, 1]"),
+                  ("eps", eps, eps > 0, "> 0"))
+        for key, value, ok, what in checks:
+            if not ok:
+                raise ValueError(f"NaiveModel: {key} must be {what}, got {value!r}")
+        self.n_iter, self.tol = int(n_iter), float(tol)
+        self.cos_power, self.solid_angle_power = float(cos_power), float(solid_angle_power)
+        self.q, self.eps = float(q), float(eps)
+
+    def weights(self, brdf: BRDF) -> np.ndarray:
+        """The objective's weights w, float64 of shape (n1, n2, n3, 3); 0 on invalid bins."""
+        w = (brdf.valid * bin_solid_angle(brdf.shape) ** self.solid_angle_power
+             * np.clip(cosine_product(brdf.shape), 0.0, None) ** self.cos_power)
+        w = np.repeat(w[..., None], 3, axis=-1)
+        if self.q != 1.0:
+            rho = np.where(brdf.valid[..., None], brdf.values, 0.0).astype(np.float64)
+            w *= (np.maximum(rho, 0.0) + self.eps) ** (2.0 * self.q - 2.0)
+        return w
+
+    def objective(self, brdf: BRDF, per_channel) -> np.ndarray:
+        """The objective of per-channel parameters (kd, a, b, c), per channel: (3,)."""
+        w = self.weights(brdf)
+        rho = np.where(brdf.valid[..., None], brdf.values, 0.0).astype(np.float64)
+        return np.array([np.sum(w[..., ch] * (rho[..., ch] - kd - np.einsum(
+            "i,j,k->ijk", a, b, c)) ** 2) for ch, (kd, a, b, c) in enumerate(per_channel)])
 
     def fit(self, brdf: BRDF) -> Compact:
-        w = brdf.valid * cosine_weight(brdf.shape)
+        w = self.weights(brdf)
         out = []
         params = []
         for c in range(3):
             rho = brdf.values[..., c].astype(np.float64)
-            kd, a, b, cc = self._fit_channel(rho, w)
+            kd, (a, b, cc), _, _ = fit_separable(rho, w[..., c], self.n_iter, self.tol)
             params.append((kd, a, b, cc))
             out.append(kd + np.einsum("i,j,k->ijk", a, b, cc))
         n = sum(1 + 1 + a.size + b.size + cc.size for _, a, b, cc in params)
         rec = np.maximum(np.stack(out, -1), 0).astype(np.float32)
         return Compact(self.name, n * _F32, lambda: rec, params=_naive_params(params))
-
-    def _fit_channel(self, rho, w):
-        n1, n2, n3 = rho.shape
-        kd = float(np.percentile(rho[w > 0], 5)) if np.any(w > 0) else 0.0
-        a, b, c = np.ones(n1), np.ones(n2), np.ones(n3)
-        for _ in range(self.n_iter):
-            r = rho - kd
-            a = np.einsum("ijk,ijk,j,k->i", w, r, b, c) / np.maximum(
-                np.einsum("ijk,j,k->i", w, b * b, c * c), 1e-30)
-            b = np.einsum("ijk,ijk,i,k->j", w, r, a, c) / np.maximum(
-                np.einsum("ijk,i,k->j", w, a * a, c * c), 1e-30)
-            c = np.einsum("ijk,ijk,i,j->k", w, r, a, b) / np.maximum(
-                np.einsum("ijk,i,j->k", w, a * a, b * b), 1e-30)
-            prod = np.einsum("i,j,k->ijk", a, b, c)
-            kd = max(float(np.sum(w * (rho - prod)) / max(np.sum(w), 1e-30)), 0.0)
-        return kd, a, b, c
 
 
 def _log_plus_channels(brdf: BRDF) -> np.ndarray:
