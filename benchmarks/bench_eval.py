@@ -35,14 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
-from sparse_brdf.baselines import (
-    CPDModel,
-    NaiveModel,
-    PCAModel,
-    SparseModel,
-    TabulatedModel,
-    TuckerModel,
-)
+from sparse_brdf.baselines import PCAModel, SparseModel, TabulatedModel
+from sparse_brdf.bench import make_model
 from sparse_brdf.corpora import get_corpus, shared_data_dir
 from sparse_brdf.ensemble import Ensemble
 from sparse_brdf.fileio import atomic_write
@@ -66,11 +60,10 @@ def build_cases(brdf, corpus: str, pca_train: int, ens: Ensemble) -> list[dict]:
                           "evaluator": f"sparse_brdf plugin ({decoder})", "compact": c})
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)  # tensorly's rank notices
-        for name, model in (("naive", NaiveModel()), ("cpd:1", CPDModel(1)),
-                            ("tucker:1x1x1", TuckerModel((1, 1, 1)))):
+        for name in ("naive", "cpd:1", "tucker:1x1x1"):
             _log(f"fitting {name}")
             cases.append({"name": name, "evaluator": "own evaluator",
-                          "compact": model.fit(brdf)})
+                          "compact": make_model(name).fit(brdf)})
     mats = [m for m in get_corpus(corpus).split("train") if m.name != brdf.name][:pca_train]
     _log(f"training PCA on {len(mats)} {corpus} training materials")
     pca = PCAModel(300).train([m.load(brdf.shape) for m in mats])
