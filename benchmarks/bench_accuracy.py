@@ -18,10 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
-from sparse_brdf.corpora import get_corpus
-from sparse_brdf.dataset import training_tensors
-from sparse_brdf.encode import encode, error_curve
-from sparse_brdf.ensemble import Ensemble, hosvd_ensemble
+from sparse_brdf.model.encode import encode, error_curve
+from sparse_brdf.model.ensemble import Ensemble, hosvd_ensemble
+from sparse_brdf.sources.corpora import get_corpus
+from sparse_brdf.sources.dataset import training_tensors
 from sparse_brdf.transforms import TRANSFORMS
 
 

@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 from sparse_brdf import Ensemble, encode, get_corpus
-from sparse_brdf.corpora import shared_data_dir
+from sparse_brdf.paths import shared_data_dir
 
 
 def main() -> None:

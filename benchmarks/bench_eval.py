@@ -3,7 +3,7 @@
     .venv/bin/python benchmarks/bench_eval.py [--material SOURCE] [--corpus NAME]
         [--n 1048576] [--repeats 5] [--rounds 3] [--pca-train 30] [--json PATH]
 
-Times :func:`sparse_brdf.speed.evals_per_second` on one material for: the full table
+Times :func:`sparse_brdf.evaluation.speed.evals_per_second` on one material for: the full table
 (``tabulated_brdf`` plugin), the sparse model at 32 / 128 / 262 coefficients per channel
 (``sparse_brdf`` plugin, grouped and strict decoders; the shipped ensemble), and the
 baselines through their own Dr.Jit evaluators (``mitsuba_plugin.evaluators``): naive
@@ -35,13 +35,14 @@ from pathlib import Path
 
 import numpy as np
 
-from sparse_brdf.baselines import PCAModel, SparseModel, TabulatedModel
-from sparse_brdf.bench import make_model
-from sparse_brdf.corpora import get_corpus, shared_data_dir
-from sparse_brdf.ensemble import Ensemble
+from sparse_brdf.evaluation.bench import make_model
+from sparse_brdf.evaluation.speed import evals_per_second
 from sparse_brdf.fileio import atomic_write
-from sparse_brdf.io import load_brdf
-from sparse_brdf.speed import evals_per_second
+from sparse_brdf.model.baselines import PCAModel, SparseModel, TabulatedModel
+from sparse_brdf.model.ensemble import Ensemble
+from sparse_brdf.paths import shared_data_dir
+from sparse_brdf.sources.corpora import get_corpus
+from sparse_brdf.sources.load import load_brdf
 
 
 def _log(msg: str) -> None:

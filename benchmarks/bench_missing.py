@@ -15,8 +15,9 @@ import time
 import numpy as np
 
 from sparse_brdf import BRDF, Ensemble, encode, load_brdf
-from sparse_brdf.corpora import get_corpus, shared_data_dir
 from sparse_brdf.metrics import cosine_weighted_snr
+from sparse_brdf.paths import shared_data_dir
+from sparse_brdf.sources.corpora import get_corpus
 
 
 def main() -> None:

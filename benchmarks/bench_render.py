@@ -30,13 +30,13 @@ from pathlib import Path
 
 import numpy as np
 
-from sparse_brdf.bench import SCENES_DIR
-from sparse_brdf.encode import encode
-from sparse_brdf.ensemble import Ensemble
+from sparse_brdf.evaluation.speed import eval_rate
 from sparse_brdf.fileio import atomic_write
-from sparse_brdf.io import load_brdf
-from sparse_brdf.sbrdf import save_sbrdf
-from sparse_brdf.speed import eval_rate
+from sparse_brdf.model.encode import encode
+from sparse_brdf.model.ensemble import Ensemble
+from sparse_brdf.model.sbrdf import save_sbrdf
+from sparse_brdf.paths import SCENES_DIR
+from sparse_brdf.sources.load import load_brdf
 
 
 def timed_render(scene, spp, repeats):
@@ -80,7 +80,7 @@ def scene_args(doc: str) -> argparse.ArgumentParser:
 
 def default_material(src: str | None) -> str:
     """``src``, or the benchmarks' default material."""
-    from sparse_brdf.corpora import shared_data_dir
+    from sparse_brdf.paths import shared_data_dir
 
     if src is not None:
         return src
@@ -103,7 +103,7 @@ def render_cases(cases, args) -> tuple[dict, list, dict]:
     import drjit as dr
     import mitsuba as mi
 
-    from sparse_brdf.bench import SCENES_DIR
+    from sparse_brdf.paths import SCENES_DIR
 
     scene_path = SCENES_DIR / "sphere.xml"
     compile_s = {}

@@ -31,11 +31,11 @@ from pathlib import Path
 import numpy as np
 from bench_render import default_material, render_cases, scene_args
 
-from sparse_brdf.encode import encode
-from sparse_brdf.ensemble import Ensemble
-from sparse_brdf.io import load_brdf
-from sparse_brdf.sbrdf import save_sbrdf
-from sparse_brdf.speed import eval_rate, random_directions
+from sparse_brdf.evaluation.speed import eval_rate, random_directions
+from sparse_brdf.model.encode import encode
+from sparse_brdf.model.ensemble import Ensemble
+from sparse_brdf.model.sbrdf import save_sbrdf
+from sparse_brdf.sources.load import load_brdf
 
 
 def unrolled_data(model, ensemble, packet: int = 8):

@@ -15,13 +15,13 @@ from pathlib import Path
 
 import numpy as np
 
-from sparse_brdf.bench import SCENES_DIR
-from sparse_brdf.encode import encode
-from sparse_brdf.ensemble import Ensemble
-from sparse_brdf.interpolate import interpolate
-from sparse_brdf.io import load_brdf
-from sparse_brdf.render import render_scene
-from sparse_brdf.sbrdf import save_sbrdf
+from sparse_brdf.evaluation.render import render_scene
+from sparse_brdf.model.encode import encode
+from sparse_brdf.model.ensemble import Ensemble
+from sparse_brdf.model.interpolate import interpolate
+from sparse_brdf.model.sbrdf import save_sbrdf
+from sparse_brdf.paths import SCENES_DIR
+from sparse_brdf.sources.load import load_brdf
 
 
 def main() -> None:

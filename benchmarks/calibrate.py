@@ -4,7 +4,7 @@
 
 Takes the median of (object-only rendering SNR in SCENE - cosine-weighted SNR) over the
 finished sparse-model cells of a bench and writes it, with its provenance, to
-sparse_brdf/data/snr_calibration.json (read by sparse_brdf.fit_scene, which targets the
+sparse_brdf/data/snr_calibration.json (read by sparse_brdf.evaluation.fit_scene, which targets the
 object-only SNR).
 """
 
@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-TARGET = Path(__file__).resolve().parent.parent / "sparse_brdf" / "data" / "snr_calibration.json"
+from sparse_brdf.paths import CALIBRATION_PATH
 
 
 def main() -> None:
@@ -39,9 +39,9 @@ def main() -> None:
                                                           float(np.percentile(d, 90))],
            "cells": len(d), "scene": args.scene, "form": "object-only",
            "bench": res["config"], "date": time.strftime("%Y-%m-%d")}
-    TARGET.write_text(json.dumps(cal, indent=1))
+    CALIBRATION_PATH.write_text(json.dumps(cal, indent=1))
     print(f"offset {cal['offset_db']:+.1f} dB (10-90 %: {cal['spread_db'][0]:+.1f} to "
-          f"{cal['spread_db'][1]:+.1f}) from {len(d)} cells; wrote {TARGET}")
+          f"{cal['spread_db'][1]:+.1f}) from {len(d)} cells; wrote {CALIBRATION_PATH}")
 
 
 if __name__ == "__main__":

@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 from sparse_brdf import Ensemble, get_corpus
-from sparse_brdf.encode import project_all, project_pruned, select
+from sparse_brdf.model.encode import project_all, project_pruned, select
 from sparse_brdf.transforms import TRANSFORMS, forward
 
 CASES = ((262, None), (64, None), (1024, None), (262, 1e-4))

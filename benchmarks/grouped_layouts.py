@@ -17,9 +17,9 @@ import sys
 from tqdm import tqdm
 
 from mitsuba_plugin import data as D
-from sparse_brdf.corpora import get_corpus
-from sparse_brdf.encode import encode
-from sparse_brdf.ensemble import Ensemble
+from sparse_brdf.model.encode import encode
+from sparse_brdf.model.ensemble import Ensemble
+from sparse_brdf.sources.corpora import get_corpus
 
 
 def layout_row(model, ens) -> dict:

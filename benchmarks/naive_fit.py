@@ -29,13 +29,13 @@ from pathlib import Path
 
 import numpy as np
 
-from sparse_brdf.baselines import BRDFModel, NaiveModel
 from sparse_brdf.brdf import BRDF
-from sparse_brdf.cache import cache_dir
-from sparse_brdf.corpora import Material, get_corpus
-from sparse_brdf.merl import write_merl
+from sparse_brdf.evaluation.render import find_scene, object_mask, read_exr, render_scene, write_exr
 from sparse_brdf.metrics import snr_forms
-from sparse_brdf.render import find_scene, object_mask, read_exr, render_scene, write_exr
+from sparse_brdf.model.baselines import BRDFModel, NaiveModel
+from sparse_brdf.sources.cache import cache_dir
+from sparse_brdf.sources.corpora import Material, get_corpus
+from sparse_brdf.sources.merl import write_merl
 
 SCENES = ("paper_sphere", "sphere")
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from sparse_brdf.ensemble import Ensemble
+from sparse_brdf.model.ensemble import Ensemble
 
 
 def main() -> None:

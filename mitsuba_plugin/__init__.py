@@ -18,7 +18,7 @@ the bin lookup of SPEC section 1 and the same sampling code, and return
     ``decoder`` ("grouped" | "strict" | "auto"), ``sampling`` ("cosine" | "lobe"),
     ``interpolate`` (bool).
 ``tabulated_brdf``
-    ``filename`` (anything :func:`sparse_brdf.io.load_brdf` reads), ``sampling``,
+    ``filename`` (anything :func:`sparse_brdf.sources.load.load_brdf` reads), ``sampling``,
     ``interpolate``, ``ensemble`` (for decoding a .sbrdf file).
 
 A missing or corrupt file fails at scene load with a :class:`PluginError` naming the

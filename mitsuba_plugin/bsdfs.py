@@ -42,7 +42,7 @@ class PluginError(ValueError):
 
 def load_ensemble(path: str | None):
     """The ensemble at ``path`` (None: the shipped one), cached by path, size and mtime."""
-    from sparse_brdf.ensemble import Ensemble
+    from sparse_brdf.model.ensemble import Ensemble
 
     if path is None:
         key = ("<default>",)
@@ -441,11 +441,11 @@ def make_classes(m):
 
 
 def _load_table(filename: str, ensemble, plugin: str):
-    from sparse_brdf.io import load_brdf
+    from sparse_brdf.sources.load import load_brdf
 
     try:
         if ensemble is not None and Path(filename).suffix.lower() == ".sbrdf":
-            from sparse_brdf.decode import decode_file
+            from sparse_brdf.model.sbrdf import decode_file
 
             return decode_file(filename, load_ensemble(_resolve(str(ensemble))))
         return load_brdf(filename)
@@ -454,7 +454,7 @@ def _load_table(filename: str, ensemble, plugin: str):
 
 
 def _load_model(filename: str, ens_path: str | None, plugin: str):
-    from sparse_brdf.sbrdf import load_sbrdf
+    from sparse_brdf.model.sbrdf import load_sbrdf
 
     try:
         ens = load_ensemble(ens_path)
@@ -485,7 +485,7 @@ array and gathers one RGB triple by flat bin index, with the project's bin conve
      - Description
    * - filename
      - string
-     - Anything :func:`sparse_brdf.io.load_brdf` reads: a MERL/DTU ``.binary``, a
+     - Anything :func:`sparse_brdf.sources.load.load_brdf` reads: a MERL/DTU ``.binary``, a
        Neural-BRDF ``.h5``, a ``.sbrdf`` (fully decoded) or ``mitsuba:<name>``.
    * - ensemble
      - string

@@ -1,7 +1,7 @@
 """Dr.Jit evaluators of the baseline models, each from its own stored numbers.
 
-One evaluator per model kind of :mod:`sparse_brdf.baselines` (the ``params`` of its
-:class:`~sparse_brdf.baselines.Compact`), never from a dense reconstruction, so that
+One evaluator per model kind of :mod:`sparse_brdf.model.baselines` (the ``params`` of its
+:class:`~sparse_brdf.model.baselines.Compact`), never from a dense reconstruction, so that
 what it costs to evaluate is the model's own cost:
 
 ============  =================================================================
@@ -396,7 +396,7 @@ def make_evaluator(kind: str, params: dict, variant: str | None = None) -> Evalu
 
 
 def evaluator_for(compact, variant: str | None = None) -> Evaluator:
-    """The evaluator of a fitted :class:`~sparse_brdf.baselines.Compact` (its ``kind``
+    """The evaluator of a fitted :class:`~sparse_brdf.model.baselines.Compact` (its ``kind``
     and ``params``)."""
     kind = compact.model.split("-", 1)[0]
     if compact.params is None:

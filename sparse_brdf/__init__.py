@@ -12,17 +12,16 @@ decode/render -> evaluate.
 """
 
 from .brdf import BRDF
-from .corpora import Corpus, Material, get_corpus, list_corpora, mitsuba_catalog
-from .decode import decode_file
-from .encode import DEFAULT_N_COEFFS, encode
-from .ensemble import Ensemble, train_dictionaries, train_ensemble
 from .errors import BRDFFileError, EnsembleMismatchError, InvalidBRDFError, SparseBRDFError
-from .interpolate import interpolate
-from .io import load_brdf
-from .merl import read_merl, write_merl
 from .metrics import SNRForms, cosine_weighted_snr, gamma_mse, rae, render_snr, snr_forms
-from .sbrdf import load_sbrdf, save_sbrdf
-from .sparse import SparseBRDF
+from .model.encode import DEFAULT_N_COEFFS, encode
+from .model.ensemble import Ensemble, train_dictionaries, train_ensemble
+from .model.interpolate import interpolate
+from .model.sbrdf import decode_file, load_sbrdf, save_sbrdf
+from .model.sparse import SparseBRDF
+from .sources.corpora import Corpus, Material, get_corpus, list_corpora, mitsuba_catalog
+from .sources.load import load_brdf
+from .sources.merl import read_merl, write_merl
 from .transforms import TRANSFORMS
 from .transforms import forward as transform
 from .transforms import inverse as inverse_transform

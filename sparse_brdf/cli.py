@@ -24,7 +24,7 @@ def _add_source_help(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_corpus_list(args: argparse.Namespace) -> int:
-    from .corpora import get_corpus, list_corpora
+    from .sources.corpora import get_corpus, list_corpora
 
     if args.corpus:
         c = get_corpus(args.corpus)
@@ -38,7 +38,7 @@ def cmd_corpus_list(args: argparse.Namespace) -> int:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
-    from .io import load_brdf
+    from .sources.load import load_brdf
 
     info = load_brdf(args.source).summary()
     if args.json:
@@ -54,8 +54,8 @@ def cmd_info(args: argparse.Namespace) -> int:
 
 
 def cmd_convert(args: argparse.Namespace) -> int:
-    from .io import load_brdf
-    from .merl import write_merl
+    from .sources.load import load_brdf
+    from .sources.merl import write_merl
 
     out = Path(args.output)
     if out.suffix != ".binary":
@@ -66,9 +66,9 @@ def cmd_convert(args: argparse.Namespace) -> int:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from .corpora import get_corpus
-    from .dataset import training_tensors
-    from .ensemble import Ensemble, train_ensemble
+    from .model.ensemble import Ensemble, train_ensemble
+    from .sources.corpora import get_corpus
+    from .sources.dataset import training_tensors
 
     materials = []
     for name in args.corpus:
@@ -96,15 +96,15 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def _ensemble(path: str | None):
-    from .ensemble import Ensemble
+    from .model.ensemble import Ensemble
 
     return Ensemble.load(path) if path else Ensemble.default()
 
 
 def cmd_encode(args: argparse.Namespace) -> int:
-    from .encode import encode
-    from .io import load_brdf
-    from .sbrdf import save_sbrdf
+    from .model.encode import encode
+    from .model.sbrdf import save_sbrdf
+    from .sources.load import load_brdf
 
     t0 = time.perf_counter()
     model = encode(load_brdf(args.source), _ensemble(args.ensemble), args.coeffs,
@@ -125,8 +125,8 @@ def cmd_encode(args: argparse.Namespace) -> int:
 
 
 def cmd_decode(args: argparse.Namespace) -> int:
-    from .decode import decode_file
-    from .merl import write_merl
+    from .model.sbrdf import decode_file
+    from .sources.merl import write_merl
 
     write_merl(args.output, decode_file(args.source, _ensemble(args.ensemble)))
     print(f"wrote {args.output}")
@@ -134,8 +134,8 @@ def cmd_decode(args: argparse.Namespace) -> int:
 
 
 def cmd_blend(args: argparse.Namespace) -> int:
-    from .interpolate import interpolate
-    from .sbrdf import load_sbrdf, save_sbrdf
+    from .model.interpolate import interpolate
+    from .model.sbrdf import load_sbrdf, save_sbrdf
 
     ens = _ensemble(args.ensemble)
     a, b = load_sbrdf(args.a, ens), load_sbrdf(args.b, ens)
@@ -146,13 +146,13 @@ def cmd_blend(args: argparse.Namespace) -> int:
 
 def _scene(path: str) -> str:
     """A scene path as given, or the shipped scene of that name."""
-    from .render import find_scene
+    from .evaluation.render import find_scene
 
     return str(find_scene(path))
 
 
 def cmd_render(args: argparse.Namespace) -> int:
-    from .render import parse_overrides, render_scene, write_exr
+    from .evaluation.render import parse_overrides, render_scene, write_exr
 
     opts = {"decoder": args.decoder, "sampling": args.sampling}
     if args.ensemble:
@@ -166,7 +166,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     print(f"wrote {args.output} ({img.shape[1]}x{img.shape[0]}, {args.spp} spp, "
           f"{seconds:.2f} s)")
     if args.mask:
-        from .render import object_mask, write_mask
+        from .evaluation.render import object_mask, write_mask
 
         write_mask(args.mask, object_mask(_scene(args.scene), res=img.shape[0]))
         print(f"wrote {args.mask} (object mask: pixels whose camera rays hit the geometry)")
@@ -174,8 +174,8 @@ def cmd_render(args: argparse.Namespace) -> int:
 
 
 def cmd_snr(args: argparse.Namespace) -> int:
+    from .evaluation.render import object_mask, read_exr, read_mask
     from .metrics import snr_forms
-    from .render import object_mask, read_exr, read_mask
 
     ref, img = read_exr(args.reference), read_exr(args.image)
     if args.mask:
@@ -206,8 +206,8 @@ def cmd_snr(args: argparse.Namespace) -> int:
 
 
 def cmd_fit_scene(args: argparse.Namespace) -> int:
-    from .fit_scene import fit_scene
-    from .render import parse_overrides
+    from .evaluation.fit_scene import fit_scene
+    from .evaluation.render import parse_overrides
 
     rep = fit_scene(_scene(args.scene), args.target_snr, parse_overrides(args.material),
                     args.output, ensemble_path=args.ensemble, spp=args.spp, res=args.res,
@@ -220,7 +220,7 @@ def cmd_fit_scene(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    from .bench import Bench, BenchConfig
+    from .evaluation.bench import Bench, BenchConfig
 
     cfg = BenchConfig.load(args.config)
     if args.out:

@@ -6,12 +6,12 @@ the test split: the ensemble never saw them). Into ``demo_out/`` (or ``--out``):
 
 1. encode every measured material at 262 coefficients per channel, write its ``.sbrdf``,
    decode and measure it in BRDF space;
-2. bench them (``benchmarks/demo.toml``): the sparse model at 32-1024 coefficients and
+2. bench them (``configs/demo.toml``): the sparse model at 32-1024 coefficients and
    the baselines, rendered against the tabulated reference with the same seed and
    sampling in the CC0 studio sphere and in the paper's scene (when the Grace Cathedral
    map is in ``../shared/data``), every SNR in both forms (whole-image, the paper's;
    object-only, the strict one) beside the noise floor; the speed and size charts;
-3. the analytic corpus (built-in Mitsuba BSDFs, ``benchmarks/demo_analytic.toml``): the
+3. the analytic corpus (built-in Mitsuba BSDFs, ``configs/demo_analytic.toml``): the
    same comparison where the separable naive model is nearly exact, said plainly.
 
 ``report.md`` gathers the headline tables; the benches' own reports are beside it.
@@ -27,13 +27,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .corpora import get_corpus
-from .encode import DEFAULT_N_COEFFS, encode
-from .ensemble import Ensemble
 from .metrics import OBJECT_ONLY, WHOLE_IMAGE, cosine_weighted_snr, rae
-from .sbrdf import save_sbrdf
-
-BENCH_DIR = Path(__file__).resolve().parent.parent / "benchmarks"
+from .model.encode import DEFAULT_N_COEFFS, encode
+from .model.ensemble import Ensemble
+from .model.sbrdf import save_sbrdf
+from .sources.corpora import get_corpus
 
 
 def _figure(rows, examples, path: Path) -> None:
@@ -103,9 +101,9 @@ def encode_materials(out: Path, corpus: str, ens: Ensemble, figure: str | None =
 
 
 def run_bench(config: str, out: Path) -> dict:
-    from .bench import Bench, BenchConfig
+    from .evaluation.bench import Bench, BenchConfig
 
-    cfg = BenchConfig.load(BENCH_DIR / config)
+    cfg = BenchConfig.load(config)
     cfg.out = str(out)
     return Bench(cfg).run()
 
@@ -116,7 +114,7 @@ def _fmt(x: float | None) -> str:
 
 def render_table(results: dict, models: list[str]) -> list[str]:
     """Per scene and model: mean (min) SNR in both forms, and the noise floor."""
-    from .report import scenes_of, summary_table
+    from .evaluation.report import scenes_of, summary_table
 
     lines = [f"| scene | model | bytes | {OBJECT_ONLY} mean (min) | {WHOLE_IMAGE} mean (min) |",
              "|---|---|---|---|---|"]
@@ -138,7 +136,7 @@ def render_table(results: dict, models: list[str]) -> list[str]:
 
 
 def per_material(results: dict, model: str) -> list[str]:
-    from .report import scenes_of
+    from .evaluation.report import scenes_of
 
     scenes = scenes_of(results)
     head = "| material | " + " | ".join(f"{s}: obj / whole" for s in scenes) + " |"
@@ -172,8 +170,8 @@ def main(argv: list[str] | None = None) -> int:
     print("== 1. encode the six shipped measured materials (unseen MERL, Neural-BRDF fits)")
     measured = encode_materials(out, "merl-demo", ens, figure="demo.png")
     print("== 2. render them: sparse model and baselines against the tabulated reference "
-          "(benchmarks/demo.toml)")
-    bench = run_bench("demo.toml", out / "bench")
+          "(configs/demo.toml)")
+    bench = run_bench("demo", out / "bench")
     models = ["sparse-128", "sparse-262", "sparse-1024", "naive", "cpd-1"]
     table = render_table(bench, models)
     _print(table)
@@ -200,8 +198,8 @@ def main(argv: list[str] | None = None) -> int:
         md += [f"Skipped scene `{scene}`: {why}", ""]
     if not args.no_analytic:
         print("== 3. the analytic corpus (built-in Mitsuba BSDFs), where the naive model is "
-              "nearly exact (benchmarks/demo_analytic.toml)")
-        analytic = run_bench("demo_analytic.toml", out / "bench_analytic")
+              "nearly exact (configs/demo_analytic.toml)")
+        analytic = run_bench("demo_analytic", out / "bench_analytic")
         table2 = render_table(analytic, ["sparse-262", "sparse-1024", "naive", "pca-40"])
         _print(table2)
         md += ["## Analytic materials (built-in Mitsuba BSDFs): where the naive model wins", "",

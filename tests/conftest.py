@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sparse_brdf.corpora import shared_data_dir
+from sparse_brdf.paths import shared_data_dir
 
 SMALL = (18, 18, 36)
 
@@ -30,8 +30,8 @@ def shared_data():
 @pytest.fixture(scope="session")
 def small_training():
     """Transformed channels of 12 built-in materials on the small grid, (72, 18, 18, 36)."""
-    from sparse_brdf.corpora import get_corpus
-    from sparse_brdf.dataset import training_tensors
+    from sparse_brdf.sources.corpora import get_corpus
+    from sparse_brdf.sources.dataset import training_tensors
 
     mats = get_corpus("mitsuba").split("train")[::3]
     return training_tensors(mats, shape=SMALL, progress=False)[0]
@@ -39,7 +39,7 @@ def small_training():
 
 @pytest.fixture(scope="session")
 def small_ensemble(small_training):
-    from sparse_brdf.ensemble import train_ensemble
+    from sparse_brdf.model.ensemble import train_ensemble
 
     return train_ensemble(small_training, taus=(16, 64), n_dicts=3, n_iter=3, seed=1,
                           progress=False)

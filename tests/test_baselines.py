@@ -4,7 +4,10 @@ import numpy as np
 import pytest
 
 from conftest import SMALL
-from sparse_brdf.baselines import (
+from sparse_brdf.brdf import BRDF
+from sparse_brdf.coords import bin_angles, geometric_valid
+from sparse_brdf.metrics import rae
+from sparse_brdf.model.baselines import (
     CPDModel,
     NaiveModel,
     PCAModel,
@@ -13,11 +16,8 @@ from sparse_brdf.baselines import (
     TuckerModel,
     bin_solid_angle,
 )
-from sparse_brdf.brdf import BRDF
-from sparse_brdf.coords import bin_angles, geometric_valid
-from sparse_brdf.corpora import get_corpus
-from sparse_brdf.io import load_brdf
-from sparse_brdf.metrics import rae
+from sparse_brdf.sources.corpora import get_corpus
+from sparse_brdf.sources.load import load_brdf
 
 
 @pytest.fixture(scope="module")

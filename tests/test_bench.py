@@ -1,12 +1,12 @@
-"""The CI-sized bench (benchmarks/ci.toml) end to end: cells, report, resume."""
+"""The CI-sized bench (sparse_brdf/data/configs/ci.toml) end to end: cells, report, resume."""
 
 import json
 from pathlib import Path
 
 import pytest
 
-from sparse_brdf.bench import Bench, BenchConfig, make_model
-from sparse_brdf.report import pareto
+from sparse_brdf.evaluation.bench import Bench, BenchConfig, make_model
+from sparse_brdf.evaluation.report import pareto
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -66,7 +66,7 @@ def test_unknown_model_and_setting(tmp_path):
 
 @pytest.mark.render
 def test_ci_bench_report(tmp_path):
-    cfg = BenchConfig.load(ROOT / "benchmarks" / "ci.toml")
+    cfg = BenchConfig.load("ci")
     cfg.out = str(tmp_path / "bench")
     results = Bench(cfg, progress=False).run()
     out = Path(cfg.out)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from sparse_brdf.cli import main
-from sparse_brdf.merl import read_merl
+from sparse_brdf.sources.merl import read_merl
 
 
 def test_help_lists_commands(capsys):
@@ -59,8 +59,8 @@ def test_train_encode_decode_round_trip(tmp_path, capsys):
                  "--checkpoint-dir", str(tmp_path / "ck")]) == 0
     assert (tmp_path / "ck" / "tau-16.npz").is_file()
     src = tmp_path / "src.binary"
-    from sparse_brdf.io import load_brdf
-    from sparse_brdf.merl import write_merl
+    from sparse_brdf.sources.load import load_brdf
+    from sparse_brdf.sources.merl import write_merl
 
     write_merl(src, load_brdf("mitsuba:cu-ggx-0.35", shape=(18, 18, 36)))
     sb = tmp_path / "m.sbrdf"

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import pytest
 
-from sparse_brdf.corpora import DEMO_MATERIALS_DIR, get_corpus, list_corpora
 from sparse_brdf.demo import per_material, render_table
-from sparse_brdf.ensemble import Ensemble
+from sparse_brdf.model.ensemble import Ensemble
+from sparse_brdf.paths import DEMO_MATERIALS_DIR
+from sparse_brdf.sources.corpora import get_corpus, list_corpora
 
 
 def test_shipped_materials_are_unseen_merl_test_materials():

@@ -6,13 +6,13 @@ import pytest
 from conftest import SMALL, random_orthonormal
 from sparse_brdf.brdf import BRDF
 from sparse_brdf.coords import angles_to_dirs, geometric_valid, grid_angles
-from sparse_brdf.encode import encode
-from sparse_brdf.ensemble import Ensemble
 from sparse_brdf.errors import BRDFFileError, EnsembleMismatchError
-from sparse_brdf.io import load_brdf
-from sparse_brdf.sbrdf import file_size, load_sbrdf, save_sbrdf
-from sparse_brdf.sparse import SparseBRDF
-from sparse_brdf.tensor import reconstruct, sparse_to_dense
+from sparse_brdf.model.encode import encode
+from sparse_brdf.model.ensemble import Ensemble
+from sparse_brdf.model.sbrdf import file_size, load_sbrdf, save_sbrdf
+from sparse_brdf.model.sparse import SparseBRDF
+from sparse_brdf.model.tensor import reconstruct, sparse_to_dense
+from sparse_brdf.sources.load import load_brdf
 from sparse_brdf.transforms import inverse
 
 
@@ -162,7 +162,7 @@ def _same_selection(a, b):
 
 
 def test_pruned_projection_selects_what_the_full_search_selects(small_ensemble):
-    from sparse_brdf.encode import project_all, project_pruned, select
+    from sparse_brdf.model.encode import project_all, project_pruned, select
     from sparse_brdf.transforms import forward
 
     pruned = 0
@@ -181,7 +181,7 @@ def test_pruned_projection_selects_what_the_full_search_selects(small_ensemble):
 
 
 def test_pruned_projection_on_measured_data(shared_data):
-    from sparse_brdf.encode import project_all, project_pruned, select
+    from sparse_brdf.model.encode import project_all, project_pruned, select
 
     data = shared_data
     b = load_brdf(str(data / "nbrdf" / "merl" / "green-plastic.h5"))

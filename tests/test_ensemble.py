@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from sparse_brdf.ensemble import Ensemble, train_dictionaries, train_ensemble
 from sparse_brdf.errors import BRDFFileError
+from sparse_brdf.model.ensemble import Ensemble, train_dictionaries, train_ensemble
 
 
 def test_objective_never_increases(small_training):
@@ -90,7 +90,7 @@ def test_extend_with_new_transform(small_training):
 def test_partial_product_cache_changes_nothing(small_training, monkeypatch):
     """Keeping X x3 U3^T between the U1 and U2 passes gives the same dictionaries as
     recomputing it (cache disabled by a zero byte budget)."""
-    import sparse_brdf.ensemble as ens_mod
+    import sparse_brdf.model.ensemble as ens_mod
 
     x = small_training
     kw = dict(tau=12, n_dicts=3, n_iter=4, reassign_every=2, seed=5, progress=False)

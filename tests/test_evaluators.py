@@ -1,5 +1,5 @@
 """The baselines' own Dr.Jit evaluators (mitsuba_plugin.evaluators) and the speed axis
-(sparse_brdf.speed)."""
+(sparse_brdf.evaluation.speed)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,12 @@ import numpy as np
 import pytest
 
 from conftest import SMALL
-from sparse_brdf.baselines import (
+from sparse_brdf.coords import (
+    angles_to_bins,
+    dirs_to_angles,
+    geometric_valid,
+)
+from sparse_brdf.model.baselines import (
     CPDModel,
     NaiveModel,
     PCAModel,
@@ -17,13 +22,8 @@ from sparse_brdf.baselines import (
     TabulatedModel,
     TuckerModel,
 )
-from sparse_brdf.coords import (
-    angles_to_bins,
-    dirs_to_angles,
-    geometric_valid,
-)
-from sparse_brdf.corpora import get_corpus
-from sparse_brdf.io import load_brdf
+from sparse_brdf.sources.corpora import get_corpus
+from sparse_brdf.sources.load import load_brdf
 
 mi = pytest.importorskip("mitsuba")
 dr = pytest.importorskip("drjit")
@@ -33,8 +33,8 @@ from mitsuba_plugin.evaluators import (  # noqa: E402
     evaluator_for,
     make_evaluator,
 )
+from sparse_brdf.evaluation.speed import evals_per_second  # noqa: E402
 from sparse_brdf.mitsuba_env import set_variant  # noqa: E402
-from sparse_brdf.speed import evals_per_second  # noqa: E402
 
 MODELS = {
     "naive": lambda: NaiveModel(),
@@ -210,8 +210,8 @@ def test07_evaluator_errors(llvm, compacts):
 
 @pytest.fixture(scope="module")
 def small_hosvd(brdf, other):
-    from sparse_brdf.dataset import training_tensors
-    from sparse_brdf.ensemble import hosvd_ensemble
+    from sparse_brdf.model.ensemble import hosvd_ensemble
+    from sparse_brdf.sources.dataset import training_tensors
 
     mats = get_corpus("mitsuba").split("train")[:3]
     return hosvd_ensemble(training_tensors(mats, shape=SMALL, progress=False)[0],

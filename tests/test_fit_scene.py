@@ -6,10 +6,10 @@ import pytest
 
 from conftest import SMALL
 from sparse_brdf.cli import main
-from sparse_brdf.fit_scene import scene_materials
-from sparse_brdf.io import load_brdf
-from sparse_brdf.merl import write_merl
-from sparse_brdf.sbrdf import load_sbrdf
+from sparse_brdf.evaluation.fit_scene import scene_materials
+from sparse_brdf.model.sbrdf import load_sbrdf
+from sparse_brdf.sources.load import load_brdf
+from sparse_brdf.sources.merl import write_merl
 
 pytestmark = pytest.mark.render
 

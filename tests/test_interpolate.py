@@ -3,10 +3,10 @@ import pytest
 
 from conftest import SMALL
 from sparse_brdf.cli import main
-from sparse_brdf.encode import encode
-from sparse_brdf.interpolate import interpolate
-from sparse_brdf.io import load_brdf
-from sparse_brdf.sbrdf import load_sbrdf, save_sbrdf
+from sparse_brdf.model.encode import encode
+from sparse_brdf.model.interpolate import interpolate
+from sparse_brdf.model.sbrdf import load_sbrdf, save_sbrdf
+from sparse_brdf.sources.load import load_brdf
 
 
 @pytest.fixture(scope="module")

@@ -4,7 +4,7 @@ import pytest
 from sparse_brdf.brdf import BRDF
 from sparse_brdf.coords import geometric_valid
 from sparse_brdf.errors import BRDFFileError, InvalidBRDFError
-from sparse_brdf.merl import MERL_SCALE, read_merl, write_merl
+from sparse_brdf.sources.merl import MERL_SCALE, read_merl, write_merl
 
 SHAPE = (6, 6, 12)
 
@@ -76,7 +76,7 @@ def test_missing_file():
 
 
 def test_failed_write_leaves_no_partial_file(tmp_path, monkeypatch):
-    import sparse_brdf.merl as merl
+    import sparse_brdf.sources.merl as merl
 
     target = tmp_path / "a.binary"
     write_merl(target, _brdf(0))

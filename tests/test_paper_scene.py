@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sparse_brdf.corpora import shared_envmaps_dir
 from sparse_brdf.errors import MissingDataError
+from sparse_brdf.evaluation.render import check_scene_data, object_mask, read_exr, render_scene
 from sparse_brdf.metrics import render_snr, snr_forms
-from sparse_brdf.render import check_scene_data, object_mask, read_exr, render_scene
+from sparse_brdf.paths import shared_envmaps_dir
 
 pytest.importorskip("mitsuba")
 
@@ -65,7 +65,7 @@ def test_emitter_matches_pbrt_v2_in_world_directions(grace):
     import drjit as dr
     import mitsuba as mi
 
-    from sparse_brdf.render import load_scene
+    from sparse_brdf.evaluation.render import load_scene
 
     scene = load_scene(SCENE, spp=1, res=16)
     emitter = scene.emitters()[0]
@@ -109,7 +109,7 @@ def test_object_mask_is_the_sphere(grace):
 
 
 def test_missing_map_is_one_line(tmp_path, monkeypatch):
-    monkeypatch.setattr("sparse_brdf.render.shared_envmaps_dir", lambda: None)
+    monkeypatch.setattr("sparse_brdf.evaluation.render.shared_envmaps_dir", lambda: None)
     copy = tmp_path / "paper_sphere.xml"
     copy.write_text(SCENE.read_text())
     with pytest.raises(MissingDataError) as err:

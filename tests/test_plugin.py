@@ -7,13 +7,13 @@ import pytest
 
 from conftest import SMALL, random_orthonormal
 from sparse_brdf.coords import angles_to_dirs, dirs_to_bins, geometric_valid
-from sparse_brdf.encode import encode
-from sparse_brdf.ensemble import Ensemble
-from sparse_brdf.io import load_brdf
-from sparse_brdf.merl import write_merl
-from sparse_brdf.sbrdf import load_sbrdf, save_sbrdf
-from sparse_brdf.sparse import SparseBRDF
-from sparse_brdf.tensor import hosvd_factors, mode_grams
+from sparse_brdf.model.encode import encode
+from sparse_brdf.model.ensemble import Ensemble
+from sparse_brdf.model.sbrdf import load_sbrdf, save_sbrdf
+from sparse_brdf.model.sparse import SparseBRDF
+from sparse_brdf.model.tensor import hosvd_factors, mode_grams
+from sparse_brdf.sources.load import load_brdf
+from sparse_brdf.sources.merl import write_merl
 from sparse_brdf.transforms import TRANSFORMS, cosine_weight, forward, inverse
 
 mi = pytest.importorskip("mitsuba")

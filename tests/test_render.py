@@ -7,8 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sparse_brdf.metrics import render_snr
-from sparse_brdf.render import (
+from sparse_brdf.evaluation.render import (
     RenderError,
     parse_overrides,
     plugin_for,
@@ -17,6 +16,7 @@ from sparse_brdf.render import (
     scene_xml,
     write_exr,
 )
+from sparse_brdf.metrics import render_snr
 
 pytest.importorskip("mitsuba")
 dr = pytest.importorskip("drjit")
@@ -142,7 +142,7 @@ def test_noise_floor_and_seeds(exact_material):
     a = render_scene(SPHERE, mats, spp=2, seed=3, res=16)
     b = render_scene(SPHERE, mats, spp=2, seed=3, res=16)
     assert render_snr(a, b) == float("inf")  # deterministic for a given seed
-    from sparse_brdf.render import noise_floor
+    from sparse_brdf.evaluation.render import noise_floor
 
     floor = noise_floor(SPHERE, mats, spp=2, seeds=(0, 1), res=16)
     # both forms, finite and noise-limited; the background adds signal and no noise

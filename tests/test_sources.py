@@ -5,10 +5,10 @@ import os
 import numpy as np
 import pytest
 
-from sparse_brdf.cache import cache_dir
-from sparse_brdf.corpora import TEST_FRACTION, get_corpus, list_corpora, mitsuba_catalog
 from sparse_brdf.errors import BRDFFileError
-from sparse_brdf.io import load_brdf
+from sparse_brdf.sources.cache import cache_dir
+from sparse_brdf.sources.corpora import TEST_FRACTION, get_corpus, list_corpora, mitsuba_catalog
+from sparse_brdf.sources.load import load_brdf
 
 SMALL = (18, 18, 36)
 

@@ -3,9 +3,9 @@
 import numpy as np
 
 from conftest import SMALL
-from sparse_brdf.baselines import BRDFModel, Compact, NaiveModel, SparseModel
-from sparse_brdf.io import load_brdf
-from sparse_brdf.stability import CASES, run_stability, stability_markdown
+from sparse_brdf.evaluation.stability import CASES, run_stability, stability_markdown
+from sparse_brdf.model.baselines import BRDFModel, Compact, NaiveModel, SparseModel
+from sparse_brdf.sources.load import load_brdf
 
 
 class Exploding(BRDFModel):

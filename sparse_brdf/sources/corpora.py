@@ -15,41 +15,14 @@ only on names, so adding a material never moves another one across the split.
 from __future__ import annotations
 
 import hashlib
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from .brdf import BRDF
-from .coords import MERL_SHAPE
+from ..brdf import BRDF
+from ..coords import MERL_SHAPE
+from ..paths import DEMO_MATERIALS_DIR, shared_data_dir
 
 TEST_FRACTION = 0.15
-
-
-def shared_data_dir() -> Path | None:
-    """The shared data folder (``$SPARSE_BRDF_DATA`` or ``../shared/data``), or None."""
-    candidates = []
-    if os.environ.get("SPARSE_BRDF_DATA"):
-        candidates.append(Path(os.environ["SPARSE_BRDF_DATA"]))
-    candidates += [
-        Path(__file__).resolve().parents[2] / "shared" / "data",
-        Path.cwd().parent / "shared" / "data",
-    ]
-    for c in candidates:
-        if (c / "nbrdf").is_dir():
-            return c
-    return None
-
-
-def shared_envmaps_dir() -> Path | None:
-    """The shared environment maps (``<shared data>/envmaps``), or None when absent."""
-    candidates = []
-    if os.environ.get("SPARSE_BRDF_DATA"):
-        candidates.append(Path(os.environ["SPARSE_BRDF_DATA"]) / "envmaps")
-    candidates += [
-        Path(__file__).resolve().parents[2] / "shared" / "data" / "envmaps",
-        Path.cwd().parent / "shared" / "data" / "envmaps",
-    ]
-    return next((c for c in candidates if c.is_dir()), None)
 
 
 def _conductors() -> dict[str, dict]:
@@ -131,7 +104,7 @@ class Material:
     source: str  # a file path or "mitsuba:<name>"
 
     def load(self, shape: tuple[int, int, int] = MERL_SHAPE) -> BRDF:
-        from .io import load_brdf
+        from .load import load_brdf
 
         brdf = load_brdf(self.source, shape=shape)
         brdf.name = self.name
@@ -170,11 +143,6 @@ def _folder_corpus(name: str, folder: Path, description: str) -> Corpus:
     files = sorted(p for p in folder.iterdir() if p.suffix in (".binary", ".h5"))
     mats = tuple(Material(p.stem, name, str(p)) for p in files)
     return Corpus(name, description, mats)
-
-
-#: The measured materials shipped with the package (six ``merl`` test-split Neural-BRDF
-#: networks, see ``data/materials/LICENSE.md``): the demo's default materials.
-DEMO_MATERIALS_DIR = Path(__file__).resolve().parent / "data" / "materials"
 
 
 def _demo_corpus() -> Corpus:

@@ -28,9 +28,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .brdf import BRDF
-from .coords import cosine_product
-from .transforms import cosine_weight, forward, inverse
+from ..brdf import BRDF
+from ..coords import cosine_product
+from ..transforms import cosine_weight, forward, inverse
 
 _F32 = 4
 

@@ -6,9 +6,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .coords import MERL_SHAPE
+from ..coords import MERL_SHAPE
+from ..transforms import TRANSFORMS, forward
 from .corpora import Material
-from .transforms import TRANSFORMS, forward
 
 
 def training_tensors(

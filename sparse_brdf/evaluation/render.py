@@ -19,15 +19,14 @@ from pathlib import Path
 
 import numpy as np
 
-from .corpora import shared_envmaps_dir
-from .errors import MissingDataError, SparseBRDFError
-from .metrics import SNRForms, snr_forms
-from .mitsuba_env import DEFAULT_VARIANT, set_variant
+from ..errors import MissingDataError, SparseBRDFError
+from ..metrics import SNRForms, snr_forms
+from ..mitsuba_env import DEFAULT_VARIANT, set_variant
+from ..paths import SCENES_DIR, shared_envmaps_dir
 
 SPARSE_SUFFIX = ".sbrdf"
 #: The shipped scenes: ``sphere.xml`` (CC0 studio map), ``spheres.xml`` (three materials),
 #: ``paper_sphere.xml`` (the paper's scene; needs the shared Grace Cathedral map).
-SCENES_DIR = Path(__file__).resolve().parent.parent / "scenes"
 
 
 def find_scene(name: str | os.PathLike) -> Path:
@@ -377,7 +376,7 @@ def write_mask(path: str | os.PathLike, mask: np.ndarray) -> Path:
     path = Path(path)
     mask = np.asarray(mask, dtype=bool)
     if path.suffix.lower() == ".npy":
-        from .fileio import atomic_write
+        from ..fileio import atomic_write
 
         with atomic_write(path, "wb") as f:
             np.save(f, mask)

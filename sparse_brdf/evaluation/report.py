@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .fileio import atomic_write
-from .metrics import OBJECT_ONLY, WHOLE_IMAGE
+from ..fileio import atomic_write
+from ..metrics import OBJECT_ONLY, WHOLE_IMAGE
 
 FORMS = (("snr_object", OBJECT_ONLY), ("snr_whole", WHOLE_IMAGE))
 

@@ -11,10 +11,10 @@ import os
 
 import numpy as np
 
-from .brdf import BRDF
-from .coords import MERL_SHAPE, geometric_valid, grid_angles, half_diff_vectors
-from .errors import BRDFFileError
-from .fileio import require_file
+from ..brdf import BRDF
+from ..coords import MERL_SHAPE, geometric_valid, grid_angles, half_diff_vectors
+from ..errors import BRDFFileError
+from ..fileio import require_file
 
 _LAYERS = ("dense_1", "dense_2", "dense_3")
 

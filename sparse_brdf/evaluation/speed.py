@@ -121,7 +121,7 @@ def evals_per_second(model, n: int = 1 << 20, repeats: int = 5, ensemble=None, *
     """
     import drjit as dr
 
-    from .mitsuba_env import variant as use_variant
+    from ..mitsuba_env import variant as use_variant
 
     n, repeats = _check_counts(n, repeats)
     if decoder not in DECODERS:
@@ -148,9 +148,9 @@ def _check_counts(n, repeats) -> tuple[int, int]:
 
 
 def _kind(model) -> str:
-    from .baselines import Compact
-    from .brdf import BRDF
-    from .sparse import SparseBRDF
+    from ..brdf import BRDF
+    from ..model.baselines import Compact
+    from ..model.sparse import SparseBRDF
 
     if isinstance(model, Compact):
         kind = model.kind
@@ -188,11 +188,11 @@ def _evaluator(model, ensemble, decoder: str) -> Callable:
 def _plugin_dict(model, kind: str, ensemble, decoder: str, tmp: Path) -> dict:
     """The ``mi.load_dict`` dictionary of a sparse or tabulated model, its files in
     ``tmp`` (the plugins read them at load time)."""
-    from .baselines import Compact
-    from .brdf import BRDF
-    from .coords import geometric_valid
-    from .merl import write_merl
-    from .sbrdf import save_sbrdf
+    from ..brdf import BRDF
+    from ..coords import geometric_valid
+    from ..model.baselines import Compact
+    from ..model.sbrdf import save_sbrdf
+    from ..sources.merl import write_merl
 
     if kind == "tabulated":
         if isinstance(model, Compact):

@@ -6,12 +6,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .brdf import BRDF
-from .coords import dirs_to_bins, geometric_valid
+from ..brdf import BRDF
+from ..coords import dirs_to_bins, geometric_valid
+from ..errors import EnsembleMismatchError
+from ..transforms import check_transform, inverse, inverse_at_bins
 from .ensemble import Ensemble
-from .errors import EnsembleMismatchError
 from .tensor import parallel_map, reconstruct_sparse
-from .transforms import check_transform, inverse, inverse_at_bins
 
 
 @dataclass

@@ -5,11 +5,11 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from .brdf import BRDF
+from ..brdf import BRDF
+from ..coords import MERL_SHAPE
+from ..errors import BRDFFileError
+from ..fileio import require_file
 from .cache import cached_brdf, content_key
-from .coords import MERL_SHAPE
-from .errors import BRDFFileError
-from .fileio import require_file
 
 SUFFIXES = (".binary", ".h5", ".sbrdf")
 
@@ -26,15 +26,15 @@ def load_brdf(
     ``"mitsuba:<name>"`` for a built-in material, or a ``mi.load_dict`` dictionary.
     """
     if isinstance(source, dict):
-        from .tabulate import tabulate_mitsuba
+        from .analytic import tabulate_mitsuba
 
         name = str(source.get("type", "mitsuba"))
         key = content_key("mitsuba-dict", source, list(shape), _mitsuba_version())
         return cached_brdf(key, lambda: tabulate_mitsuba(source, name, shape), cache)
     s = os.fspath(source)
     if s.startswith("mitsuba:"):
+        from .analytic import tabulate_mitsuba
         from .corpora import mitsuba_catalog
-        from .tabulate import tabulate_mitsuba
 
         name = s.split(":", 1)[1]
         catalog = mitsuba_catalog()
@@ -56,7 +56,7 @@ def load_brdf(
         key = content_key("nbrdf", data, list(shape))
         return cached_brdf(key, lambda: tabulate_nbrdf(path, shape), cache)
     if suffix == ".sbrdf":
-        from .decode import decode_file
+        from ..model.sbrdf import decode_file
 
         return decode_file(path)
     require_file(path)

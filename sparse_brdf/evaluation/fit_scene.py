@@ -30,22 +30,22 @@ from pathlib import Path
 
 import numpy as np
 
-from .encode import choose_transform, project_all, select
-from .ensemble import Ensemble
-from .fileio import atomic_write
-from .io import load_brdf
-from .metrics import OBJECT_ONLY, WHOLE_IMAGE, cosine_weighted_snr, snr_forms
-from .sbrdf import file_size, save_sbrdf
-from .transforms import TRANSFORMS
+from ..fileio import atomic_write
+from ..metrics import OBJECT_ONLY, WHOLE_IMAGE, cosine_weighted_snr, snr_forms
+from ..model.encode import choose_transform, project_all, select
+from ..model.ensemble import Ensemble
+from ..model.sbrdf import file_size, save_sbrdf
+from ..paths import CALIBRATION_PATH
+from ..sources.load import load_brdf
+from ..transforms import TRANSFORMS
 
 LADDER: tuple[int, ...] = (16, 32, 64, 128, 262, 512, 1024, 2048, 4096)
-_CALIBRATION = Path(__file__).parent / "data" / "snr_calibration.json"
 
 
 def calibration_offset() -> float:
     """dB to add to the cosine-weighted BRDF SNR to predict the rendering SNR."""
-    if _CALIBRATION.is_file():
-        return float(json.loads(_CALIBRATION.read_text())["offset_db"])
+    if CALIBRATION_PATH.is_file():
+        return float(json.loads(CALIBRATION_PATH.read_text())["offset_db"])
     return 0.0
 
 

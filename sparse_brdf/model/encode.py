@@ -14,13 +14,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .brdf import BRDF
-from .coords import geometric_valid
+from ..brdf import BRDF
+from ..coords import geometric_valid
+from ..metrics import gamma_mse, mse, rae
+from ..transforms import TRANSFORMS, check_transform, forward, inverse
 from .ensemble import Ensemble
-from .metrics import gamma_mse, mse, rae
 from .sparse import SparseBRDF
 from .tensor import n_threads, parallel_map, phi_major_to_flat, project_phi_major, top_k
-from .transforms import TRANSFORMS, check_transform, forward, inverse
 
 DEFAULT_N_COEFFS = 262
 
@@ -251,7 +251,7 @@ def error_curve(brdf: BRDF, ens: Ensemble, counts: list[int]) -> dict:
     Returns ``{"counts": counts, "<transform>": {"rae": [...], "cos_snr": [...],
     "gamma_mse": [...], "mse": [...]}, "chosen": [...]}`` (one projection per transform).
     """
-    from .metrics import cosine_weighted_snr
+    from ..metrics import cosine_weighted_snr
 
     proj = {t: project_all(brdf, ens, t, max(counts)) for t in TRANSFORMS}
     out: dict = {"counts": list(counts), "chosen": []}

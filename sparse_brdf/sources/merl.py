@@ -12,10 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .brdf import BRDF
-from .coords import MERL_SHAPE, geometric_valid
-from .errors import BRDFFileError
-from .fileio import atomic_write, require_file
+from ..brdf import BRDF
+from ..coords import MERL_SHAPE, geometric_valid
+from ..errors import BRDFFileError
+from ..fileio import atomic_write, require_file
 
 #: Stored value x scale = linear BRDF, per channel (R, G, B).
 MERL_SCALE = np.array([1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0])

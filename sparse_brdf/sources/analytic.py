@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .brdf import BRDF
-from .coords import MERL_SHAPE, angles_to_dirs, geometric_valid, grid_angles
-from .errors import InvalidBRDFError
-from .mitsuba_env import DEFAULT_VARIANT, variant
+from ..brdf import BRDF
+from ..coords import MERL_SHAPE, angles_to_dirs, geometric_valid, grid_angles
+from ..errors import InvalidBRDFError
+from ..mitsuba_env import DEFAULT_VARIANT, variant
 
 
 def tabulate_mitsuba(

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .brdf import BRDF
-from .fileio import atomic_write
+from ..brdf import BRDF
+from ..fileio import atomic_write
 
 CACHE_VERSION = 1
 

@@ -28,7 +28,10 @@ from pathlib import Path
 import numpy as np
 import tomllib
 
-from .baselines import (
+from ..errors import MissingDataError
+from ..fileio import atomic_write
+from ..metrics import cosine_weighted_snr, gamma_mse, rae
+from ..model.baselines import (
     BRDFModel,
     CPDModel,
     NaiveModel,
@@ -37,13 +40,27 @@ from .baselines import (
     TabulatedModel,
     TuckerModel,
 )
-from .corpora import get_corpus
-from .errors import MissingDataError
-from .fileio import atomic_write
-from .metrics import cosine_weighted_snr, gamma_mse, rae
-from .render import SCENES_DIR, find_scene
+from ..paths import CONFIGS_DIR
+from ..sources.corpora import get_corpus
+from .render import find_scene
 
-__all__ = ["SCENES_DIR", "Bench", "BenchConfig", "make_model", "write_csv"]
+__all__ = ["Bench", "BenchConfig", "make_model", "write_csv"]
+
+
+def shipped_configs() -> list[str]:
+    """Names of the bench configurations shipped with the package."""
+    return sorted(p.stem for p in CONFIGS_DIR.glob("*.toml"))
+
+
+def find_config(name: str | os.PathLike) -> Path:
+    """A config file by path, or a shipped config by name (``full``, ``ci``, ...)."""
+    p = Path(name)
+    if p.is_file() or p.suffix == ".toml" or len(p.parts) > 1:
+        return p
+    if (CONFIGS_DIR / f"{p}.toml").is_file():
+        return CONFIGS_DIR / f"{p}.toml"
+    raise FileNotFoundError(f"{name}: no such config file, nor a shipped config "
+                            f"(shipped: {', '.join(shipped_configs())})")
 
 
 @dataclass
@@ -75,8 +92,11 @@ class BenchConfig:
 
     @classmethod
     def load(cls, path: str | os.PathLike | None) -> BenchConfig:
+        """Read a TOML config: a path, or the name of a shipped one (``sparse-brdf bench
+        --list``); None gives the defaults."""
         if path is None:
             return cls()
+        path = find_config(path)
         try:
             with open(path, "rb") as f:
                 data = tomllib.load(f)
@@ -178,7 +198,7 @@ class Bench:
     def run(self) -> dict:
         from tqdm.auto import tqdm
 
-        from .ensemble import Ensemble
+        from ..model.ensemble import Ensemble
 
         self.out.mkdir(parents=True, exist_ok=True)
         self.work.mkdir(parents=True, exist_ok=True)
@@ -249,7 +269,7 @@ class Bench:
 
     def _curve(self, brdf, ens) -> dict:
         """Error against coefficients and the transform choices (Fig. 2, Table 2)."""
-        from .encode import error_curve
+        from ..model.encode import error_curve
 
         return error_curve(brdf, ens, self.cfg.curve_coeffs)
 
@@ -288,7 +308,7 @@ class Bench:
         return img, seconds
 
     def _reference_file(self, key: str, brdf) -> str:
-        from .merl import write_merl
+        from ..sources.merl import write_merl
 
         ref_file = self.work / f"{_stem(key)}__reference.binary"
         if not ref_file.is_file():
@@ -297,7 +317,7 @@ class Bench:
 
     def _references(self, key: str, brdf) -> None:
         """Reference renders of every scene, and the noise floor (both SNR forms)."""
-        from .metrics import snr_forms
+        from ..metrics import snr_forms
 
         if not self.cfg.render:
             return
@@ -318,9 +338,9 @@ class Bench:
             compact, n=self.cfg.speed_evals, ensemble=getattr(model, "ensemble", None))
 
     def _cell(self, key: str, brdf, model: BRDFModel) -> dict:
-        from .merl import write_merl
-        from .metrics import snr_forms
-        from .sbrdf import save_sbrdf
+        from ..metrics import snr_forms
+        from ..model.sbrdf import save_sbrdf
+        from ..sources.merl import write_merl
 
         row = {"material": key, "model": model.name}
         try:
@@ -340,7 +360,7 @@ class Bench:
                 if compact.info and "model" in compact.info:
                     path = str(save_sbrdf(base.with_suffix(".sbrdf"), compact.info["model"]))
                 else:
-                    from .brdf import BRDF
+                    from ..brdf import BRDF
 
                     path = str(write_merl(base.with_suffix(".binary"),
                                           BRDF(rec, brdf.valid, brdf.name)))

@@ -27,8 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import BRDFFileError
-from .fileio import atomic_write, require_file
+from ..errors import BRDFFileError
+from ..fileio import atomic_write, require_file
+from ..paths import DEFAULT_ENSEMBLE_PATH
 from .tensor import (
     hosvd_factors,
     mode_grams,
@@ -40,7 +41,6 @@ from .tensor import (
 
 DEFAULT_TAUS: tuple[int, ...] = (32, 64, 128, 256)
 DEFAULT_N_DICTS = 8
-_DEFAULT_PATH = Path(__file__).parent / "data" / "default_ensemble.npz"
 
 
 @dataclass
@@ -142,9 +142,10 @@ class Ensemble:
     @classmethod
     def default(cls) -> Ensemble:
         """The ensemble shipped inside the package (see docs/ensemble.md)."""
-        if not _DEFAULT_PATH.is_file():
-            raise FileNotFoundError(f"{_DEFAULT_PATH}: the default ensemble is not installed")
-        return cls.load(_DEFAULT_PATH)
+        if not DEFAULT_ENSEMBLE_PATH.is_file():
+            raise FileNotFoundError(
+                f"{DEFAULT_ENSEMBLE_PATH}: the default ensemble is not installed")
+        return cls.load(DEFAULT_ENSEMBLE_PATH)
 
 
 # --------------------------------------------------------------------------- training

@@ -30,11 +30,12 @@ from pathlib import Path
 
 import numpy as np
 
+from ..brdf import BRDF
+from ..errors import BRDFFileError
+from ..fileio import atomic_write, require_file
+from ..transforms import TRANSFORMS
 from .ensemble import Ensemble
-from .errors import BRDFFileError
-from .fileio import atomic_write, require_file
 from .sparse import SparseBRDF
-from .transforms import TRANSFORMS
 
 MAGIC = b"SBRDF\r\n\x1a"
 VERSION = 1
@@ -122,3 +123,11 @@ def load_sbrdf(path: str | os.PathLike, ensemble: Ensemble | None = None) -> Spa
         except Exception as exc:
             raise type(exc)(f"{path}: {exc}") from exc
     return model
+
+
+def decode_file(path: str | os.PathLike, ensemble: Ensemble | None = None) -> BRDF:
+    """Load a ``.sbrdf`` file and decode the full tensor (default: the shipped ensemble)."""
+    ens = Ensemble.default() if ensemble is None else ensemble
+    brdf = load_sbrdf(path, ens).decode(ens)
+    brdf.source = os.fspath(path)
+    return brdf

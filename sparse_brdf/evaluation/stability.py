@@ -23,12 +23,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .baselines import BRDFModel
-from .brdf import BRDF
-from .coords import grid_angles
-from .errors import SparseBRDFError
-from .merl import MERL_SCALE
-from .metrics import cosine_weighted_snr
+from ..brdf import BRDF
+from ..coords import grid_angles
+from ..errors import SparseBRDFError
+from ..metrics import cosine_weighted_snr
+from ..model.baselines import BRDFModel
+from ..sources.merl import MERL_SCALE
 
 Perturb = Callable[[np.ndarray, np.ndarray, np.random.Generator], tuple[np.ndarray, np.ndarray]]
 
@@ -117,7 +117,7 @@ def run_stability(
     seed: int = 0,
 ) -> list[dict]:
     """Run every case against every method; one row per (case, method)."""
-    from .merl import read_merl
+    from ..sources.merl import read_merl
 
     work.mkdir(parents=True, exist_ok=True)
     rows = []
