@@ -113,6 +113,7 @@ def main() -> None:
     med = {name: float(np.median(v)) for name, v in rates.items()}
     tab = med["tabulated"]
 
+    # lazy: Dr.Jit/Mitsuba load only once a benchmark runs, not on import or --help
     import drjit as dr
 
     cores = len(os.sched_getaffinity(0))

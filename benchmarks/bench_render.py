@@ -32,10 +32,11 @@ import numpy as np
 
 from sparse_brdf.evaluation.speed import eval_rate
 from sparse_brdf.fileio import atomic_write
+from sparse_brdf.mitsuba_env import set_variant
 from sparse_brdf.model.encode import encode
 from sparse_brdf.model.ensemble import Ensemble
 from sparse_brdf.model.sbrdf import save_sbrdf
-from sparse_brdf.paths import SCENES_DIR
+from sparse_brdf.paths import SCENES_DIR, shared_data_dir
 from sparse_brdf.sources.load import load_brdf
 
 
@@ -45,6 +46,7 @@ def timed_render(scene, spp, repeats):
     Compile time is Dr.Jit's own (code generation + LLVM) from the kernel history of the
     first render, with the in-memory and on-disk kernel caches bypassed.
     """
+    # lazy: Dr.Jit/Mitsuba load only once a benchmark runs, not on import or --help
     import drjit as dr
     import mitsuba as mi
 
@@ -80,8 +82,6 @@ def scene_args(doc: str) -> argparse.ArgumentParser:
 
 def default_material(src: str | None) -> str:
     """``src``, or the benchmarks' default material."""
-    from sparse_brdf.paths import shared_data_dir
-
     if src is not None:
         return src
     data = shared_data_dir()
@@ -100,10 +100,9 @@ def render_cases(cases, args) -> tuple[dict, list, dict]:
     every case alike. Returns (compile seconds, [(name, scene)], render seconds per
     round) keyed by name.
     """
+    # lazy: Dr.Jit/Mitsuba load only once a benchmark runs, not on import or --help
     import drjit as dr
     import mitsuba as mi
-
-    from sparse_brdf.paths import SCENES_DIR
 
     scene_path = SCENES_DIR / "sphere.xml"
     compile_s = {}
@@ -136,10 +135,9 @@ def main() -> None:
                    help="also write render_speed.json and the speed/memory chart "
                         "render_speed.png into this folder")
     args = p.parse_args()
+    # lazy: Dr.Jit/Mitsuba load only once a benchmark runs, not on import or --help
     import drjit as dr
     import mitsuba as mi
-
-    from sparse_brdf.mitsuba_env import set_variant
 
     set_variant("llvm_ad_rgb")
     dr.set_flag(dr.JitFlag.KernelHistory, True)
@@ -227,6 +225,7 @@ def plot_speed_memory(record: dict, path: Path) -> None:
     """Two panels over memory per material (log scale): render time relative to
     tabulated_brdf, and BSDF evaluations per second; native BSDFs (no per-material
     memory) as horizontal lines."""
+    # lazy: matplotlib is needed only with --out, and its backend is chosen first
     import matplotlib
 
     matplotlib.use("Agg")
@@ -272,6 +271,7 @@ def plot_speed_memory(record: dict, path: Path) -> None:
 
 def _swap(scene_path, bsdf_dict, args):
     """The sphere scene as a dict with the material replaced (Mitsuba's dict API)."""
+    # lazy: Dr.Jit/Mitsuba load only once a benchmark runs, not on import or --help
     import mitsuba as mi
 
     import mitsuba_plugin

@@ -23,6 +23,7 @@ the strict decoder's eval at random directions.
 
 from __future__ import annotations
 
+import importlib
 import platform
 import tempfile
 import time
@@ -32,8 +33,10 @@ import numpy as np
 from bench_render import default_material, render_cases, scene_args
 
 from sparse_brdf.evaluation.speed import eval_rate, random_directions
+from sparse_brdf.mitsuba_env import set_variant
 from sparse_brdf.model.encode import encode
 from sparse_brdf.model.ensemble import Ensemble
+from sparse_brdf.model.layouts import channel_terms
 from sparse_brdf.model.sbrdf import save_sbrdf
 from sparse_brdf.sources.load import load_brdf
 
@@ -42,8 +45,6 @@ def unrolled_data(model, ensemble, packet: int = 8):
     """(rows, terms): per mode an (n_m, P_m) float32 array whose column p is the p-th
     distinct (dictionary, atom) of that mode over the three channels (P_m padded to
     whole packets), and per channel the terms (s, p1, p2, p3) sorted by (p3, p2, p1)."""
-    from mitsuba_plugin.data import channel_terms
-
     keys: list[dict] = [{}, {}, {}]
     chans = []
     for c in range(3):
@@ -93,8 +94,7 @@ def nested_sum(ops_fma, terms, u1, u2, u3):
 def make_unrolled_class():
     """A subclass of the current variant's SparseBSDF whose strict lookups are unrolled
     (nearest bins only; construct it with decoder="strict")."""
-    import importlib
-
+    # lazy: Dr.Jit/Mitsuba load only once a benchmark runs, not on import or --help
     import drjit as dr
     import mitsuba as mi
 
@@ -141,11 +141,11 @@ def max_rel_diff(a, b) -> float:
 
 def main() -> None:
     args = scene_args(__doc__).parse_args()
+    # lazy: Dr.Jit/Mitsuba load only once a benchmark runs, not on import or --help
     import drjit as dr
     import mitsuba as mi
 
     import mitsuba_plugin
-    from sparse_brdf.mitsuba_env import set_variant
 
     set_variant("llvm_ad_rgb")
     mitsuba_plugin.register()

@@ -16,10 +16,10 @@ import time
 import numpy as np
 
 from sparse_brdf import Ensemble, get_corpus
-from sparse_brdf.model.encode import project_all, project_pruned, select
+from sparse_brdf.model.encode import DEFAULT_N_COEFFS, project_all, project_pruned, select
 from sparse_brdf.transforms import TRANSFORMS, forward
 
-CASES = ((262, None), (64, None), (1024, None), (262, 1e-4))
+CASES = ((DEFAULT_N_COEFFS, None), (64, None), (1024, None), (DEFAULT_N_COEFFS, 1e-4))
 
 
 def same(a, b) -> bool:

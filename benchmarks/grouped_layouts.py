@@ -3,7 +3,7 @@
 For the test split of each corpus, encodes every material with the shipped ensemble and
 prints, per material: the dictionary of each channel, the distinct atoms of the grouped
 mode per channel (K) and over the three channels (union), the layout ``layout="auto"``
-picks (``mitsuba_plugin.data.layout_kind``), the packets of 8 floats a lookup reads in
+picks (``sparse_brdf.model.layouts.layout_kind``), the packets of 8 floats a lookup reads in
 it and in the other layout, and the grouped decoder's bytes.
 
     .venv/bin/python benchmarks/grouped_layouts.py [--coeffs 262] [--corpora merl rgl]
@@ -16,25 +16,35 @@ import sys
 
 from tqdm import tqdm
 
-from mitsuba_plugin import data as D
 from sparse_brdf.model.encode import encode
 from sparse_brdf.model.ensemble import Ensemble
+from sparse_brdf.model.layouts import (
+    PACKET,
+    SLOT,
+    atom_keys,
+    grouped_bytes,
+    layout_for,
+    layout_packets,
+    n_slots,
+    shared_grouped_mode,
+    union_chunks,
+)
 from sparse_brdf.sources.corpora import get_corpus
 
 
 def layout_row(model, ens) -> dict:
     """The layout figures of one encoded material (see the module docstring)."""
-    g = D.shared_grouped_mode(model, ens)
-    keys = D.atom_keys(model, ens, g)
+    g = shared_grouped_mode(model, ens)
+    keys = atom_keys(model, ens, g)
     ks = [len(k) for k in keys]
     union = len(set().union(*keys))
-    kind, _ = D.layout_for(keys)
-    packets = {"slots": D.layout_packets("slots", D.n_slots(ks) * D.SLOT // D.PACKET),
-               "union": D.layout_packets("union", D.union_chunks(union))}
+    kind, _ = layout_for(keys)
+    packets = {"slots": layout_packets("slots", n_slots(ks) * SLOT // PACKET),
+               "union": layout_packets("union", union_chunks(union))}
     return {"dicts": [int(d) for d in model.dict_index], "mode": g + 1, "k": ks,
             "union": union, "layout": kind, "packets": packets[kind],
             "other": packets["union" if kind == "slots" else "slots"],
-            "bytes": D.grouped_bytes(model, ens)}
+            "bytes": grouped_bytes(model, ens)}
 
 
 def main() -> None:

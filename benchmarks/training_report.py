@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from sparse_brdf.model.ensemble import Ensemble
+from sparse_brdf.model.ensemble import resolve_ensemble
 
 
 def main() -> None:
@@ -19,11 +19,12 @@ def main() -> None:
     p.add_argument("ensemble", nargs="?", help="default: the shipped ensemble")
     p.add_argument("--out", default="docs/figures")
     args = p.parse_args()
-    ens = Ensemble.load(args.ensemble) if args.ensemble else Ensemble.default()
+    ens = resolve_ensemble(args.ensemble)
     hist = ens.meta["history"]
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
 
+    # lazy: matplotlib is slow to import, and the backend must be chosen before pyplot
     import matplotlib
 
     matplotlib.use("Agg")

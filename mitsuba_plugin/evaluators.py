@@ -17,12 +17,12 @@ what it costs to evaluate is the model's own cost:
 (i, j, k) is the bin of the direction pair, found with the plugins' own lookup
 (:func:`~mitsuba_plugin.kernels.angle_coords`, :func:`~mitsuba_plugin.kernels.nearest_bins`),
 so the evaluators, ``tabulated_brdf`` and ``sparse_brdf`` index bins identically. As in
-the plugins, a bin below the horizon at its angles (SPEC section 1), or a direction
-below the horizon, gives 0, and values are clamped to >= 0 (as every model's
-``reconstruct`` does). Values are linear RGB BRDF values (1/sr), without the cosine
-factor that ``BSDF.eval`` includes.
+the plugins, a bin below the horizon at its angles (docs/method.md, "Grid, lookup
+convention, validity"), or a direction below the horizon, gives 0, and values are
+clamped to >= 0 (as every model's ``reconstruct`` does). Values are linear RGB BRDF
+values (1/sr), without the cosine factor that ``BSDF.eval`` includes.
 
-Per-material numbers live in Dr.Jit arrays and opaque scalars (SPEC section 9): one
+Per-material numbers live in Dr.Jit arrays and opaque scalars, as in the plugins: one
 compiled kernel serves every material of a kind (and ranks / coefficient counts are
 loop counts, not literals). Import this module lazily: it needs Dr.Jit and Mitsuba.
 
@@ -43,7 +43,8 @@ import importlib
 import drjit as dr
 import numpy as np
 
-from .data import PACKET
+from sparse_brdf.model.layouts import PACKET
+
 from .kernels import (
     Ops,
     Shape,
@@ -58,7 +59,7 @@ KINDS = ("naive", "cpd", "tucker", "pca")
 
 
 def _variant_module(variant: str | None) -> tuple[VariantNamespace, str]:
-    import mitsuba as mi
+    import mitsuba as mi  # lazy: importing this module does not load Mitsuba
 
     name = variant or mi.variant()
     if name is None:

@@ -13,9 +13,9 @@ from __future__ import annotations
 import math
 
 import drjit as dr
-import numpy as np
 
-HALF_PI = math.pi / 2
+from sparse_brdf.coords import grid_coords
+from sparse_brdf.model.layouts import angle_tables, float_buffer, uint_buffer
 
 
 class VariantNamespace:
@@ -23,7 +23,7 @@ class VariantNamespace:
     (``BSDFFlags``, ``BSDFContext``, ...), which live in ``mitsuba.mitsuba_ext``."""
 
     def __init__(self, module) -> None:
-        from mitsuba import mitsuba_ext
+        from mitsuba import mitsuba_ext  # lazy: `import mitsuba_plugin` does not load Mitsuba
 
         self._module = module
         self._ext = mitsuba_ext
@@ -36,22 +36,6 @@ class VariantNamespace:
             return getattr(self._ext, name)
 
 
-def _aligned(a: np.ndarray, align: int = 64) -> np.ndarray:
-    """A copy of the 1-D array ``a`` whose data starts on an ``align``-byte boundary.
-
-    Dr.Jit's LLVM backend may map a numpy buffer instead of copying it, and reads an
-    unaligned source with per-lane gathers instead of packet loads; which of the two a
-    kernel gets would then depend on where numpy happened to allocate, and a material
-    swap could compile a new kernel.
-    """
-    item = a.dtype.itemsize
-    buf = np.empty(a.size + align // item, a.dtype)
-    off = (-buf.ctypes.data % align) // item
-    out = buf[off:off + a.size]
-    out[:] = a
-    return out
-
-
 class Ops:
     """Storage and gathers for one variant module ``m`` (e.g. ``mitsuba.llvm_ad_rgb``)."""
 
@@ -60,12 +44,15 @@ class Ops:
         self.jit = bool(dr.is_jit_v(m.Float))
 
     # buffers and opaque scalars ------------------------------------------------------
-    def floats(self, a: np.ndarray):
-        a = _aligned(np.asarray(a, np.float32).ravel())
+    def floats(self, a):
+        """A numpy array as a Float buffer (aligned, see
+        :func:`sparse_brdf.model.layouts.float_buffer`)."""
+        a = float_buffer(a)
         return self.m.Float(a) if self.jit else a
 
-    def uints(self, a: np.ndarray):
-        a = np.ascontiguousarray(np.asarray(a, np.uint32).ravel())
+    def uints(self, a):
+        """A numpy array as a UInt32 buffer."""
+        a = uint_buffer(a)
         return self.m.UInt32(a) if self.jit else a
 
     def u(self, v: int):
@@ -150,23 +137,20 @@ class Shape:
     cosines and sines of its bins' lower-edge angles as small buffers."""
 
     def __init__(self, ops: Ops, shape) -> None:
-        from sparse_brdf.coords import bin_angles
-
         self.py = tuple(int(n) for n in shape)
         self.n = tuple(ops.u(n) for n in self.py)
         self.nf = tuple(ops.f(n) for n in self.py)
-        th, td, pd = bin_angles(self.py)
-        self.trig = tuple(ops.floats(f(a)) for f, a in (
-            (np.cos, th), (np.sin, th), (np.cos, td), (np.sin, td), (np.cos, pd)))
+        self.trig = tuple(ops.floats(a) for a in angle_tables(self.py))
 
 
 def angle_coords(ops: Ops, shape: Shape, wi, wo):
-    """Continuous grid coordinates (x_h, x_d, x_p) of a direction pair (SPEC section 1).
+    """Continuous grid coordinates (x_h, x_d, x_p) of a direction pair (docs/method.md,
+    "Grid, lookup convention, validity").
 
-    x_h = sqrt(theta_h / (pi/2)) n1, x_d = theta_d / (pi/2) n2, x_p = phi_d / pi n3 with
-    phi_d folded into [0, pi); floor(x) is the bin, x itself the position between the
-    bins' lower-edge samples (for interpolation). Angles use atan2 rather than acos so
-    that small theta_h keeps its precision in float32.
+    The angles' :func:`sparse_brdf.coords.grid_coords`, phi_d folded into [0, pi):
+    floor(x) is the bin, x itself the position between the bins' lower-edge samples (for
+    interpolation). Angles use atan2 rather than acos so that small theta_h keeps its
+    precision in float32.
     """
     h = dr.normalize(wi + wo)
     st = dr.sqrt(dr.maximum(h.x * h.x + h.y * h.y, 0.0))
@@ -185,11 +169,7 @@ def angle_coords(ops: Ops, shape: Shape, wi, wo):
     theta_d = dr.atan2(dr.sqrt(dx * dx + y * y), dz)
     phi_d = dr.atan2(y, dx)
     phi_d = dr.select(phi_d < 0.0, phi_d + math.pi, phi_d)
-    n1, n2, n3 = shape.nf
-    x_h = dr.sqrt(dr.maximum(theta_h, 0.0) * (1.0 / HALF_PI)) * n1
-    x_d = theta_d * (1.0 / HALF_PI) * n2
-    x_p = phi_d * (1.0 / math.pi) * n3
-    return x_h, x_d, x_p
+    return grid_coords(dr.maximum(theta_h, 0.0), theta_d, phi_d, shape.nf, sqrt=dr.sqrt)
 
 
 def nearest_bins(ops: Ops, shape: Shape, coords):
@@ -240,7 +220,7 @@ def _cos_terms(ops: Ops, shape: Shape, i, j, k):
 def bin_weight_from_cos(c, use_cos):
     """(w, valid) of a bin from its ``c = cos_i cos_o``: the transform weight clip(c,
     0.01, 1) (or 1 for log-plus) and whether both directions are above the horizon at
-    the bin's angles (a bin is invalid otherwise, SPEC section 1; since cos_i + cos_o
+    the bin's angles (a bin is invalid otherwise, docs/method.md; since cos_i + cos_o
     >= 0 on the grid, c > 0 means both are positive)."""
     return dr.select(use_cos > 0.5, dr.clip(c, 0.01, 1.0), 1.0), c > 0.0
 

@@ -15,11 +15,13 @@ from .brdf import BRDF
 from .errors import BRDFFileError, EnsembleMismatchError, InvalidBRDFError, SparseBRDFError
 from .metrics import SNRForms, cosine_weighted_snr, gamma_mse, rae, render_snr, snr_forms
 from .model.encode import DEFAULT_N_COEFFS, encode
-from .model.ensemble import Ensemble, train_dictionaries, train_ensemble
+from .model.ensemble import Ensemble
 from .model.interpolate import interpolate
 from .model.sbrdf import decode_file, load_sbrdf, save_sbrdf
 from .model.sparse import SparseBRDF
-from .sources.corpora import Corpus, Material, get_corpus, list_corpora, mitsuba_catalog
+from .model.train import train_dictionaries, train_ensemble
+from .sources.catalog import mitsuba_catalog
+from .sources.corpora import Corpus, Material, get_corpus, list_corpora
 from .sources.load import load_brdf
 from .sources.merl import read_merl, write_merl
 from .transforms import TRANSFORMS

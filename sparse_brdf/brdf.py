@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .coords import MERL_SHAPE, cos_io
+from .coords import bin_edges, cos_io
 from .errors import InvalidBRDFError
 
 
@@ -58,10 +58,6 @@ class BRDF:
         """Grid shape (n_h, n_d, n_p)."""
         return tuple(self.values.shape[:3])  # type: ignore[return-value]
 
-    @property
-    def is_merl_grid(self) -> bool:
-        return self.shape == MERL_SHAPE
-
     def channel_first(self) -> np.ndarray:
         """Values as a contiguous float32 array of shape (3, n_h, n_d, n_p)."""
         return np.ascontiguousarray(np.moveaxis(self.values, -1, 0))
@@ -102,7 +98,7 @@ def hemispherical_albedo(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """
     shape = values.shape[:3]
     n_h, n_d, n_p = shape
-    th_edges = (np.arange(n_h + 1) / n_h) ** 2 * (np.pi / 2)
+    th_edges = bin_edges(shape)[0]
     th = 0.5 * (th_edges[1:] + th_edges[:-1])
     dth = np.diff(th_edges)
     td = (np.arange(n_d) + 0.5) / n_d * (np.pi / 2)

@@ -8,11 +8,38 @@ import sys
 import time
 from pathlib import Path
 
-EPILOG = """examples:
+from .errors import SparseBRDFError
+from .evaluation.bench import Bench, BenchConfig
+from .evaluation.fit_scene import fit_scene
+from .evaluation.render import (
+    find_scene,
+    noise_floor_snr,
+    object_mask,
+    parse_overrides,
+    read_exr,
+    read_mask,
+    render_scene,
+    write_exr,
+    write_mask,
+)
+from .metrics import snr_forms
+from .model.encode import DEFAULT_N_COEFFS, encode
+from .model.ensemble import Ensemble, resolve_ensemble
+from .model.interpolate import interpolate
+from .model.layouts import DECODERS, SAMPLING
+from .model.sbrdf import decode_file, load_sbrdf, save_sbrdf
+from .model.train import train_ensemble
+from .sources.corpora import get_corpus, list_corpora
+from .sources.dataset import training_tensors
+from .sources.load import load_brdf
+from .sources.merl import write_merl
+from .transforms import TRANSFORMS
+
+EPILOG = f"""examples:
   sparse-brdf corpus list
   sparse-brdf info mitsuba:au-ggx-0.08
   sparse-brdf convert ../shared/data/nbrdf/merl/gold-metallic-paint.h5 gold.binary
-  sparse-brdf encode gold.binary -o gold.sbrdf --coeffs 262
+  sparse-brdf encode gold.binary -o gold.sbrdf --coeffs {DEFAULT_N_COEFFS}
   sparse-brdf decode gold.sbrdf -o gold-decoded.binary
   sparse-brdf train --corpus merl rgl -o my_ensemble.npz --checkpoint-dir ckpt/
 """
@@ -24,8 +51,6 @@ def _add_source_help(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_corpus_list(args: argparse.Namespace) -> int:
-    from .sources.corpora import get_corpus, list_corpora
-
     if args.corpus:
         c = get_corpus(args.corpus)
         test = {m.name for m in c.split("test")}
@@ -38,8 +63,6 @@ def cmd_corpus_list(args: argparse.Namespace) -> int:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
-    from .sources.load import load_brdf
-
     info = load_brdf(args.source).summary()
     if args.json:
         print(json.dumps(info, indent=2))
@@ -54,9 +77,6 @@ def cmd_info(args: argparse.Namespace) -> int:
 
 
 def cmd_convert(args: argparse.Namespace) -> int:
-    from .sources.load import load_brdf
-    from .sources.merl import write_merl
-
     out = Path(args.output)
     if out.suffix != ".binary":
         raise ValueError(f"{out}: output must be a MERL .binary file")
@@ -66,10 +86,6 @@ def cmd_convert(args: argparse.Namespace) -> int:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from .model.ensemble import Ensemble, train_ensemble
-    from .sources.corpora import get_corpus
-    from .sources.dataset import training_tensors
-
     materials = []
     for name in args.corpus:
         materials += get_corpus(name).split(args.split)
@@ -96,16 +112,10 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def _ensemble(path: str | None):
-    from .model.ensemble import Ensemble
-
-    return Ensemble.load(path) if path else Ensemble.default()
+    return resolve_ensemble(path)
 
 
 def cmd_encode(args: argparse.Namespace) -> int:
-    from .model.encode import encode
-    from .model.sbrdf import save_sbrdf
-    from .sources.load import load_brdf
-
     t0 = time.perf_counter()
     model = encode(load_brdf(args.source), _ensemble(args.ensemble), args.coeffs,
                    args.max_error, args.transform)
@@ -125,18 +135,12 @@ def cmd_encode(args: argparse.Namespace) -> int:
 
 
 def cmd_decode(args: argparse.Namespace) -> int:
-    from .model.sbrdf import decode_file
-    from .sources.merl import write_merl
-
     write_merl(args.output, decode_file(args.source, _ensemble(args.ensemble)))
     print(f"wrote {args.output}")
     return 0
 
 
 def cmd_blend(args: argparse.Namespace) -> int:
-    from .model.interpolate import interpolate
-    from .model.sbrdf import load_sbrdf, save_sbrdf
-
     ens = _ensemble(args.ensemble)
     a, b = load_sbrdf(args.a, ens), load_sbrdf(args.b, ens)
     out = save_sbrdf(args.output, interpolate(a, b, args.alpha, ens, args.coeffs))
@@ -144,21 +148,12 @@ def cmd_blend(args: argparse.Namespace) -> int:
     return 0
 
 
-def _scene(path: str) -> str:
-    """A scene path as given, or the shipped scene of that name."""
-    from .evaluation.render import find_scene
-
-    return str(find_scene(path))
-
-
 def cmd_render(args: argparse.Namespace) -> int:
-    from .evaluation.render import parse_overrides, render_scene, write_exr
-
     opts = {"decoder": args.decoder, "sampling": args.sampling}
     if args.ensemble:
         opts["ensemble"] = args.ensemble
     t0 = time.perf_counter()
-    img = render_scene(_scene(args.scene), parse_overrides(args.material), spp=args.spp,
+    img = render_scene(find_scene(args.scene), parse_overrides(args.material), spp=args.spp,
                        seed=args.seed, res=args.res, sparse_options=opts,
                        tabulated_options={"sampling": args.sampling})
     seconds = time.perf_counter() - t0
@@ -166,17 +161,12 @@ def cmd_render(args: argparse.Namespace) -> int:
     print(f"wrote {args.output} ({img.shape[1]}x{img.shape[0]}, {args.spp} spp, "
           f"{seconds:.2f} s)")
     if args.mask:
-        from .evaluation.render import object_mask, write_mask
-
-        write_mask(args.mask, object_mask(_scene(args.scene), res=img.shape[0]))
+        write_mask(args.mask, object_mask(find_scene(args.scene), res=img.shape[0]))
         print(f"wrote {args.mask} (object mask: pixels whose camera rays hit the geometry)")
     return 0
 
 
 def cmd_snr(args: argparse.Namespace) -> int:
-    from .evaluation.render import object_mask, read_exr, read_mask
-    from .metrics import snr_forms
-
     ref, img = read_exr(args.reference), read_exr(args.image)
     if args.mask:
         mask = read_mask(args.mask)
@@ -185,7 +175,7 @@ def cmd_snr(args: argparse.Namespace) -> int:
             raise ValueError(f"{args.reference}: --scene needs a square image (the shipped "
                              f"scenes render res x res), got {ref.shape[1]}x{ref.shape[0]}: "
                              "give --mask instead")
-        mask = object_mask(_scene(args.scene), res=ref.shape[0])
+        mask = object_mask(find_scene(args.scene), res=ref.shape[0])
     else:
         raise ValueError("snr: the object-only SNR needs the object's pixels: give --scene "
                          "SCENE (traced from the scene) or --mask FILE")
@@ -193,7 +183,7 @@ def cmd_snr(args: argparse.Namespace) -> int:
         raise ValueError(f"{args.mask or args.scene}: mask is {mask.shape[1]}x{mask.shape[0]}, "
                          f"the images {ref.shape[1]}x{ref.shape[0]}")
     snr = snr_forms(ref, img, mask)
-    floor = snr_forms(ref, read_exr(args.reference2), mask) if args.reference2 else None
+    floor = noise_floor_snr(ref, read_exr(args.reference2), mask) if args.reference2 else None
     if args.json:
         out = {"snr_whole_db": snr.whole, "snr_object_db": snr.object,
                "object_pixels": int(mask.sum()), "pixels": int(mask.size)}
@@ -206,10 +196,7 @@ def cmd_snr(args: argparse.Namespace) -> int:
 
 
 def cmd_fit_scene(args: argparse.Namespace) -> int:
-    from .evaluation.fit_scene import fit_scene
-    from .evaluation.render import parse_overrides
-
-    rep = fit_scene(_scene(args.scene), args.target_snr, parse_overrides(args.material),
+    rep = fit_scene(find_scene(args.scene), args.target_snr, parse_overrides(args.material),
                     args.output, ensemble_path=args.ensemble, spp=args.spp, res=args.res,
                     seed=args.seed)
     print(f"scene SNR with every material sparse: object-only "
@@ -220,8 +207,6 @@ def cmd_fit_scene(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    from .evaluation.bench import Bench, BenchConfig
-
     cfg = BenchConfig.load(args.config)
     if args.out:
         cfg.out = args.out
@@ -239,7 +224,14 @@ def build_parser() -> argparse.ArgumentParser:
                     "ensemble: convert, inspect, train, encode, decode and render.",
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for add in (_add_data_commands, _add_train, _add_codec_commands, _add_render, _add_snr,
+                _add_fit_scene, _add_blend_and_bench):  # in the order of the help
+        add(sub)
+    return p
 
+
+def _add_data_commands(sub) -> None:
+    """``corpus list``, ``info`` and ``convert``."""
     c = sub.add_parser("corpus", help="list corpora and their train/test split")
     csub = c.add_subparsers(dest="corpus_command", required=True, metavar="ACTION")
     cl = csub.add_parser("list", help="list corpora, or the materials of one corpus")
@@ -258,13 +250,14 @@ def build_parser() -> argparse.ArgumentParser:
     _add_source_help(v)
     v.set_defaults(func=cmd_convert)
 
-    t = sub.add_parser("train", help="train a dictionary ensemble (SPEC section 4)",
+
+def _add_train(sub) -> None:
+    t = sub.add_parser("train", help="train a dictionary ensemble (docs/method.md, Training)",
                        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     t.add_argument("--corpus", nargs="+", default=["merl", "rgl"],
                    help="corpora to train on (names or folders)")
     t.add_argument("--split", default="train", choices=["train", "test", "all"])
-    t.add_argument("--transform", nargs="+", default=["log-plus", "log-plus-cosine"],
-                   choices=["log-plus", "log-plus-cosine"])
+    t.add_argument("--transform", nargs="+", default=list(TRANSFORMS), choices=TRANSFORMS)
     t.add_argument("--taus", nargs="+", type=int, default=[32, 64, 128, 256],
                    help="training sparsities; one set of dictionaries per value")
     t.add_argument("--dicts", type=int, default=8, help="dictionaries per sparsity")
@@ -279,16 +272,19 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("-o", "--output", required=True, help="output ensemble .npz")
     t.set_defaults(func=cmd_train)
 
+
+def _add_codec_commands(sub) -> None:
+    """``encode`` and ``decode``."""
     e = sub.add_parser("encode", help="encode a BRDF as sparse coefficients (.sbrdf)",
                        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     e.add_argument("source", help="BRDF source (see below)")
     e.add_argument("-o", "--output", required=True, help="output .sbrdf path")
-    e.add_argument("--coeffs", type=int, default=262, help="max coefficients per channel")
+    e.add_argument("--coeffs", type=int, default=DEFAULT_N_COEFFS,
+                   help="max coefficients per channel")
     e.add_argument("--max-error", type=float, default=None,
                    help="stop adding coefficients once the relative squared residual in the "
                         "transformed domain is below this (e.g. 1e-4)")
-    e.add_argument("--transform", default="auto",
-                   choices=["auto", "log-plus", "log-plus-cosine"],
+    e.add_argument("--transform", default="auto", choices=["auto", *TRANSFORMS],
                    help="auto: the one with the smaller gamma-mapped MSE")
     e.add_argument("--ensemble", help="ensemble .npz (default: the shipped one)")
     e.add_argument("--json", action="store_true", help="print the encoding statistics as JSON")
@@ -301,6 +297,8 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--ensemble", help="ensemble .npz (default: the shipped one)")
     d.set_defaults(func=cmd_decode)
 
+
+def _add_render(sub) -> None:
     r = sub.add_parser("render", help="render a Mitsuba scene with materials overridden",
                        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
                        epilog="examples:\n  sparse-brdf render sphere.xml -o ref.exr "
@@ -314,15 +312,17 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--spp", type=int, default=64)
     r.add_argument("--seed", type=int, default=0)
     r.add_argument("--res", type=int, default=None, help="square resolution (scene default)")
-    r.add_argument("--sampling", default="cosine", choices=["cosine", "lobe"],
+    r.add_argument("--sampling", default="cosine", choices=SAMPLING,
                    help="cosine: shared sample paths (for SNR); lobe: lower variance")
-    r.add_argument("--decoder", default="auto", choices=["auto", "grouped", "strict"])
+    r.add_argument("--decoder", default="auto", choices=DECODERS)
     r.add_argument("--ensemble", help="ensemble .npz (default: the shipped one)")
     r.add_argument("--mask", metavar="MASK.exr",
                    help="also write the object mask (1 where camera rays hit the geometry), "
                         "for `sparse-brdf snr --mask`")
     r.set_defaults(func=cmd_render)
 
+
+def _add_snr(sub) -> None:
     n = sub.add_parser(
         "snr", help="rendering SNR (dB) of an image against a reference, in both forms",
         description="Rendering SNR 10 log10(sum ref^2 / sum (ref - img)^2) in two forms: "
@@ -346,6 +346,8 @@ def build_parser() -> argparse.ArgumentParser:
     n.add_argument("--json", action="store_true")
     n.set_defaults(func=cmd_snr)
 
+
+def _add_fit_scene(sub) -> None:
     fs = sub.add_parser("fit-scene", formatter_class=argparse.ArgumentDefaultsHelpFormatter,
                         help="give each material of a scene the fewest coefficients that "
                              "reach a target rendering SNR in that scene")
@@ -361,6 +363,9 @@ def build_parser() -> argparse.ArgumentParser:
     fs.add_argument("--ensemble", help="ensemble .npz (default: the shipped one)")
     fs.set_defaults(func=cmd_fit_scene)
 
+
+def _add_blend_and_bench(sub) -> None:
+    """``blend`` and ``bench``."""
     bl = sub.add_parser("blend", help="interpolate two .sbrdf materials in coefficient space")
     bl.add_argument("a", help="first .sbrdf (its dictionaries and transform are used)")
     bl.add_argument("b", help="second .sbrdf (same ensemble and transform)")
@@ -377,12 +382,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--out", help="output folder (overrides the config's)")
     b.add_argument("--no-render", action="store_true", help="BRDF-space metrics only")
     b.set_defaults(func=cmd_bench)
-    return p
 
 
 def main(argv: list[str] | None = None) -> int:
-    from .errors import SparseBRDFError
-
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args) or 0)

@@ -1,4 +1,4 @@
-"""Rusinkiewicz half/difference coordinates on the MERL grid (SPEC section 1).
+"""Rusinkiewicz half/difference coordinates on the MERL grid (docs/method.md, "Grid").
 
 All angles are in radians; all functions are vectorised over leading array axes.
 The grid has ``shape = (n_h, n_d, n_p)`` bins, (90, 90, 180) for MERL; every function
@@ -89,11 +89,10 @@ def angles_to_bins(
     """Angles -> integer bin indices (i_h, i_d, i_p), clamped; phi_d folded into [0, pi)."""
     n_h, n_d, n_p = shape
     th = np.maximum(np.asarray(theta_h, dtype=np.float64), 0.0)
-    i_h = np.floor(np.sqrt(th / HALF_PI) * n_h)
-    i_d = np.floor(np.asarray(theta_d, dtype=np.float64) / HALF_PI * n_d)
     pd = np.asarray(phi_d, dtype=np.float64)
     pd = np.where(pd < 0.0, pd + np.pi, pd)
-    i_p = np.floor(pd / np.pi * n_p)
+    x_h, x_d, x_p = grid_coords(th, np.asarray(theta_d, dtype=np.float64), pd, shape)
+    i_h, i_d, i_p = np.floor(x_h), np.floor(x_d), np.floor(x_p)
     return (
         np.clip(i_h, 0, n_h - 1).astype(np.int64),
         np.clip(i_d, 0, n_d - 1).astype(np.int64),
@@ -108,15 +107,39 @@ def dirs_to_bins(
     return angles_to_bins(*dirs_to_angles(wi, wo), shape=shape)
 
 
+def grid_coords(theta_h, theta_d, phi_d, shape=MERL_SHAPE, sqrt=np.sqrt):
+    """Continuous grid coordinates (x_h, x_d, x_p) of angles: the inverse of :func:`bin_angles`.
+
+    The bins' edges are theta_h = (i / n_h)^2 pi/2 (finer near the specular peak),
+    theta_d = j / n_d pi/2 and phi_d = k / n_p pi, so x_h = sqrt(theta_h / (pi/2)) n_h,
+    x_d = theta_d / (pi/2) n_d and x_p = phi_d / pi n_p: floor(x) is the bin (before
+    clamping), x itself the position between the bins' lower-edge samples. Expects
+    theta_h >= 0 and phi_d folded into [0, pi). Only arithmetic and ``sqrt``, so the
+    Mitsuba plugins' lookup traces it on Dr.Jit arrays too (``sqrt=dr.sqrt``, ``shape``
+    as three Dr.Jit scalars); :func:`angles_to_bins` is its numpy use.
+    """
+    n_h, n_d, n_p = shape
+    return sqrt(theta_h / HALF_PI) * n_h, theta_d / HALF_PI * n_d, phi_d / np.pi * n_p
+
+
+def bin_edges(
+    shape: tuple[int, int, int] = MERL_SHAPE,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Edges of the bins along each axis, three 1-D arrays of n_h + 1, n_d + 1, n_p + 1
+    angles (radians): theta_h = (i / n_h)^2 pi/2, theta_d = j / n_d pi/2, phi_d = k / n_p pi."""
+    n_h, n_d, n_p = shape
+    theta_h = (np.arange(n_h + 1) / n_h) ** 2 * HALF_PI
+    theta_d = np.arange(n_d + 1) / n_d * HALF_PI
+    phi_d = np.arange(n_p + 1) / n_p * np.pi
+    return theta_h, theta_d, phi_d
+
+
 def bin_angles(
     shape: tuple[int, int, int] = MERL_SHAPE,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Lower-edge angles of every bin, as three 1-D arrays (theta_h, theta_d, phi_d)."""
-    n_h, n_d, n_p = shape
-    theta_h = (np.arange(n_h) / n_h) ** 2 * HALF_PI
-    theta_d = np.arange(n_d) / n_d * HALF_PI
-    phi_d = np.arange(n_p) / n_p * np.pi
-    return theta_h, theta_d, phi_d
+    """Lower-edge angles of every bin, as three 1-D arrays (theta_h, theta_d, phi_d);
+    :func:`grid_coords` is the inverse map."""
+    return tuple(e[:-1] for e in bin_edges(shape))
 
 
 def grid_angles(

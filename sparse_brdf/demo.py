@@ -4,8 +4,9 @@ Runs on the embedded default: the shipped ensemble, the shipped scenes and the s
 measured MERL materials shipped with the package (built-in corpus ``merl-demo``, all in
 the test split: the ensemble never saw them). Into ``demo_out/`` (or ``--out``):
 
-1. encode every measured material at 262 coefficients per channel, write its ``.sbrdf``,
-   decode and measure it in BRDF space;
+1. encode every measured material at the default budget (``DEFAULT_N_COEFFS``
+   coefficients per channel, the paper's), write its ``.sbrdf``, decode and measure it in
+   BRDF space;
 2. bench them (``configs/demo.toml``): the sparse model at 32-1024 coefficients and
    the baselines, rendered against the tabulated reference with the same seed and
    sampling in the CC0 studio sphere and in the paper's scene (when the Grace Cathedral
@@ -27,15 +28,18 @@ from pathlib import Path
 
 import numpy as np
 
+from .evaluation.bench import Bench, BenchConfig
+from .evaluation.report import noise_floor_means, scenes_of, summary_table
 from .metrics import OBJECT_ONLY, WHOLE_IMAGE, cosine_weighted_snr, rae
 from .model.encode import DEFAULT_N_COEFFS, encode
 from .model.ensemble import Ensemble
 from .model.sbrdf import save_sbrdf
 from .sources.corpora import get_corpus
+from .transforms import TRANSFORMS
 
 
 def _figure(rows, examples, path: Path) -> None:
-    import matplotlib
+    import matplotlib  # lazy: matplotlib + pyplot take ~0.4 s to import; only the figure needs it
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -45,11 +49,11 @@ def _figure(rows, examples, path: Path) -> None:
     ax = fig.add_subplot(gs[0, :])
     names = [r["material"] for r in rows]
     ax.bar(range(len(rows)), [r["cos_snr_db"] for r in rows],
-           color=["C0" if r["transform"] == "log-plus" else "C1" for r in rows])
+           color=["C0" if r["transform"] == TRANSFORMS[0] else "C1" for r in rows])
     ax.set_xticks(range(len(rows)), names, rotation=60, ha="right", fontsize=7)
     ax.set_ylabel("cosine-weighted SNR (dB)")
     ax.set_title(f"Unseen materials at {DEFAULT_N_COEFFS} coefficients per channel "
-                 "(blue: log-plus, orange: log-plus-cosine)")
+                 f"(blue: {TRANSFORMS[0]}, orange: {TRANSFORMS[1]})")
     for row, (name, ref, rec) in enumerate(examples, start=1):
         k = ref.shape[2] // 2  # phi_d = 90 degrees
         lo = max(1e-4, float(np.percentile(ref[..., k, 1][ref[..., k, 1] > 0], 1)))
@@ -101,8 +105,6 @@ def encode_materials(out: Path, corpus: str, ens: Ensemble, figure: str | None =
 
 
 def run_bench(config: str, out: Path) -> dict:
-    from .evaluation.bench import Bench, BenchConfig
-
     cfg = BenchConfig.load(config)
     cfg.out = str(out)
     return Bench(cfg).run()
@@ -114,8 +116,6 @@ def _fmt(x: float | None) -> str:
 
 def render_table(results: dict, models: list[str]) -> list[str]:
     """Per scene and model: mean (min) SNR in both forms, and the noise floor."""
-    from .evaluation.report import scenes_of, summary_table
-
     lines = [f"| scene | model | bytes | {OBJECT_ONLY} mean (min) | {WHOLE_IMAGE} mean (min) |",
              "|---|---|---|---|---|"]
     for scene in scenes_of(results):
@@ -127,17 +127,14 @@ def render_table(results: dict, models: list[str]) -> list[str]:
             lines.append(f"| {scene} | {name} | {r['bytes']:.0f} | "
                          f"{_fmt(r.get('snr_object_mean'))} ({_fmt(r.get('snr_object_min'))}) | "
                          f"{_fmt(r.get('snr_whole_mean'))} ({_fmt(r.get('snr_whole_min'))}) |")
-        nf = list(results["noise_floor"].get(scene, {}).values())
-        if nf:
-            lines.append(f"| {scene} | noise floor (two seeds) | | "
-                         f"{np.mean([x['snr_object'] for x in nf]):.1f} | "
-                         f"{np.mean([x['snr_whole'] for x in nf]):.1f} |")
+        nf = noise_floor_means(results, scene)
+        if nf is not None:
+            lines.append(f"| {scene} | noise floor (two seeds) | | {nf['snr_object']:.1f} | "
+                         f"{nf['snr_whole']:.1f} |")
     return lines
 
 
 def per_material(results: dict, model: str) -> list[str]:
-    from .evaluation.report import scenes_of
-
     scenes = scenes_of(results)
     head = "| material | " + " | ".join(f"{s}: obj / whole" for s in scenes) + " |"
     lines = [head, "|---" * (len(scenes) + 1) + "|"]

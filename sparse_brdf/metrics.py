@@ -1,10 +1,13 @@
-"""Error metrics (SPEC section 7). One implementation each, shared by every caller."""
+"""Error metrics (``docs/method.md``, "Error metrics"). One implementation each, shared by
+every caller."""
 
 from __future__ import annotations
 
 from typing import NamedTuple
 
 import numpy as np
+
+from .coords import cosine_product
 
 GAMMA = 2.0
 
@@ -103,8 +106,6 @@ def mse(ref: np.ndarray, rec: np.ndarray, valid: np.ndarray | None = None) -> fl
 
 def cosine_weighted_snr(ref: np.ndarray, rec: np.ndarray, valid: np.ndarray) -> float:
     """BRDF-space SNR (dB) of rho * cos_i * cos_o over valid bins, arrays (n_h, n_d, n_p, 3)."""
-    from .coords import cosine_product
-
     c = np.clip(cosine_product(ref.shape[:3]), 0, None)[..., None]
     ref, rec = _masked(ref * c, rec * c, valid)
     return render_snr(ref, rec)

@@ -1,4 +1,8 @@
-"""Choosing and checking Mitsuba variants (see SPEC section 9)."""
+"""Choosing and checking Mitsuba variants (``docs/method.md``, "Rendering with Mitsuba").
+
+Mitsuba and Dr.Jit are imported inside the functions, so that importing this module (and
+``sparse_brdf``) stays fast.
+"""
 
 from __future__ import annotations
 
@@ -20,7 +24,7 @@ def check_llvm() -> tuple[int, ...]:
     With Debian's stock libLLVM 15 the first render aborts the process ("Cannot select
     ... fminimum"), which Python cannot catch; so refuse before that happens.
     """
-    import drjit as dr
+    import drjit as dr  # lazy: Dr.Jit is slow to import (see the module doc)
 
     try:
         version = tuple(dr.detail.llvm_version())
@@ -40,7 +44,7 @@ def check_llvm() -> tuple[int, ...]:
 
 def set_variant(variant: str = DEFAULT_VARIANT) -> str:
     """Set the Mitsuba variant (checking LLVM for llvm_* variants) and return its name."""
-    import mitsuba as mi
+    import mitsuba as mi  # lazy: Mitsuba is slow to import (see the module doc)
 
     if variant.startswith("llvm"):
         mi.set_variant(variant)
@@ -53,7 +57,7 @@ def set_variant(variant: str = DEFAULT_VARIANT) -> str:
 @contextlib.contextmanager
 def variant(name: str = DEFAULT_VARIANT) -> Iterator[str]:
     """Temporarily switch to ``name``, restoring the previous variant afterwards."""
-    import mitsuba as mi
+    import mitsuba as mi  # lazy: Mitsuba is slow to import (see the module doc)
 
     before = mi.variant()
     set_variant(name)

@@ -1,4 +1,5 @@
-"""The two BRDF transforms of the paper (eq. 1 and 2, SPEC section 2), with inverses.
+"""The two BRDF transforms of the paper (Tongbuasirilai et al., "A Sparse Non-parametric
+BRDF Model", eq. 1 and 2; ``docs/method.md``, "Transforms"), with inverses.
 
 - ``log-plus``:        t = ln(rho + 1),      rho = exp(t) - 1
 - ``log-plus-cosine``: t = ln(rho * c + 1),  rho = (exp(t) - 1) / c,

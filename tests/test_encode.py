@@ -7,13 +7,20 @@ from conftest import SMALL, random_orthonormal
 from sparse_brdf.brdf import BRDF
 from sparse_brdf.coords import angles_to_dirs, geometric_valid, grid_angles
 from sparse_brdf.errors import BRDFFileError, EnsembleMismatchError
-from sparse_brdf.model.encode import encode
+from sparse_brdf.metrics import cosine_weighted_snr
+from sparse_brdf.model.encode import (
+    DEFAULT_N_COEFFS,
+    encode,
+    project_all,
+    project_pruned,
+    select,
+)
 from sparse_brdf.model.ensemble import Ensemble
 from sparse_brdf.model.sbrdf import file_size, load_sbrdf, save_sbrdf
 from sparse_brdf.model.sparse import SparseBRDF
 from sparse_brdf.model.tensor import reconstruct, sparse_to_dense
 from sparse_brdf.sources.load import load_brdf
-from sparse_brdf.transforms import inverse
+from sparse_brdf.transforms import forward, inverse
 
 
 def _random_ensemble(k, seed=0):
@@ -140,8 +147,6 @@ def test_sparse_model_validates():
 
 
 def test_unmeasured_bins_are_filled_not_fitted_as_zeros(small_ensemble):
-    from sparse_brdf.metrics import cosine_weighted_snr
-
     clean = load_brdf("mitsuba:plastic-red-ggx-0.3", shape=SMALL)
     keep = np.random.default_rng(0).random(SMALL) >= 0.2
     holes = BRDF(clean.values, clean.valid & keep, "holes")
@@ -162,9 +167,6 @@ def _same_selection(a, b):
 
 
 def test_pruned_projection_selects_what_the_full_search_selects(small_ensemble):
-    from sparse_brdf.model.encode import project_all, project_pruned, select
-    from sparse_brdf.transforms import forward
-
     pruned = 0
     for name in ("plastic-red-ggx-0.3", "cu-ggx-0.12", "diffuse-white"):
         b = load_brdf(f"mitsuba:{name}", shape=SMALL)
@@ -181,11 +183,9 @@ def test_pruned_projection_selects_what_the_full_search_selects(small_ensemble):
 
 
 def test_pruned_projection_on_measured_data(shared_data):
-    from sparse_brdf.model.encode import project_all, project_pruned, select
-
     data = shared_data
     b = load_brdf(str(data / "nbrdf" / "merl" / "green-plastic.h5"))
     ens = Ensemble.default()
-    for t, n in (("log-plus", 1024), ("log-plus-cosine", 262)):
+    for t, n in (("log-plus", 1024), ("log-plus-cosine", DEFAULT_N_COEFFS)):
         p = project_pruned(b, ens, t, n)
         _same_selection(select(p, n), select(project_all(b, ens, t, n), n))

@@ -1,10 +1,13 @@
-"""Training: objective, orthonormality, determinism, resume, empty clusters, union."""
+"""Training: objective, orthonormality, determinism, resume, empty clusters, union;
+resolving and sharing the default ensemble."""
 
 import numpy as np
 import pytest
 
 from sparse_brdf.errors import BRDFFileError
-from sparse_brdf.model.ensemble import Ensemble, train_dictionaries, train_ensemble
+from sparse_brdf.model import train as train_mod
+from sparse_brdf.model.ensemble import Ensemble, resolve_ensemble
+from sparse_brdf.model.train import train_dictionaries, train_ensemble
 
 
 def test_objective_never_increases(small_training):
@@ -90,12 +93,28 @@ def test_extend_with_new_transform(small_training):
 def test_partial_product_cache_changes_nothing(small_training, monkeypatch):
     """Keeping X x3 U3^T between the U1 and U2 passes gives the same dictionaries as
     recomputing it (cache disabled by a zero byte budget)."""
-    import sparse_brdf.model.ensemble as ens_mod
-
     x = small_training
     kw = dict(tau=12, n_dicts=3, n_iter=4, reassign_every=2, seed=5, progress=False)
     cached = train_dictionaries(x, **kw)
-    monkeypatch.setattr(ens_mod, "MAX_CACHE_BYTES", 0)
+    monkeypatch.setattr(train_mod, "MAX_CACHE_BYTES", 0)
     plain = train_dictionaries(x, **kw)
     for name in ("u1", "u2", "u3", "labels", "codes_idx", "codes_val", "errors"):
         np.testing.assert_array_equal(getattr(cached, name), getattr(plain, name), name)
+
+
+def test_default_ensemble_is_loaded_once_and_read_only():
+    ens = Ensemble.default()
+    assert Ensemble.default() is ens and resolve_ensemble() is ens
+    assert resolve_ensemble("") is ens
+    for a in (ens.u1, ens.u2, ens.u3, ens.taus):
+        assert not a.flags.writeable
+    with pytest.raises(ValueError, match="read-only"):
+        ens.u1[0, 0, 0] = 0.0
+
+
+def test_resolve_ensemble_passes_ensembles_and_loads_paths(small_ensemble, tmp_path):
+    assert resolve_ensemble(small_ensemble) is small_ensemble
+    p = small_ensemble.save(tmp_path / "e.npz")
+    for given in (p, str(p)):
+        loaded = resolve_ensemble(given)
+        assert loaded.id == small_ensemble.id and loaded.u1.flags.writeable

@@ -13,6 +13,7 @@ from sparse_brdf.coords import (
     angles_to_bins,
     dirs_to_angles,
     geometric_valid,
+    grid_coords,
 )
 from sparse_brdf.model.baselines import (
     CPDModel,
@@ -22,7 +23,9 @@ from sparse_brdf.model.baselines import (
     TabulatedModel,
     TuckerModel,
 )
+from sparse_brdf.model.train import hosvd_ensemble
 from sparse_brdf.sources.corpora import get_corpus
+from sparse_brdf.sources.dataset import training_tensors
 from sparse_brdf.sources.load import load_brdf
 
 mi = pytest.importorskip("mitsuba")
@@ -79,8 +82,8 @@ def llvm():
 
 def random_pairs(n: int, shape, seed: int = 0, margin: float = 1e-3):
     """Random upper-hemisphere pairs (wi, wo), each (m, 3) float32, whose continuous grid
-    coordinates (float64) are at least ``margin`` of a bin from every bin boundary (SPEC
-    section 9: float32 lookups differ from float64 by one bin at boundaries), and their
+    coordinates (float64) are at least ``margin`` of a bin from every bin boundary
+    (float32 lookups may differ from float64 ones by one bin at boundaries), and their
     bins (i, j, k)."""
     rng = np.random.default_rng(seed)
     v = rng.standard_normal((2, n, 3))
@@ -89,9 +92,7 @@ def random_pairs(n: int, shape, seed: int = 0, margin: float = 1e-3):
     v = v.astype(np.float32)
     th, td, pd = dirs_to_angles(v[0].astype(np.float64), v[1].astype(np.float64))
     pd = np.where(pd < 0, pd + np.pi, pd)
-    n1, n2, n3 = shape
-    x = np.stack([np.sqrt(np.maximum(th, 0) / (np.pi / 2)) * n1, td / (np.pi / 2) * n2,
-                  pd / np.pi * n3])
+    x = np.stack(grid_coords(np.maximum(th, 0), td, pd, shape))
     far = np.all(np.abs(x - np.round(x)) > margin, axis=0)
     wi, wo = v[0][far], v[1][far]
     return wi, wo, angles_to_bins(th[far], td[far], pd[far], shape)
@@ -210,9 +211,6 @@ def test07_evaluator_errors(llvm, compacts):
 
 @pytest.fixture(scope="module")
 def small_hosvd(brdf, other):
-    from sparse_brdf.model.ensemble import hosvd_ensemble
-    from sparse_brdf.sources.dataset import training_tensors
-
     mats = get_corpus("mitsuba").split("train")[:3]
     return hosvd_ensemble(training_tensors(mats, shape=SMALL, progress=False)[0],
                           progress=False)

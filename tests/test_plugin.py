@@ -1,4 +1,5 @@
-"""The Mitsuba plugins: sparse_brdf and tabulated_brdf (mitsuba_plugin)."""
+"""The Mitsuba plugins sparse_brdf and tabulated_brdf (mitsuba_plugin), and the numpy
+data they upload (sparse_brdf.model.layouts)."""
 
 from __future__ import annotations
 
@@ -6,9 +7,30 @@ import numpy as np
 import pytest
 
 from conftest import SMALL, random_orthonormal
-from sparse_brdf.coords import angles_to_dirs, dirs_to_bins, geometric_valid
+from sparse_brdf.coords import (
+    angles_to_dirs,
+    bin_angles,
+    cos_io,
+    dirs_to_angles,
+    dirs_to_bins,
+    geometric_valid,
+)
+from sparse_brdf.mitsuba_env import set_variant
 from sparse_brdf.model.encode import encode
 from sparse_brdf.model.ensemble import Ensemble
+from sparse_brdf.model.layouts import (
+    UNION_ATOMS,
+    channel_terms,
+    choose_decoder,
+    grouped_bytes,
+    grouped_channel,
+    grouped_eval,
+    grouped_layout,
+    layout_eval,
+    n_slots,
+    strict_channel,
+    strict_eval,
+)
 from sparse_brdf.model.sbrdf import load_sbrdf, save_sbrdf
 from sparse_brdf.model.sparse import SparseBRDF
 from sparse_brdf.model.tensor import hosvd_factors, mode_grams
@@ -19,9 +41,10 @@ from sparse_brdf.transforms import TRANSFORMS, cosine_weight, forward, inverse
 mi = pytest.importorskip("mitsuba")
 dr = pytest.importorskip("drjit")
 
+from mitsuba.chi2 import BSDFAdapter, ChiSquareTest, SphericalDomain  # noqa: E402
+
 import mitsuba_plugin  # noqa: E402
-from mitsuba_plugin import data as D  # noqa: E402
-from sparse_brdf.mitsuba_env import set_variant  # noqa: E402
+from mitsuba_plugin.kernels import expm1  # noqa: E402
 
 FULL = (90, 90, 180)
 #: The decoders and grouped layouts every evaluation test runs (the two layouts share
@@ -167,20 +190,18 @@ def test_grouped_and_strict_data_reproduce_the_model(exact_material):
     x = model.transformed(ens)
     bins = tuple(a.ravel() for a in np.indices(SMALL))
     for c in range(3):
-        terms = D.channel_terms(model, ens, c)
+        terms = channel_terms(model, ens, c)
         for g in (None, 0, 1, 2):  # automatic choice and every forced grouped mode
-            ch = D.grouped_channel(*terms, mode_g=g)
-            np.testing.assert_allclose(D.grouped_eval(ch, bins), x[c].ravel(), atol=2e-5)
-        st = D.strict_channel(*terms)
-        np.testing.assert_allclose(D.strict_eval(st, bins), x[c].ravel(), atol=2e-5)
+            ch = grouped_channel(*terms, mode_g=g)
+            np.testing.assert_allclose(grouped_eval(ch, bins), x[c].ravel(), atol=2e-5)
+        st = strict_channel(*terms)
+        np.testing.assert_allclose(strict_eval(st, bins), x[c].ravel(), atol=2e-5)
         assert st.nbytes < ch.nbytes
 
 
 def test_grouped_layout_reproduces_channels_and_bin_weight(exact_material):
     """The uploaded layout (slots of 3 channels + the bin's cos_i cos_o) gives the
     channels' X and the weight's cosine product at every bin, for every grouped mode."""
-    from sparse_brdf.coords import bin_angles, cos_io
-
     ens = Ensemble.load(exact_material["ensemble"])
     model = load_sbrdf(exact_material["sbrdf"], ens)
     x = model.transformed(ens)
@@ -188,43 +209,43 @@ def test_grouped_layout_reproduces_channels_and_bin_weight(exact_material):
     th, td, pd = bin_angles(SMALL)
     ci, co = cos_io(th[bins[0]], td[bins[1]], pd[bins[2]])
     for g in range(3):
-        chans = [D.grouped_channel(*D.channel_terms(model, ens, c), mode_g=g,
+        chans = [grouped_channel(*channel_terms(model, ens, c), mode_g=g,
                                    source=int(model.dict_index[c])) for c in range(3)]
         union = {(ch.source, int(a)) for ch in chans for a in ch.atoms}
         for kind in ("slots", "union"):
-            lay = D.grouped_layout(chans, SMALL, kind)
+            lay = grouped_layout(chans, SMALL, kind)
             assert lay.kind == kind
             if kind == "slots":
-                assert lay.chunks == D.n_slots([ch.k for ch in chans]) // 2
+                assert lay.chunks == n_slots([ch.k for ch in chans]) // 2
             else:
-                assert lay.chunks == max(2, -(-len(union) // D.UNION_ATOMS))
-            xs, cc = D.layout_eval(lay, chans[0], bins)
+                assert lay.chunks == max(2, -(-len(union) // UNION_ATOMS))
+            xs, cc = layout_eval(lay, chans[0], bins)
             for c in range(3):
                 np.testing.assert_allclose(xs[c], x[c].ravel(), atol=2e-5)
             np.testing.assert_allclose(cc, ci * co, atol=1e-6)
-        auto = D.grouped_layout(chans, SMALL)
-        assert auto.packets == min(D.grouped_layout(chans, SMALL, k).packets
+        auto = grouped_layout(chans, SMALL)
+        assert auto.packets == min(grouped_layout(chans, SMALL, k).packets
                                    for k in ("slots", "union"))
     # channels on different grouped modes cannot share rows
-    mixed = [D.grouped_channel(*D.channel_terms(model, ens, c), mode_g=c) for c in range(3)]
+    mixed = [grouped_channel(*channel_terms(model, ens, c), mode_g=c) for c in range(3)]
     with pytest.raises(ValueError, match="one grouped mode"):
-        D.grouped_layout(mixed, SMALL)
+        grouped_layout(mixed, SMALL)
 
 
 def test_auto_decoder_and_memory(exact_material, llvm):
     ens = Ensemble.load(exact_material["ensemble"])
     model = load_sbrdf(exact_material["sbrdf"], ens)
-    assert D.choose_decoder("auto", model, ens) == "grouped"
-    assert D.choose_decoder("auto", model, ens, max_bytes=0) == "strict"
+    assert choose_decoder("auto", model, ens) == "grouped"
+    assert choose_decoder("auto", model, ens, max_bytes=0) == "strict"
     with pytest.raises(ValueError, match="decoder"):
-        D.choose_decoder("dense", model, ens)
+        choose_decoder("dense", model, ens)
     mem = {}
     for dec in ("grouped", "strict"):
         b = mi.load_dict({"type": "sparse_brdf", "filename": exact_material["sbrdf"],
                           "ensemble": exact_material["ensemble"], "decoder": dec})
         assert b.decoder == dec and f"decoder={dec}" in b.to_string()
         mem[dec] = b.memory_bytes
-    assert mem["grouped"] == D.grouped_bytes(model, ens)
+    assert mem["grouped"] == grouped_bytes(model, ens)
     tab = mi.load_dict({"type": "tabulated_brdf", "filename": exact_material["binary"]})
     assert tab.memory_bytes == int(np.prod(SMALL)) * 3 * 4
     assert 0 < mem["strict"] < mem["grouped"]
@@ -335,8 +356,6 @@ def _trilinear(grid, th, td, pd):
 
 
 def test_interpolation_matches_numpy(exact_material, llvm):
-    from sparse_brdf.coords import dirs_to_angles
-
     ens = Ensemble.load(exact_material["ensemble"])
     model = load_sbrdf(exact_material["sbrdf"], ens)
     rng = np.random.default_rng(3)
@@ -418,8 +437,6 @@ def _load(exact_material, plugin, sampling):
 @pytest.mark.parametrize("plugin", ["sparse_brdf", "tabulated_brdf"])
 @pytest.mark.parametrize("sampling", ["cosine", "lobe"])
 def test_pdf_matches_sample_chi2(exact_material, llvm, plugin, sampling):
-    from mitsuba.chi2 import BSDFAdapter, ChiSquareTest, SphericalDomain
-
     d = _load(exact_material, plugin, sampling)
     b = mi.load_dict(d)
     if sampling == "lobe":
@@ -475,8 +492,6 @@ def test_component_flags(exact_material, llvm):
 
 def test_log_plus_inverse_is_exact_near_zero(llvm):
     """The kernel's exp(x) - 1 keeps its relative precision for tiny x."""
-    from mitsuba_plugin.kernels import expm1
-
     x = np.array([1e-7, 1e-5, 1e-3, 0.1, 3.0, -0.5], np.float32)
     np.testing.assert_allclose(np.array(expm1(mi.Float(x))), np.expm1(x.astype(np.float64)),
                                rtol=2e-6)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -9,6 +11,8 @@ import pytest
 
 from sparse_brdf.evaluation.render import (
     RenderError,
+    noise_floor,
+    noise_floor_snr,
     parse_overrides,
     plugin_for,
     read_exr,
@@ -142,11 +146,11 @@ def test_noise_floor_and_seeds(exact_material):
     a = render_scene(SPHERE, mats, spp=2, seed=3, res=16)
     b = render_scene(SPHERE, mats, spp=2, seed=3, res=16)
     assert render_snr(a, b) == float("inf")  # deterministic for a given seed
-    from sparse_brdf.evaluation.render import noise_floor
-
     floor = noise_floor(SPHERE, mats, spp=2, seeds=(0, 1), res=16)
     # both forms, finite and noise-limited; the background adds signal and no noise
     assert 0 < floor.object <= floor.whole < 60
+    mask = np.ones(a.shape[:2], bool)
+    assert noise_floor_snr(a, b, mask) == (float("inf"), float("inf"))
 
 
 def test_exr_roundtrip_is_exact_and_atomic(tmp_path):
@@ -155,6 +159,9 @@ def test_exr_roundtrip_is_exact_and_atomic(tmp_path):
     path = write_exr(tmp_path / "sub" / "img.exr", img)
     np.testing.assert_array_equal(read_exr(path), img)
     assert sorted(p.name for p in path.parent.iterdir()) == ["img.exr"]
+    umask = os.umask(0)
+    os.umask(umask)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~umask  # not mkstemp's 0600
     with pytest.raises(ValueError):
         write_exr(tmp_path / "bad.exr", img[..., :2])
     assert not (tmp_path / "bad.exr").exists()

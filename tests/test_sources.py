@@ -1,13 +1,16 @@
 """Material sources: Neural-BRDF files, Mitsuba BSDFs, the corpora and the cache."""
 
 import os
+import stat
 
 import numpy as np
 import pytest
 
 from sparse_brdf.errors import BRDFFileError
+from sparse_brdf.fileio import atomic_write
 from sparse_brdf.sources.cache import cache_dir
-from sparse_brdf.sources.corpora import TEST_FRACTION, get_corpus, list_corpora, mitsuba_catalog
+from sparse_brdf.sources.catalog import mitsuba_catalog
+from sparse_brdf.sources.corpora import TEST_FRACTION, get_corpus, list_corpora
 from sparse_brdf.sources.load import load_brdf
 
 SMALL = (18, 18, 36)
@@ -115,3 +118,29 @@ def test_cache_folder_env(monkeypatch, tmp_path):
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
     assert cache_dir() == tmp_path / "sparse-brdf"
     assert os.fspath(cache_dir()).endswith("sparse-brdf")
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o027, 0o002])
+def test_atomic_write_gives_a_new_files_mode(tmp_path, umask):
+    """An atomically written file has the mode of any newly created file (0o666 & ~umask),
+    not mkstemp's 0600, and no temporary file is left beside it."""
+    before = os.umask(umask)
+    try:
+        path = tmp_path / "out.bin"
+        with atomic_write(path) as f:
+            f.write(b"data")
+        plain = tmp_path / "plain.bin"
+        plain.write_bytes(b"data")
+    finally:
+        os.umask(before)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~umask
+    assert stat.S_IMODE(path.stat().st_mode) == stat.S_IMODE(plain.stat().st_mode)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.bin", "plain.bin"]
+
+
+def test_failed_atomic_write_leaves_nothing(tmp_path):
+    path = tmp_path / "out.txt"
+    with pytest.raises(RuntimeError), atomic_write(path, "w") as f:
+        f.write("partial")
+        raise RuntimeError("boom")
+    assert list(tmp_path.iterdir()) == []

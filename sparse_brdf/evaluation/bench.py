@@ -17,7 +17,6 @@ that the bench does not evaluate; a config that leaves none is refused.
 
 from __future__ import annotations
 
-import csv
 import json
 import os
 import sys
@@ -28,9 +27,10 @@ from pathlib import Path
 import numpy as np
 import tomllib
 
+from ..brdf import BRDF
 from ..errors import MissingDataError
 from ..fileio import atomic_write
-from ..metrics import cosine_weighted_snr, gamma_mse, rae
+from ..metrics import cosine_weighted_snr, gamma_mse, rae, snr_forms
 from ..model.baselines import (
     BRDFModel,
     CPDModel,
@@ -40,11 +40,26 @@ from ..model.baselines import (
     TabulatedModel,
     TuckerModel,
 )
+from ..model.encode import DEFAULT_N_COEFFS, error_curve
+from ..model.ensemble import resolve_ensemble
+from ..model.sbrdf import save_sbrdf
 from ..paths import CONFIGS_DIR
 from ..sources.corpora import get_corpus
-from .render import find_scene
+from ..sources.merl import write_merl
+from .render import (
+    check_scene_data,
+    find_scene,
+    noise_floor_snr,
+    object_mask,
+    read_exr,
+    render_scene,
+    write_exr,
+)
+from .report import write_report
+from .speed import evals_per_second
+from .stability import run_stability
 
-__all__ = ["Bench", "BenchConfig", "make_model", "write_csv"]
+__all__ = ["Bench", "BenchConfig", "make_model"]
 
 
 def shipped_configs() -> list[str]:
@@ -116,7 +131,7 @@ def make_model(spec: str, ensemble=None) -> BRDFModel:
     kind, _, arg = spec.partition(":")
     if kind == "sparse":
         n, _, transform = arg.partition(":")
-        return SparseModel(ensemble, int(n or 262), transform or "auto")
+        return SparseModel(ensemble, int(n or DEFAULT_N_COEFFS), transform or "auto")
     if kind == "naive":
         return NaiveModel()
     if kind == "cpd":
@@ -182,8 +197,6 @@ class Bench:
 
     def _resolve_scenes(self) -> None:
         """The config's scenes that can run here; the others are skipped with a reason."""
-        from .render import check_scene_data
-
         for name in self.cfg.scenes:
             path = find_scene(name)
             try:
@@ -196,15 +209,13 @@ class Bench:
 
     # ------------------------------------------------------------------ running
     def run(self) -> dict:
-        from tqdm.auto import tqdm
-
-        from ..model.ensemble import Ensemble
+        from tqdm.auto import tqdm  # lazy: tqdm.auto adds ~40 ms to `sparse-brdf --help`
 
         self.out.mkdir(parents=True, exist_ok=True)
         self.work.mkdir(parents=True, exist_ok=True)
         if self.cfg.render:
             self._resolve_scenes()
-        ens = Ensemble.load(self.cfg.ensemble) if self.cfg.ensemble else Ensemble.default()
+        ens = resolve_ensemble(self.cfg.ensemble)
         models = [make_model(s, ens) for s in self.cfg.models]
         mats = self.materials()
         self._train(models, mats)
@@ -237,16 +248,12 @@ class Bench:
                 self._speed(mod, mod.fit(brdf))
                 self._save()
         if self.cfg.stability and "stability" not in self.results and mats:
-            from .stability import run_stability
-
             smodels = [make_model(s, ens) for s in self.cfg.stability_models]
             self._train(smodels, mats)
             self.results["stability"] = {
                 "material": _key(mats[0]),
                 "rows": run_stability(mats[0].load(), smodels, self.work / "stability")}
             self._save()
-        from .report import write_report
-
         write_report(self.results, self.out)
         return self.results
 
@@ -269,16 +276,12 @@ class Bench:
 
     def _curve(self, brdf, ens) -> dict:
         """Error against coefficients and the transform choices (Fig. 2, Table 2)."""
-        from ..model.encode import error_curve
-
         return error_curve(brdf, ens, self.cfg.curve_coeffs)
 
     # ------------------------------------------------------------------ rendering
     def _mask(self, scene: str) -> np.ndarray:
         """The object pixels of ``scene`` at the bench's resolution (cached on disk)."""
         if scene not in self._masks:
-            from .render import object_mask
-
             path = self.work / scene / "object_mask.npy"
             if path.is_file():
                 mask = np.load(path)
@@ -292,8 +295,6 @@ class Bench:
 
     def _render(self, scene: str, key: str, filename: str, seed: int,
                 tag: str) -> tuple[np.ndarray, float]:
-        from .render import read_exr, render_scene, write_exr
-
         exr = self.work / scene / f"{_stem(key)}__{tag}.exr"
         if exr.is_file():
             meta = json.loads(exr.with_suffix(".json").read_text())
@@ -308,8 +309,6 @@ class Bench:
         return img, seconds
 
     def _reference_file(self, key: str, brdf) -> str:
-        from ..sources.merl import write_merl
-
         ref_file = self.work / f"{_stem(key)}__reference.binary"
         if not ref_file.is_file():
             write_merl(ref_file, brdf)
@@ -317,31 +316,23 @@ class Bench:
 
     def _references(self, key: str, brdf) -> None:
         """Reference renders of every scene, and the noise floor (both SNR forms)."""
-        from ..metrics import snr_forms
-
         if not self.cfg.render:
             return
         ref_file = self._reference_file(key, brdf)
         for scene in self.scenes:
             ref, _ = self._render(scene, key, ref_file, self.cfg.seed, "reference")
             alt, _ = self._render(scene, key, ref_file, self.cfg.noise_seed, "reference-seed2")
-            self.results["noise_floor"].setdefault(scene, {})[key] = snr_forms(
+            self.results["noise_floor"].setdefault(scene, {})[key] = noise_floor_snr(
                 ref, alt, self._mask(scene)).as_dict()
 
     def _speed(self, model: BRDFModel, compact) -> None:
         """Evaluations per second of ``model``'s own evaluator, measured once per model."""
         if not self.cfg.speed or model.name in self.results["speed"]:
             return
-        from .speed import evals_per_second
-
         self.results["speed"][model.name] = evals_per_second(
             compact, n=self.cfg.speed_evals, ensemble=getattr(model, "ensemble", None))
 
     def _cell(self, key: str, brdf, model: BRDFModel) -> dict:
-        from ..metrics import snr_forms
-        from ..model.sbrdf import save_sbrdf
-        from ..sources.merl import write_merl
-
         row = {"material": key, "model": model.name}
         try:
             t0 = time.perf_counter()
@@ -360,8 +351,6 @@ class Bench:
                 if compact.info and "model" in compact.info:
                     path = str(save_sbrdf(base.with_suffix(".sbrdf"), compact.info["model"]))
                 else:
-                    from ..brdf import BRDF
-
                     path = str(write_merl(base.with_suffix(".binary"),
                                           BRDF(rec, brdf.valid, brdf.name)))
                 ref_file = self._reference_file(key, brdf)
@@ -378,24 +367,3 @@ class Bench:
             row["error"] = f"{type(exc).__name__}: {exc}"
         return row
 
-
-def flat_rows(results: dict) -> list[dict]:
-    """One flat row per cell: per-scene SNRs as ``snr_whole@SCENE``/``snr_object@SCENE``."""
-    out = []
-    for r in results["cells"].values():
-        row = {k: v for k, v in r.items() if k != "renders"}
-        for scene, vals in (r.get("renders") or {}).items():
-            for k, v in vals.items():
-                row[f"{k}@{scene}"] = v
-        row["evals_per_s"] = results.get("speed", {}).get(r["model"])
-        out.append(row)
-    return out
-
-
-def write_csv(results: dict, path: Path) -> None:
-    rows = flat_rows(results)
-    keys = sorted({k for r in rows for k in r})
-    with atomic_write(path, "w") as f:
-        w = csv.DictWriter(f, fieldnames=keys)
-        w.writeheader()
-        w.writerows(rows)

@@ -26,18 +26,23 @@ import os
 import time
 import xml.etree.ElementTree as ET
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from ..brdf import BRDF
 from ..fileio import atomic_write
-from ..metrics import OBJECT_ONLY, WHOLE_IMAGE, cosine_weighted_snr, snr_forms
-from ..model.encode import choose_transform, project_all, select
-from ..model.ensemble import Ensemble
+from ..metrics import OBJECT_ONLY, WHOLE_IMAGE, SNRForms, cosine_weighted_snr, snr_forms
+from ..model.encode import DEFAULT_N_COEFFS, choose_transform, project_all, select
+from ..model.ensemble import Ensemble, resolve_ensemble
+from ..model.layouts import channel_terms, grouped_bytes, strict_channel
 from ..model.sbrdf import file_size, save_sbrdf
+from ..model.sparse import SparseBRDF
 from ..paths import CALIBRATION_PATH
 from ..sources.load import load_brdf
 from ..transforms import TRANSFORMS
+from .render import object_mask, render_scene
 
 LADDER: tuple[int, ...] = (16, 32, 64, 128, 262, 512, 1024, 2048, 4096)
 
@@ -82,6 +87,47 @@ def _predict(brdf, ens, ladder, target, offset):
     return cands, preds, (hit[0] if hit else len(ladder) - 1)
 
 
+@dataclass
+class _Fit:
+    """One material's state: its candidate models along the ladder, their predicted SNRs,
+    the SNRs verified so far and the ladder index currently chosen."""
+
+    brdf: BRDF
+    candidates: list[SparseBRDF]
+    predicted: list[float]  # dB, one per candidate
+    chosen: int
+    verified: dict[int, SNRForms] = field(default_factory=dict)  # ladder index -> SNRs
+
+    @property
+    def at_top(self) -> bool:
+        """Whether the choice is the ladder's last (largest) budget."""
+        return self.chosen == len(self.candidates) - 1
+
+
+@dataclass
+class _Scene:
+    """Verification renders of a scene: every material tabulated but the overridden ones,
+    with the reference's spp, seed and resolution, so the Monte Carlo noise cancels."""
+
+    path: str | os.PathLike
+    materials: dict[str, str]  # id -> measured source
+    spp: int
+    res: int
+    seed: int
+    sparse_options: dict | None
+    reference: np.ndarray | None = None
+    mask: np.ndarray | None = None
+
+    def render(self, materials: Mapping[str, str]) -> np.ndarray:
+        return render_scene(self.path, materials, spp=self.spp, seed=self.seed, res=self.res,
+                            sparse_options=self.sparse_options)
+
+    def snr(self, overrides: Mapping[str, str]) -> SNRForms:
+        """SNRs of the scene with ``overrides`` (id -> file) against the reference."""
+        return snr_forms(self.reference, self.render({**self.materials, **overrides}),
+                         self.mask)
+
+
 def fit_scene(
     scene: str | os.PathLike,
     target_snr: float,
@@ -96,88 +142,31 @@ def fit_scene(
     progress: bool = True,
 ) -> dict:
     """Fit every measured material of ``scene`` to ``target_snr`` dB; see module doc."""
-    from mitsuba_plugin.data import channel_terms, grouped_bytes, strict_channel
-
-    from .render import object_mask, render_scene
-
-    ens = ensemble or (Ensemble.load(ensemble_path) if ensemble_path else Ensemble.default())
+    ens = ensemble or resolve_ensemble(ensemble_path)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     mats = scene_materials(scene, overrides or {})
     offset = calibration_offset()
     opts = {"ensemble": ensemble_path} if ensemble_path else None
     t0 = time.perf_counter()
-
-    def render(materials):
-        return render_scene(scene, materials, spp=spp, seed=seed, res=res, sparse_options=opts)
-
-    reference = render(mats)
-    mask = object_mask(scene, res=res)
-    fitted = {}  # id -> (brdf, candidates, predictions, verified SNRs, chosen index)
+    scn = _Scene(scene, mats, spp, res, seed, opts)
+    scn.reference = scn.render(mats)
+    scn.mask = object_mask(scene, res=res)
+    fits = {}
     for mid, src in mats.items():
         brdf = load_brdf(src)
-        cands, preds, i = _predict(brdf, ens, list(ladder), target_snr, offset)
-        fitted[mid] = [brdf, cands, preds, {}, i]
-
-    def verify(mid, k):
-        _, cands, _, verified, _ = fitted[mid]
-        if k not in verified:
-            path = save_sbrdf(out / f"{mid}.candidate.sbrdf", cands[k])
-            verified[k] = snr_forms(reference, render({**mats, mid: str(path)}), mask)
-        return verified[k].object
-
-    # Per-material targets start at the scene target; while the scene with every
-    # material sparse misses it (the errors add up), they are raised by the shortfall.
-    margin, rounds = 0.0, []
-    for _ in range(4):
-        goal = target_snr + margin
-        for mid, f in fitted.items():
-            i = f[4]
-            while verify(mid, i) < goal and i + 1 < len(f[1]):
-                i += 1
-            while i > 0 and verify(mid, i - 1) >= goal:
-                i -= 1
-            f[4] = i
-        files = {mid: str(save_sbrdf(out / f"{mid}.sbrdf", f[1][f[4]]))
-                 for mid, f in fitted.items()}
-        forms = snr_forms(reference, render({**mats, **files}), mask)
-        scene_snr = forms.object
-        rounds.append({"per_material_target": goal, "scene_snr": scene_snr,
-                       "scene_snr_whole": forms.whole})
-        if progress:
-            print(f"  per-material target {goal:.1f} dB -> scene {OBJECT_ONLY} "
-                  f"{scene_snr:.1f} dB ({WHOLE_IMAGE} {forms.whole:.1f} dB)")
-        if scene_snr >= target_snr or all(f[4] == len(f[1]) - 1 for f in fitted.values()):
-            break
-        margin += target_snr - scene_snr + 0.5
-    rows = []
-    for mid, (brdf, cands, preds, verified, i) in fitted.items():
-        model = cands[i]
-        (out / f"{mid}.candidate.sbrdf").unlink(missing_ok=True)
-        final = out / f"{mid}.sbrdf"
-        strict = sum(strict_channel(*channel_terms(model, ens, c)).nbytes for c in range(3))
-        row = {
-            "id": mid, "source": str(mats[mid]), "coefficients": int(ladder[i]),
-            "transform": model.transform, "file": str(final),
-            "bytes": final.stat().st_size, "predicted_snr": preds[i],
-            "verified_snr": verified[i].object, "verified_snr_whole": verified[i].whole,
-            "renders": len(verified), "memory_strict": int(strict),
-            "memory_grouped": grouped_bytes(model, ens),
-            "memory_tabulated": int(np.prod(brdf.shape)) * 3 * 4,
-        }
-        rows.append(row)
-        if progress:
-            print(f"  {mid}: {row['coefficients']} coefficients/channel, predicted "
-                  f"{row['predicted_snr']:.1f} dB, verified alone {OBJECT_ONLY} "
-                  f"{row['verified_snr']:.1f} dB ({WHOLE_IMAGE} {row['verified_snr_whole']:.1f}"
-                  f" dB; {row['renders']} renders)")
+        fits[mid] = _Fit(brdf, *_predict(brdf, ens, list(ladder), target_snr, offset))
+    rounds = _fit_rounds(fits, scn, out, target_snr, progress)
+    rows = [_material_row(mid, fit, mats[mid], out, ens, ladder, progress)
+            for mid, fit in fits.items()]
     report = {
         "scene": str(scene), "target_snr": target_snr, "offset_db": offset, "spp": spp,
         "res": res, "seed": seed, "materials": rows,
         "scene_snr_all_sparse": rounds[-1]["scene_snr"],
         "scene_snr_all_sparse_whole": rounds[-1]["scene_snr_whole"], "rounds": rounds,
         "bytes_total": sum(r["bytes"] for r in rows),
-        "bytes_fixed_262": sum(file_size(3 * 262, len(r["id"])) for r in rows),
+        # the key keeps its name (262 = DEFAULT_N_COEFFS) for readers of earlier reports
+        "bytes_fixed_262": sum(file_size(3 * DEFAULT_N_COEFFS, len(r["id"])) for r in rows),
         "bytes_tabulated_merl": len(rows) * (12 + 8 * 3 * int(np.prod(ens.shape))),
         "memory_strict_total": sum(r["memory_strict"] for r in rows),
         "memory_tabulated_total": sum(r["memory_tabulated"] for r in rows),
@@ -185,6 +174,69 @@ def fit_scene(
     }
     _write(report, out)
     return report
+
+
+def _verify(mid: str, fit: _Fit, k: int, scn: _Scene, out: Path) -> float:
+    """Object-only SNR of the scene with only ``mid`` sparse at ladder index ``k``
+    (rendered once per index)."""
+    if k not in fit.verified:
+        path = save_sbrdf(out / f"{mid}.candidate.sbrdf", fit.candidates[k])
+        fit.verified[k] = scn.snr({mid: str(path)})
+    return fit.verified[k].object
+
+
+def _fit_rounds(fits: dict[str, _Fit], scn: _Scene, out: Path, target_snr: float,
+                progress: bool) -> list[dict]:
+    """Refine every material to a per-material target and render the scene with every
+    material sparse; while that misses ``target_snr`` (the errors add up), raise the
+    per-material target by the shortfall and refine again (at most 4 rounds)."""
+    margin, rounds = 0.0, []
+    for _ in range(4):
+        goal = target_snr + margin
+        for mid, fit in fits.items():
+            i = fit.chosen
+            while _verify(mid, fit, i, scn, out) < goal and i + 1 < len(fit.candidates):
+                i += 1
+            while i > 0 and _verify(mid, fit, i - 1, scn, out) >= goal:
+                i -= 1
+            fit.chosen = i
+        files = {mid: str(save_sbrdf(out / f"{mid}.sbrdf", fit.candidates[fit.chosen]))
+                 for mid, fit in fits.items()}
+        forms = scn.snr(files)
+        scene_snr = forms.object
+        rounds.append({"per_material_target": goal, "scene_snr": scene_snr,
+                       "scene_snr_whole": forms.whole})
+        if progress:
+            print(f"  per-material target {goal:.1f} dB -> scene {OBJECT_ONLY} "
+                  f"{scene_snr:.1f} dB ({WHOLE_IMAGE} {forms.whole:.1f} dB)")
+        if scene_snr >= target_snr or all(fit.at_top for fit in fits.values()):
+            break
+        margin += target_snr - scene_snr + 0.5
+    return rounds
+
+
+def _material_row(mid: str, fit: _Fit, source: str, out: Path, ens: Ensemble,
+                  ladder: Sequence[int], progress: bool) -> dict:
+    """The report row of one material (its final file written by the last round)."""
+    i, model = fit.chosen, fit.candidates[fit.chosen]
+    (out / f"{mid}.candidate.sbrdf").unlink(missing_ok=True)
+    final = out / f"{mid}.sbrdf"
+    strict = sum(strict_channel(*channel_terms(model, ens, c)).nbytes for c in range(3))
+    row = {
+        "id": mid, "source": str(source), "coefficients": int(ladder[i]),
+        "transform": model.transform, "file": str(final),
+        "bytes": final.stat().st_size, "predicted_snr": fit.predicted[i],
+        "verified_snr": fit.verified[i].object, "verified_snr_whole": fit.verified[i].whole,
+        "renders": len(fit.verified), "memory_strict": int(strict),
+        "memory_grouped": grouped_bytes(model, ens),
+        "memory_tabulated": int(np.prod(fit.brdf.shape)) * 3 * 4,
+    }
+    if progress:
+        print(f"  {mid}: {row['coefficients']} coefficients/channel, predicted "
+              f"{row['predicted_snr']:.1f} dB, verified alone {OBJECT_ONLY} "
+              f"{row['verified_snr']:.1f} dB ({WHOLE_IMAGE} {row['verified_snr_whole']:.1f}"
+              f" dB; {row['renders']} renders)")
+    return row
 
 
 def _write(rep: dict, out: Path) -> None:
@@ -213,8 +265,8 @@ def _write(rep: dict, out: Path) -> None:
         "", f"Scene with every material sparse: {OBJECT_ONLY} "
             f"{rep['scene_snr_all_sparse']:.1f} dB, {WHOLE_IMAGE} "
             f"{rep['scene_snr_all_sparse_whole']:.1f} dB.",
-        f"Files: {rep['bytes_total']} bytes, against {rep['bytes_fixed_262']} at a fixed 262 "
-        f"coefficients and {rep['bytes_tabulated_merl']} as MERL files.",
+        f"Files: {rep['bytes_total']} bytes, against {rep['bytes_fixed_262']} at a fixed "
+        f"{DEFAULT_N_COEFFS} coefficients and {rep['bytes_tabulated_merl']} as MERL files.",
         f"Memory (strict decoder, atoms used only): {rep['memory_strict_total']} bytes, "
         f"{100 * mem:.2f} % of the tabulated materials' {rep['memory_tabulated_total']}.",
         f"Took {rep['seconds']:.0f} s."]

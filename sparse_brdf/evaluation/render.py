@@ -2,24 +2,29 @@
 
 A scene (e.g. ``scenes/sphere.xml``) names its materials by id; :func:`render_scene`
 replaces each overridden id by ``sparse_brdf`` (for a ``.sbrdf`` file) or
-``tabulated_brdf`` (any other source :func:`sparse_brdf.io.load_brdf` reads), fills the
-scene's ``<default>`` parameters (``spp``, ``res``, ``seed``, ...) and renders with
-Mitsuba 3. Errors raised inside a render surface as "drjit.custom ... (see above)";
-:class:`RenderError` carries the real message from the ``__cause__`` chain (SPEC 9).
+``tabulated_brdf`` (any other source :func:`sparse_brdf.sources.load.load_brdf` reads),
+fills the scene's ``<default>`` parameters (``spp``, ``res``, ``seed``, ...) and renders
+with Mitsuba 3. Errors raised inside a render surface as "drjit.custom ... (see above)";
+:class:`RenderError` carries the real message from the ``__cause__`` chain
+(``docs/method.md``, "Rendering with Mitsuba").
+
+Mitsuba, Dr.Jit and :mod:`mitsuba_plugin` are imported inside the functions that render,
+so that ``import sparse_brdf`` and ``sparse-brdf --help`` never load them.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
-import tempfile
 import xml.etree.ElementTree as ET
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 
 import numpy as np
+import OpenEXR
 
 from ..errors import MissingDataError, SparseBRDFError
+from ..fileio import atomic_path, atomic_write
 from ..metrics import SNRForms, snr_forms
 from ..mitsuba_env import DEFAULT_VARIANT, set_variant
 from ..paths import SCENES_DIR, shared_envmaps_dir
@@ -187,7 +192,7 @@ def check_scene_data(scene_path: str | os.PathLike,
 def _scene_dir_resolver(scene_path: Path) -> Iterator[None]:
     """Let Mitsuba resolve the scene's relative paths (envmaps/...) from
     :func:`data_search_path`."""
-    import mitsuba as mi
+    import mitsuba as mi  # lazy: Mitsuba is slow to import (see the module doc)
 
     saved = mi.FileResolver(mi.file_resolver())
     for folder in reversed(data_search_path(scene_path)):
@@ -210,9 +215,9 @@ def load_scene(
     tabulated_options: Mapping[str, object] | None = None,
 ):
     """Load a scene with material overrides (see :func:`render_scene`); returns mi.Scene."""
-    import mitsuba as mi
+    import mitsuba as mi  # lazy: Mitsuba is slow to import (see the module doc)
 
-    import mitsuba_plugin
+    import mitsuba_plugin  # lazy: imports Mitsuba and Dr.Jit
 
     scene_path = Path(scene_path)
     if not scene_path.is_file():
@@ -254,7 +259,7 @@ def render_scene(
     The same ``seed`` and ``spp`` give the same sample paths for every material under
     cosine BSDF sampling.
     """
-    import mitsuba as mi
+    import mitsuba as mi  # lazy: Mitsuba is slow to import (see the module doc)
 
     scene = load_scene(scene_path, materials, spp, seed, res, variant, params,
                        sparse_options, tabulated_options)
@@ -282,7 +287,7 @@ def object_mask(
     pixel when any of them hits a shape. The mask comes from the scene itself, never from
     image values; it selects the pixels of the *object-only* SNR.
     """
-    import drjit as dr
+    import drjit as dr  # lazy: Dr.Jit and Mitsuba are slow to import (see the module doc)
     import mitsuba as mi
 
     n = int(subsamples)
@@ -320,7 +325,15 @@ def noise_floor(
     b = render_scene(scene_path, materials, spp=spp, seed=seeds[1], **kwargs)
     if mask is None:
         mask = object_mask(scene_path, res=kwargs.get("res"), params=kwargs.get("params"))
-    return snr_forms(a, b, mask)
+    return noise_floor_snr(a, b, mask)
+
+
+def noise_floor_snr(reference: np.ndarray, reference2: np.ndarray,
+                    mask: np.ndarray) -> SNRForms:
+    """The noise floor from two renders of the same reference materials that differ only
+    in their seed: the SNR (dB, both forms) of one against the other. ``mask``: the
+    object pixels (see :func:`object_mask`)."""
+    return snr_forms(reference, reference2, mask)
 
 
 # ------------------------------------------------------------------------------- EXR
@@ -328,31 +341,18 @@ def noise_floor(
 
 def write_exr(path: str | os.PathLike, img: np.ndarray) -> Path:
     """Write a linear float32 RGB image (H, W, 3) as an EXR file, atomically."""
-    import OpenEXR
-
     path = Path(path)
     arr = np.ascontiguousarray(np.asarray(img, dtype=np.float32))
     if arr.ndim != 3 or arr.shape[2] != 3:
         raise ValueError(f"{path}: expected an image of shape (H, W, 3), got {arr.shape}")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".exr", dir=path.parent)
-    os.close(fd)
-    try:
-        header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-        with OpenEXR.File(header, {"RGB": arr}) as f:
-            f.write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    with atomic_path(path, suffix=".exr") as tmp, OpenEXR.File(header, {"RGB": arr}) as f:
+        f.write(str(tmp))
     return path
 
 
 def read_exr(path: str | os.PathLike) -> np.ndarray:
     """Read an RGB EXR file as float32 (H, W, 3)."""
-    import OpenEXR
-
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such EXR file")
@@ -376,8 +376,6 @@ def write_mask(path: str | os.PathLike, mask: np.ndarray) -> Path:
     path = Path(path)
     mask = np.asarray(mask, dtype=bool)
     if path.suffix.lower() == ".npy":
-        from ..fileio import atomic_write
-
         with atomic_write(path, "wb") as f:
             np.save(f, mask)
         return path

@@ -2,10 +2,12 @@
 speed-vs-accuracy charts, written as markdown + PNG from a bench's ``results``.
 
 Every rendering SNR comes in both forms, labelled: whole-image (every pixel, the paper's)
-and object-only (the pixels whose camera rays hit the object; the strict one)."""
+and object-only (the pixels whose camera rays hit the object; the strict one). Also the
+flat ``results.csv`` (:func:`write_csv`)."""
 
 from __future__ import annotations
 
+import csv
 import math
 from pathlib import Path
 
@@ -13,12 +15,16 @@ import numpy as np
 
 from ..fileio import atomic_write
 from ..metrics import OBJECT_ONLY, WHOLE_IMAGE
+from ..model.encode import DEFAULT_N_COEFFS, pick_transform
+from ..transforms import TRANSFORMS
+from .render import read_exr
+from .stability import stability_markdown
 
 FORMS = (("snr_object", OBJECT_ONLY), ("snr_whole", WHOLE_IMAGE))
 
 
 def _plt():
-    import matplotlib
+    import matplotlib  # lazy: matplotlib + pyplot take ~0.4 s to import; only figures need it
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -61,6 +67,39 @@ def corpora_of(results: dict) -> list[str]:
     """Corpora of the materials in ``results`` (the part of ``corpus/name`` keys before
     the slash), in first-seen order."""
     return list(dict.fromkeys(r["material"].split("/", 1)[0] for r in results["cells"].values()))
+
+
+def noise_floor_means(results: dict, scene: str) -> dict[str, float] | None:
+    """The noise floor of ``scene`` (two reference renders with different seeds, see
+    :func:`sparse_brdf.evaluation.render.noise_floor_snr`), averaged over the materials:
+    ``{"snr_object": dB, "snr_whole": dB}``; None when nothing was measured."""
+    nf = list(results["noise_floor"].get(scene, {}).values())
+    if not nf:
+        return None
+    return {key: float(np.mean([x[key] for x in nf])) for key, _ in FORMS}
+
+
+def flat_rows(results: dict) -> list[dict]:
+    """One flat row per cell: per-scene SNRs as ``snr_whole@SCENE``/``snr_object@SCENE``."""
+    out = []
+    for r in results["cells"].values():
+        row = {k: v for k, v in r.items() if k != "renders"}
+        for scene, vals in (r.get("renders") or {}).items():
+            for k, v in vals.items():
+                row[f"{k}@{scene}"] = v
+        row["evals_per_s"] = results.get("speed", {}).get(r["model"])
+        out.append(row)
+    return out
+
+
+def write_csv(results: dict, path: Path) -> None:
+    """``results.csv``: :func:`flat_rows`, columns in name order."""
+    rows = flat_rows(results)
+    keys = sorted({k for r in rows for k in r})
+    with atomic_write(path, "w") as f:
+        w = csv.DictWriter(f, fieldnames=keys)
+        w.writeheader()
+        w.writerows(rows)
 
 
 def summary_table(results: dict, scene: str | None = None,
@@ -150,7 +189,7 @@ def curve_figure(results: dict, path: Path) -> None:
     first = next(iter(curves.values()))
     counts = first["counts"]
     fig, axes = plt.subplots(1, 2, figsize=(11, 4), constrained_layout=True)
-    for t in ("log-plus", "log-plus-cosine"):
+    for t in TRANSFORMS:
         for ax, key, lab in ((axes[0], "rae", "RAE"), (axes[1], "cos_snr", "cos-weighted SNR")):
             v = np.array([c[t][key] for c in curves.values()])
             ax.plot(counts, v.mean(0), marker="o", label=t)
@@ -166,8 +205,6 @@ def curve_figure(results: dict, path: Path) -> None:
 def difference_figure(results: dict, out: Path, scene: str,
                       max_materials: int = 4) -> list[Path]:
     """Renders and false-colour |ref - img| x 10 (jet) per material (Figs. 3, 4)."""
-    from .render import read_exr
-
     work = out / "work" / scene
     mats = sorted({r["material"] for r in results["cells"].values()})[:max_materials]
     models = sorted({r["model"] for r in results["cells"].values()})
@@ -211,25 +248,27 @@ def transform_table(results: dict, scene: str, form: str = "snr_object") -> tupl
                                                                                     dict]:
     """Transform choice by gamma-mapped MSE and by plain MSE against the render-SNR-better
     one in ``scene`` and SNR ``form`` (Table 2); needs the forced-transform cells
-    sparse-N-log-plus[-cosine]."""
+    sparse-N-TRANSFORM at N = the default budget (else the middle of the curve's counts).
+    The gamma-MSE choice is the encoder's own rule (:func:`pick_transform`)."""
+    first, second = TRANSFORMS
     lines, agree = [], {"gamma": 0, "plain": 0, "n": 0}
     for key, c in sorted(results["curves"].items()):
         counts = c["counts"]
-        i = counts.index(262) if 262 in counts else len(counts) // 2
+        i = counts.index(DEFAULT_N_COEFFS) if DEFAULT_N_COEFFS in counts else len(counts) // 2
         snrs = {}
-        for t in ("log-plus", "log-plus-cosine"):
+        for t in TRANSFORMS:
             cell = results["cells"].get(f"{key}|sparse-{counts[i]}-{t}", {})
             snrs[t] = ((cell.get("renders") or {}).get(scene) or {}).get(form)
         if None in snrs.values():
             continue
-        lp, lpc = snrs["log-plus"], snrs["log-plus-cosine"]
-        best = "log-plus" if lp >= lpc else "log-plus-cosine"
-        by_gamma = min(("log-plus", "log-plus-cosine"), key=lambda t: c[t]["gamma_mse"][i])
-        by_plain = min(("log-plus", "log-plus-cosine"), key=lambda t: c[t]["mse"][i])
+        best = first if snrs[first] >= snrs[second] else second
+        by_gamma = pick_transform({t: {"gamma_mse": c[t]["gamma_mse"][i]} for t in TRANSFORMS})
+        by_plain = min(TRANSFORMS, key=lambda t: c[t]["mse"][i])
         agree["gamma"] += by_gamma == best
         agree["plain"] += by_plain == best
         agree["n"] += 1
-        lines.append(f"| {key} | {lp:.1f} | {lpc:.1f} | {best} | {by_gamma} | {by_plain} |")
+        lines.append(f"| {key} | {snrs[first]:.1f} | {snrs[second]:.1f} | {best} | {by_gamma} "
+                     f"| {by_plain} |")
     return lines, agree
 
 
@@ -239,23 +278,42 @@ def _f(x: float, fmt: str = ".1f") -> str:
 
 
 def _scene_section(results: dict, out: Path, scene: str) -> list[str]:
-    cfg = results["config"]
+    """The report's section of one scene: noise floor, Tables 3, 4 and 2, charts, renders."""
     rows = summary_table(results, scene)
-    md = [f"## Scene `{scene}`", ""]
-    nf = list(results["noise_floor"].get(scene, {}).values())
-    if nf:
-        md += [f"Noise floor (two reference renders, seeds {cfg['seed']} and "
-               f"{cfg['noise_seed']}): {OBJECT_ONLY} mean "
-               f"{np.mean([x['snr_object'] for x in nf]):.1f} dB, {WHOLE_IMAGE} mean "
-               f"{np.mean([x['snr_whole'] for x in nf]):.1f} dB. Model and reference share "
-               "seed and sampling, so the noise cancels in the SNRs below.", ""]
-    md += [f"### Rendering SNR per model (Table 3), `{scene}`", "",
-           f"SNR in dB; *obj* = {OBJECT_ONLY} (pixels whose camera rays hit the object), "
-           f"*whole* = {WHOLE_IMAGE} (every pixel, background included: the paper's form). "
-           "evals/s: the model's own evaluator on 2^20 random direction pairs.", "",
-           "| model | materials | failed | bytes | evals/s | fit (s) | RAE | cos-SNR | "
-           "obj mean | obj std | obj min | obj max | whole mean | whole min | whole max |",
-           "|---" * 15 + "|"]
+    md = [f"## Scene `{scene}`", "", *_noise_floor_paragraph(results, scene),
+          *_model_table(rows, scene), *_corpus_table(results, rows, scene)]
+    chart = out / f"speed_accuracy-{scene}.png"
+    if speed_accuracy_chart(rows, chart, f" in {scene}"):
+        md += ["", f"![speed and size against accuracy in {scene}]({chart.name})"]
+    md += _material_table(results, scene)
+    md += _transform_sections(results, scene)
+    figs = difference_figure(results, out, scene)
+    if figs:
+        md += ["", f"### Renders (Figs. 3, 4), `{scene}`", ""]
+        md += [f"![{p.stem}]({p.name})" for p in figs]
+    return md + [""]
+
+
+def _noise_floor_paragraph(results: dict, scene: str) -> list[str]:
+    cfg = results["config"]
+    nf = noise_floor_means(results, scene)
+    if nf is None:
+        return []
+    return [f"Noise floor (two reference renders, seeds {cfg['seed']} and "
+            f"{cfg['noise_seed']}): {OBJECT_ONLY} mean {nf['snr_object']:.1f} dB, "
+            f"{WHOLE_IMAGE} mean {nf['snr_whole']:.1f} dB. Model and reference share "
+            "seed and sampling, so the noise cancels in the SNRs below.", ""]
+
+
+def _model_table(rows: list[dict], scene: str) -> list[str]:
+    """Table 3: rendering SNR statistics per model in ``scene``."""
+    md = [f"### Rendering SNR per model (Table 3), `{scene}`", "",
+          f"SNR in dB; *obj* = {OBJECT_ONLY} (pixels whose camera rays hit the object), "
+          f"*whole* = {WHOLE_IMAGE} (every pixel, background included: the paper's form). "
+          "evals/s: the model's own evaluator on 2^20 random direction pairs.", "",
+          "| model | materials | failed | bytes | evals/s | fit (s) | RAE | cos-SNR | "
+          "obj mean | obj std | obj min | obj max | whole mean | whole min | whole max |",
+          "|---" * 15 + "|"]
     for r in rows:
         md.append(
             f"| {r['model']} | {r['n']} | {r['failed']} | {_f(r['bytes'], '.0f')} | "
@@ -264,32 +322,46 @@ def _scene_section(results: dict, out: Path, scene: str) -> list[str]:
             f"{_f(r.get('snr_object_std'))} | {_f(r.get('snr_object_min'))} | "
             f"{_f(r.get('snr_object_max'))} | {_f(r.get('snr_whole_mean'))} | "
             f"{_f(r.get('snr_whole_min'))} | {_f(r.get('snr_whole_max'))} |")
+    return md
+
+
+def _corpus_table(results: dict, rows: list[dict], scene: str) -> list[str]:
+    """Mean (min) SNR per model and corpus, when the results span several corpora."""
     corpora = corpora_of(results)
-    if len(corpora) > 1:
-        md += ["", f"### Per corpus, `{scene}` (the paper's Table 3 is MERL, Table 6 RGL-EPFL)",
-               "", "Mean (min) rendering SNR in dB.", "",
-               "| model | " + " | ".join(f"{c}: {OBJECT_ONLY} | {c}: {WHOLE_IMAGE}"
-                                       for c in corpora) + " |",
-               "|---" * (1 + 2 * len(corpora)) + "|"]
-        per = {c: {r["model"]: r for r in summary_table(results, scene, c)} for c in corpora}
-        for r in rows:
-            cols = []
-            for c in corpora:
-                x = per[c].get(r["model"], {})
-                cols += [f"{_f(x.get(f'{k}_mean'))} ({_f(x.get(f'{k}_min'))})"
-                         for k in ("snr_object", "snr_whole")]
-            md.append(f"| {r['model']} | " + " | ".join(cols) + " |")
-    chart = out / f"speed_accuracy-{scene}.png"
-    if speed_accuracy_chart(rows, chart, f" in {scene}"):
-        md += ["", f"![speed and size against accuracy in {scene}]({chart.name})"]
-    md += ["", f"### Per material (Table 4), `{scene}`", "",
-           "| material | model | SNR obj (dB) | SNR whole (dB) | RAE | status |",
-           "|---|---|---|---|---|---|"]
+    if len(corpora) <= 1:
+        return []
+    md = ["", f"### Per corpus, `{scene}` (the paper's Table 3 is MERL, Table 6 RGL-EPFL)",
+          "", "Mean (min) rendering SNR in dB.", "",
+          "| model | " + " | ".join(f"{c}: {OBJECT_ONLY} | {c}: {WHOLE_IMAGE}"
+                                  for c in corpora) + " |",
+          "|---" * (1 + 2 * len(corpora)) + "|"]
+    per = {c: {r["model"]: r for r in summary_table(results, scene, c)} for c in corpora}
+    for r in rows:
+        cols = []
+        for c in corpora:
+            x = per[c].get(r["model"], {})
+            cols += [f"{_f(x.get(f'{k}_mean'))} ({_f(x.get(f'{k}_min'))})"
+                     for k in ("snr_object", "snr_whole")]
+        md.append(f"| {r['model']} | " + " | ".join(cols) + " |")
+    return md
+
+
+def _material_table(results: dict, scene: str) -> list[str]:
+    """Table 4: every cell's SNRs in ``scene``."""
+    md = ["", f"### Per material (Table 4), `{scene}`", "",
+          "| material | model | SNR obj (dB) | SNR whole (dB) | RAE | status |",
+          "|---|---|---|---|---|---|"]
     for r in sorted(results["cells"].values(), key=lambda r: (r["material"], r["model"])):
         s = (r.get("renders") or {}).get(scene, {})
         md.append(f"| {r['material']} | {r['model']} | {_f(s.get('snr_object'))} | "
                   f"{_f(s.get('snr_whole'))} | {_f(r.get('rae'), '.4f')} | {r['status']}"
                   f"{': ' + r['error'] if r.get('error') else ''} |")
+    return md
+
+
+def _transform_sections(results: dict, scene: str) -> list[str]:
+    """Table 2 in each SNR form (only where the forced-transform cells were run)."""
+    md = []
     for form, label in FORMS:
         lines, agree = transform_table(results, scene, form)
         if lines:
@@ -297,19 +369,14 @@ def _scene_section(results: dict, out: Path, scene: str) -> list[str]:
                    f"Gamma-mapped MSE picked the render-SNR-better transform for "
                    f"{agree['gamma']} of {agree['n']} materials; plain MSE for "
                    f"{agree['plain']}.", "",
-                   "| material | SNR log-plus | SNR log-plus-cosine | better | gamma-MSE picks | "
-                   "MSE picks |", "|---|---|---|---|---|---|", *lines]
-    figs = difference_figure(results, out, scene)
-    if figs:
-        md += ["", f"### Renders (Figs. 3, 4), `{scene}`", ""]
-        md += [f"![{p.stem}]({p.name})" for p in figs]
-    return md + [""]
+                   "| material | " + " | ".join(f"SNR {t}" for t in TRANSFORMS)
+                   + " | better | gamma-MSE picks | MSE picks |", "|---|---|---|---|---|---|",
+                   *lines]
+    return md
 
 
 def write_report(results: dict, out: Path) -> Path:
     """results.csv, report.md and its PNGs in ``out``."""
-    from .bench import write_csv
-
     out = Path(out)
     write_csv(results, out / "results.csv")
     curve_figure(results, out / "error_vs_coeffs.png")
@@ -330,8 +397,6 @@ def write_report(results: dict, out: Path) -> Path:
                       f"{_f(r['evals_per_s'], '.3g')} | {_f(r['rae'], '.4f')} | "
                       f"{_f(r['cos_snr'])} |")
     if results.get("stability"):
-        from .stability import stability_markdown
-
         md += ["", "## Stability", "",
                f"Perturbations of {results['stability']['material']}; cosine-weighted SNR "
                "against the clean BRDF, or the outcome.", "",

@@ -28,8 +28,15 @@ from pathlib import Path
 
 import numpy as np
 
-#: Decoders of the ``sparse_brdf`` plugin that :func:`evals_per_second` accepts.
-DECODERS = ("grouped", "strict", "auto")
+from ..brdf import BRDF
+from ..coords import geometric_valid
+from ..mitsuba_env import variant as use_variant
+from ..model.baselines import Compact
+from ..model.layouts import DECODERS
+from ..model.sbrdf import save_sbrdf
+from ..model.sparse import SparseBRDF
+from ..sources.merl import write_merl
+
 #: Model kinds :func:`evals_per_second` times (the part of ``Compact.model`` before ``-``).
 KINDS = ("tabulated", "sparse", "naive", "cpd", "tucker", "pca")
 
@@ -41,7 +48,7 @@ def random_directions(n: int, rng: np.random.Generator):
     the incident directions (and ``sh_frame`` the identity frame), and a ``mi.Vector3f``
     of the ``n`` outgoing directions. Needs a JIT Mitsuba variant to be set.
     """
-    import drjit as dr
+    import drjit as dr  # lazy: Dr.Jit and Mitsuba are slow to import (see the module doc)
     import mitsuba as mi
 
     v = rng.standard_normal((2, n, 3))
@@ -63,7 +70,7 @@ def time_evaluations(evaluate: Callable, n: int = 1 << 20, repeats: int = 5,
     included) until its kernel has run (``dr.eval`` then ``dr.sync_thread``). The first
     call compiles and is not timed. Returns ``n / median(seconds per call)``.
     """
-    import drjit as dr
+    import drjit as dr  # lazy: Dr.Jit is slow to import (see the module doc)
 
     n, repeats = _check_counts(n, repeats)
     rng = np.random.default_rng(seed)
@@ -83,7 +90,7 @@ def time_evaluations(evaluate: Callable, n: int = 1 << 20, repeats: int = 5,
 def eval_rate(bsdf, n: int = 1 << 20, repeats: int = 5, seed: int = 0) -> float:
     """``bsdf.eval`` calls per second (a loaded Mitsuba BSDF) at ``n`` random
     upper-hemisphere pairs: :func:`time_evaluations` of ``bsdf.eval(ctx, si, wo)``."""
-    import mitsuba as mi
+    import mitsuba as mi  # lazy: Mitsuba is slow to import (see the module doc)
 
     ctx = mi.BSDFContext()
     return time_evaluations(lambda si, wo: bsdf.eval(ctx, si, wo), n, repeats, seed)
@@ -119,9 +126,7 @@ def evals_per_second(model, n: int = 1 << 20, repeats: int = 5, ensemble=None, *
         Evaluations (one RGB value of one direction pair) per second of wall time: ``n``
         divided by the median time of a call, on every core Dr.Jit uses.
     """
-    import drjit as dr
-
-    from ..mitsuba_env import variant as use_variant
+    import drjit as dr  # lazy: Dr.Jit is slow to import (see the module doc)
 
     n, repeats = _check_counts(n, repeats)
     if decoder not in DECODERS:
@@ -148,10 +153,6 @@ def _check_counts(n, repeats) -> tuple[int, int]:
 
 
 def _kind(model) -> str:
-    from ..brdf import BRDF
-    from ..model.baselines import Compact
-    from ..model.sparse import SparseBRDF
-
     if isinstance(model, Compact):
         kind = model.kind
         if kind not in KINDS:
@@ -168,9 +169,9 @@ def _kind(model) -> str:
 def _evaluator(model, ensemble, decoder: str) -> Callable:
     """``evaluate(si, wo)`` of ``model`` in the current variant (a plugin's ``eval`` or
     an evaluator's)."""
-    import mitsuba as mi
+    import mitsuba as mi  # lazy: Mitsuba is slow to import (see the module doc)
 
-    import mitsuba_plugin
+    import mitsuba_plugin  # lazy: imports Mitsuba and Dr.Jit
 
     kind = _kind(model)
     if kind in ("sparse", "tabulated"):
@@ -179,7 +180,7 @@ def _evaluator(model, ensemble, decoder: str) -> Callable:
             bsdf = mi.load_dict(_plugin_dict(model, kind, ensemble, decoder, Path(tmp)))
         ctx = mi.BSDFContext()
         return lambda si, wo: bsdf.eval(ctx, si, wo)
-    from mitsuba_plugin.evaluators import evaluator_for
+    from mitsuba_plugin.evaluators import evaluator_for  # lazy: imports Mitsuba and Dr.Jit
 
     ev = evaluator_for(model)
     return lambda si, wo: ev.eval(si.wi, wo)
@@ -188,12 +189,6 @@ def _evaluator(model, ensemble, decoder: str) -> Callable:
 def _plugin_dict(model, kind: str, ensemble, decoder: str, tmp: Path) -> dict:
     """The ``mi.load_dict`` dictionary of a sparse or tabulated model, its files in
     ``tmp`` (the plugins read them at load time)."""
-    from ..brdf import BRDF
-    from ..coords import geometric_valid
-    from ..model.baselines import Compact
-    from ..model.sbrdf import save_sbrdf
-    from ..sources.merl import write_merl
-
     if kind == "tabulated":
         if isinstance(model, Compact):
             if model.params is None or "table" not in model.params:

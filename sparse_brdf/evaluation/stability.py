@@ -28,7 +28,7 @@ from ..coords import grid_angles
 from ..errors import SparseBRDFError
 from ..metrics import cosine_weighted_snr
 from ..model.baselines import BRDFModel
-from ..sources.merl import MERL_SCALE
+from ..sources.merl import MERL_SCALE, read_merl
 
 Perturb = Callable[[np.ndarray, np.ndarray, np.random.Generator], tuple[np.ndarray, np.ndarray]]
 
@@ -117,8 +117,6 @@ def run_stability(
     seed: int = 0,
 ) -> list[dict]:
     """Run every case against every method; one row per (case, method)."""
-    from ..sources.merl import read_merl
-
     work.mkdir(parents=True, exist_ok=True)
     rows = []
     for ci, case in enumerate(cases):

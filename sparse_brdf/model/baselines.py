@@ -29,8 +29,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..brdf import BRDF
-from ..coords import cosine_product
+from ..coords import bin_edges, cosine_product
 from ..transforms import cosine_weight, forward, inverse
+from .encode import DEFAULT_N_COEFFS, encode
+from .ensemble import resolve_ensemble
+from .sbrdf import RECORD_BYTES
 
 _F32 = 4
 
@@ -126,18 +129,14 @@ class TabulatedModel(BRDFModel):
 class SparseModel(BRDFModel):
     """The sparse ensemble model at ``n_coeffs`` per channel (see :func:`encode`)."""
 
-    def __init__(self, ensemble=None, n_coeffs: int = 262, transform: str = "auto"):
-        from .ensemble import Ensemble
-
-        self.ensemble = Ensemble.default() if ensemble is None else ensemble
+    def __init__(self, ensemble=None, n_coeffs: int = DEFAULT_N_COEFFS,
+                 transform: str = "auto"):
+        self.ensemble = resolve_ensemble(ensemble)
         self.n_coeffs = n_coeffs
         self.transform = transform
         self.name = f"sparse-{n_coeffs}" + ("" if transform == "auto" else f"-{transform}")
 
     def fit(self, brdf: BRDF) -> Compact:
-        from .encode import encode
-        from .sbrdf import RECORD_BYTES
-
         m = encode(brdf, self.ensemble, self.n_coeffs, transform=self.transform)
         return Compact(self.name, RECORD_BYTES * int(m.n_coeffs.sum()),
                        lambda: m.decode(self.ensemble, valid=brdf.valid).values,
@@ -148,14 +147,14 @@ def bin_solid_angle(shape: tuple[int, int, int]) -> np.ndarray:
     """Measure of each grid bin in (wi, wo) space (sr^2), float64 array of ``shape``.
 
     d(wi) d(wo) = 4 cos(theta_d) sin(theta_h) sin(theta_d) d(theta_h) d(phi_h) d(theta_d)
-    d(phi_d), integrated exactly over each bin's angle ranges (SPEC section 1: theta_h
-    edges (i/n1)^2 pi/2, theta_d edges j/n2 pi/2, phi_d edges k/n3 pi), phi_h over 2 pi and
+    d(phi_d), integrated exactly over each bin's angle ranges (the MERL grid of
+    ``docs/method.md``, "Grid, lookup convention, validity": theta_h edges
+    (i/n1)^2 pi/2, theta_d edges j/n2 pi/2, phi_d edges k/n3 pi), phi_h over 2 pi and
     phi_d doubled for the reciprocal half folded onto [0, pi). The first theta_h bins of
     the MERL grid are tiny (the square-root spacing): bin 0 measures ~1e-11 of bin 45.
     """
-    n1, n2, n3 = shape
-    th = (np.arange(n1 + 1) / n1) ** 2 * (np.pi / 2)
-    td = np.arange(n2 + 1) / n2 * (np.pi / 2)
+    n3 = shape[2]
+    th, td, _ = bin_edges(shape)
     per_h = np.cos(th[:-1]) - np.cos(th[1:])
     per_d = 0.5 * (np.sin(td[1:]) ** 2 - np.sin(td[:-1]) ** 2)
     hd = (4.0 * 2.0 * np.pi * 2.0 * np.pi / n3) * per_h[:, None] * per_d[None, :]
@@ -360,6 +359,7 @@ class CPDModel(BRDFModel):
         self.name = f"cpd-{rank}"
 
     def fit(self, brdf: BRDF) -> Compact:
+        # lazy: tensorly takes ~0.7 s to import and only these two baselines use it
         import tensorly as tl
         from tensorly.decomposition import parafac
 
@@ -388,6 +388,7 @@ class TuckerModel(BRDFModel):
         self.name = "tucker-" + "x".join(map(str, self.ranks))
 
     def fit(self, brdf: BRDF) -> Compact:
+        # lazy: tensorly takes ~0.7 s to import and only these two baselines use it
         import tensorly as tl
         from tensorly.decomposition import tucker
 

@@ -1,4 +1,7 @@
-"""Encoding a BRDF over an ensemble: projection, sparsification, model selection (SPEC 5).
+"""Encoding a BRDF over an ensemble: projection, sparsification, model selection.
+
+Tongbuasirilai et al., "A Sparse Non-parametric BRDF Model"; ``docs/method.md``,
+"Encoding".
 
 For each transform and colour channel, the transformed tensor Y is projected on every
 dictionary; the largest |s| are kept until ``n_coeffs`` are kept or the relative residual
@@ -10,15 +13,16 @@ the smaller gamma-mapped MSE against the BRDF, unless forced.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..brdf import BRDF
 from ..coords import geometric_valid
-from ..metrics import gamma_mse, mse, rae
+from ..metrics import cosine_weighted_snr, gamma_mse, mse, rae
 from ..transforms import TRANSFORMS, check_transform, forward, inverse
-from .ensemble import Ensemble
+from .ensemble import Ensemble, resolve_ensemble
 from .sparse import SparseBRDF
 from .tensor import n_threads, parallel_map, phi_major_to_flat, project_phi_major, top_k
 
@@ -96,6 +100,47 @@ PRUNE_ROUNDS = (12, 36, 90)
 PRUNE_SLACK = 1e-5
 
 
+@dataclass
+class _PruneSearch:
+    """The state of :func:`project_pruned`'s search. The dicts are keyed by (channel,
+    dictionary) pairs, all of them present from the start (:meth:`start`)."""
+
+    n_dicts: int
+    n3: int  # phi_d slices of a tensor
+    n: int  # coefficients wanted per channel
+    max_error: float | None
+    done: dict[tuple[int, int], int] = field(default_factory=dict)  # slices projected
+    energy: dict[tuple[int, int], float] = field(default_factory=dict)  # their energy
+    #: flat indices and values of the n largest coefficients computed so far
+    top: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    alive: dict[tuple[int, int], bool] = field(default_factory=dict)  # may still win
+
+    @classmethod
+    def start(cls, n_dicts: int, n3: int, n: int, max_error: float | None) -> _PruneSearch:
+        search = cls(n_dicts, n3, n, max_error)
+        for p in search.pairs:
+            search.done[p], search.energy[p] = 0, 0.0
+            search.top[p] = (np.zeros(0, np.int64), np.zeros(0, np.float32))
+            search.alive[p] = True
+        return search
+
+    @property
+    def pairs(self) -> list[tuple[int, int]]:
+        return [(c, k) for c in range(3) for k in range(self.n_dicts)]
+
+    def add(self, p: tuple[int, int], hi: int, idx: np.ndarray, val: np.ndarray,
+            energy: float) -> None:
+        """Merge the coefficients of pair ``p``'s slices up to ``hi`` (their total energy
+        ``energy``) into what is known of it."""
+        old_idx, old_val = self.top[p]
+        idx = np.concatenate([old_idx, idx])
+        val = np.concatenate([old_val, val])
+        keep = top_k(val * val, self.n)
+        self.top[p] = (idx[keep], val[keep])
+        self.energy[p] += energy
+        self.done[p] = hi
+
+
 def project_pruned(brdf: BRDF, ens: Ensemble, transform: str, n_coeffs: int,
                    max_error: float | None = None,
                    y: np.ndarray | None = None) -> Projections:
@@ -126,11 +171,8 @@ def project_pruned(brdf: BRDF, ens: Ensemble, transform: str, n_coeffs: int,
     order = [[np.argsort(-np.einsum("ij,ij->j", g @ ens.u3[k], ens.u3[k]), kind="stable")
               for k in range(n_dicts)] for g in grams]
 
-    pairs = [(c, k) for c in range(3) for k in range(n_dicts)]
-    done = {p: 0 for p in pairs}  # slices projected
-    energy = {p: 0.0 for p in pairs}  # their total energy
-    top = {p: (np.zeros(0, np.int64), np.zeros(0, np.float32)) for p in pairs}
-    alive = dict.fromkeys(pairs, True)
+    search = _PruneSearch.start(n_dicts, n3, n, max_error)
+    pairs, done, alive = search.pairs, search.done, search.alive
 
     def chunk(task):
         (c, k), hi = task
@@ -146,15 +188,9 @@ def project_pruned(brdf: BRDF, ens: Ensemble, transform: str, n_coeffs: int,
         hi = min(hi_round, n3)
         tasks = [(p, hi) for p in pairs if alive[p] and done[p] < hi]
         for p, hi_, idx, val, en in parallel_map(chunk, tasks):
-            old_idx, old_val = top[p]
-            idx = np.concatenate([old_idx, idx])
-            val = np.concatenate([old_val, val])
-            keep = top_k(val * val, n)
-            top[p] = (idx[keep], val[keep])
-            energy[p] += en
-            done[p] = hi_
+            search.add(p, hi_, idx, val, en)
         for c in range(3):
-            _prune(c, n_dicts, n, max_error, norms[c], n3, done, energy, top, alive)
+            _prune(search, c, norms[c])
         if all(done[p] == n3 for p in pairs if alive[p]):
             break
 
@@ -165,7 +201,7 @@ def project_pruned(brdf: BRDF, ens: Ensemble, transform: str, n_coeffs: int,
     for (c, k), ok in alive.items():
         if not ok:
             continue
-        idx, val = top[(c, k)]
+        idx, val = search.top[(c, k)]
         e = val.astype(np.float32) ** 2
         idx_out[c][k], val_out[c][k] = idx, val
         residual[c, k, :idx.size] = norms[c] - np.cumsum(e, dtype=np.float64)
@@ -173,24 +209,26 @@ def project_pruned(brdf: BRDF, ens: Ensemble, transform: str, n_coeffs: int,
                        residual=residual, norms=norms, exact_for=(n_coeffs, max_error))
 
 
-def _prune(c, n_dicts, n, max_error, norm, n3, done, energy, top, alive) -> None:
-    """Drop channel ``c``'s dictionaries that cannot win (see :func:`project_pruned`)."""
-    ks = [k for k in range(n_dicts) if alive[(c, k)]]
+def _prune(search: _PruneSearch, c: int, norm: float) -> None:
+    """Drop channel ``c``'s dictionaries that cannot win (see :func:`project_pruned`);
+    ``norm``: the channel's ||Y||^2."""
+    n, n3 = search.n, search.n3
+    ks = [k for k in range(search.n_dicts) if search.alive[(c, k)]]
     if len(ks) <= 1 or norm <= 0:
         return
     lower = np.empty((len(ks), n))  # L(m): kept energy of the m largest computed
     gap = np.empty(len(ks))  # energy not computed yet
     for r, k in enumerate(ks):
-        _, val = top[(c, k)]
+        _, val = search.top[(c, k)]
         cum = np.cumsum(val.astype(np.float32) ** 2, dtype=np.float64)
         lower[r, :cum.size] = cum
         lower[r, cum.size:] = cum[-1] if cum.size else 0.0
-        gap[r] = 0.0 if done[(c, k)] == n3 else max(norm - energy[(c, k)], 0.0)
+        gap[r] = 0.0 if search.done[(c, k)] == n3 else max(norm - search.energy[(c, k)], 0.0)
     upper = lower + (gap + PRUNE_SLACK * norm)[:, None]
-    if max_error is None:
+    if search.max_error is None:
         need_hi = need_lo = np.full(len(ks), n)
     else:
-        thr = (1.0 - max_error) * norm
+        thr = (1.0 - search.max_error) * norm
 
         def first(a):
             hit = a >= thr
@@ -202,7 +240,7 @@ def _prune(c, n_dicts, n, max_error, norm, n3, done, energy, top, alive) -> None
     drop = (need_lo > n_star) | ((need_lo == n_star) & (upper[:, n_star - 1] < best))
     for r, k in enumerate(ks):
         if drop[r]:
-            alive[(c, k)] = False
+            search.alive[(c, k)] = False
 
 
 def select(p: Projections, n_coeffs: int, max_error: float | None = None,
@@ -241,7 +279,7 @@ def select(p: Projections, n_coeffs: int, max_error: float | None = None,
 
 
 def pick_transform(stats: dict[str, dict]) -> str:
-    """The transform rule (SPEC section 5): the smaller gamma-mapped MSE."""
+    """The transform rule (``docs/method.md``, "Encoding"): the smaller gamma-mapped MSE."""
     return min(stats, key=lambda t: stats[t]["gamma_mse"])
 
 
@@ -251,8 +289,6 @@ def error_curve(brdf: BRDF, ens: Ensemble, counts: list[int]) -> dict:
     Returns ``{"counts": counts, "<transform>": {"rae": [...], "cos_snr": [...],
     "gamma_mse": [...], "mse": [...]}, "chosen": [...]}`` (one projection per transform).
     """
-    from ..metrics import cosine_weighted_snr
-
     proj = {t: project_all(brdf, ens, t, max(counts)) for t in TRANSFORMS}
     out: dict = {"counts": list(counts), "chosen": []}
     out.update({t: {"rae": [], "cos_snr": [], "gamma_mse": [], "mse": []} for t in TRANSFORMS})
@@ -272,8 +308,6 @@ def error_curve(brdf: BRDF, ens: Ensemble, counts: list[int]) -> dict:
 
 def choose_transform(brdf: BRDF, models: dict[str, SparseBRDF], ens: Ensemble) -> SparseBRDF:
     """The model with the smaller gamma-mapped MSE; ``stats`` gets every model's errors."""
-    from concurrent.futures import ThreadPoolExecutor
-
     valid = brdf.valid
     ref = brdf.channel_first()[:, valid]  # (3, n_valid): mask once, then flat metrics
     decoded = {name: model.transformed(ens) for name, model in models.items()}
@@ -308,7 +342,8 @@ def encode(
 
     Parameters
     ----------
-    n_coeffs : at most this many coefficients per channel (default 262, the paper's).
+    n_coeffs : at most this many coefficients per channel (default DEFAULT_N_COEFFS = 262,
+        the paper's).
     max_error : optional relative squared residual in the transformed domain at which a
         channel stops adding coefficients (e.g. 1e-4); None keeps ``n_coeffs``.
     transform : "auto" (gamma-mapped MSE picks), "log-plus" or "log-plus-cosine".
@@ -320,7 +355,7 @@ def encode(
     relative residual per channel and how many of the 3 K (channel, dictionary)
     projections were completed (the others were pruned, see :func:`project_pruned`).
     """
-    ens = Ensemble.default() if ensemble is None else ensemble
+    ens = resolve_ensemble(ensemble)
     if brdf.shape != ens.shape:
         raise ValueError(f"{brdf.name}: BRDF grid {brdf.shape} does not match the "
                          f"ensemble's {ens.shape}")

@@ -1,4 +1,6 @@
-"""Interpolating two encoded BRDFs in coefficient space (SPEC section 6, TOG version).
+"""Interpolating two encoded BRDFs in coefficient space.
+
+As in the TOG version of Tongbuasirilai et al., "A Sparse Non-parametric BRDF Model".
 
 Per channel, B's coefficients are brought into A's dictionary mode by mode,
 R_n = U_nA^T U_nB and S_B' = S_B x1 R1 x2 R2 x3 R3 (exact, the bases being orthonormal),
@@ -8,7 +10,7 @@ by keeping the largest |s|. The result uses A's dictionaries and transform.
 
 from __future__ import annotations
 
-from .ensemble import Ensemble
+from .ensemble import Ensemble, resolve_ensemble
 from .sparse import SparseBRDF
 from .tensor import reconstruct, sparse_to_dense, top_k
 
@@ -25,7 +27,7 @@ def interpolate(
     ``n_coeffs``: coefficients per channel of the result (default: the larger of the two
     inputs' counts for that channel).
     """
-    ens = Ensemble.default() if ensemble is None else ensemble
+    ens = resolve_ensemble(ensemble)
     a.check_ensemble(ens)
     b.check_ensemble(ens)
     if a.transform != b.transform:

@@ -34,7 +34,7 @@ from ..brdf import BRDF
 from ..errors import BRDFFileError
 from ..fileio import atomic_write, require_file
 from ..transforms import TRANSFORMS
-from .ensemble import Ensemble
+from .ensemble import Ensemble, resolve_ensemble
 from .sparse import SparseBRDF
 
 MAGIC = b"SBRDF\r\n\x1a"
@@ -127,7 +127,7 @@ def load_sbrdf(path: str | os.PathLike, ensemble: Ensemble | None = None) -> Spa
 
 def decode_file(path: str | os.PathLike, ensemble: Ensemble | None = None) -> BRDF:
     """Load a ``.sbrdf`` file and decode the full tensor (default: the shipped ensemble)."""
-    ens = Ensemble.default() if ensemble is None else ensemble
+    ens = resolve_ensemble(ensemble)
     brdf = load_sbrdf(path, ens).decode(ens)
     brdf.source = os.fspath(path)
     return brdf

@@ -16,7 +16,8 @@ from .tensor import parallel_map, reconstruct_sparse
 
 @dataclass
 class SparseBRDF:
-    """A BRDF encoded over an ensemble (SPEC section 3).
+    """A BRDF encoded over an ensemble (Tongbuasirilai et al., "A Sparse Non-parametric
+    BRDF Model"; stored as in ``docs/file-format.md``).
 
     Attributes
     ----------

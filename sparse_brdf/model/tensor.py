@@ -17,6 +17,7 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import TypeVar
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -35,8 +36,6 @@ def n_threads() -> int:
 
 def parallel_map(fn: Callable[[T], R], items: Iterable[T]) -> Iterator[R]:
     """``map(fn, items)`` on worker threads, results in input order, BLAS single-threaded."""
-    from threadpoolctl import threadpool_limits
-
     workers = n_threads()
     with threadpool_limits(limits=1, user_api="blas"):
         if workers == 1:
@@ -121,11 +120,6 @@ def top_k(values: np.ndarray, k: int) -> np.ndarray:
         cand = cand[np.argpartition(values[cand], cand.size - k)[cand.size - k:]]
     order = np.lexsort((cand, -values[cand]))  # largest first, ties by index
     return cand[order]
-
-
-def unravel(flat: np.ndarray, shape: tuple[int, int, int]) -> tuple[np.ndarray, ...]:
-    """Flat coefficient indices -> (a, b, c) per mode."""
-    return np.unravel_index(flat, shape)
 
 
 def sparse_to_dense(

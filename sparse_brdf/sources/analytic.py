@@ -26,7 +26,7 @@ def tabulate_mitsuba(
     Returns a :class:`BRDF` of float32 linear RGB values on ``shape``; bins below the
     horizon are invalid.
     """
-    import drjit as dr
+    import drjit as dr  # lazy: Dr.Jit and Mitsuba are slow to import
     import mitsuba as mi
 
     valid = geometric_valid(shape)

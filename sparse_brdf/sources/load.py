@@ -9,7 +9,12 @@ from ..brdf import BRDF
 from ..coords import MERL_SHAPE
 from ..errors import BRDFFileError
 from ..fileio import require_file
+from ..model.sbrdf import decode_file
+from .analytic import tabulate_mitsuba
 from .cache import cached_brdf, content_key
+from .catalog import mitsuba_catalog
+from .merl import read_merl
+from .nbrdf import tabulate_nbrdf
 
 SUFFIXES = (".binary", ".h5", ".sbrdf")
 
@@ -26,16 +31,11 @@ def load_brdf(
     ``"mitsuba:<name>"`` for a built-in material, or a ``mi.load_dict`` dictionary.
     """
     if isinstance(source, dict):
-        from .analytic import tabulate_mitsuba
-
         name = str(source.get("type", "mitsuba"))
         key = content_key("mitsuba-dict", source, list(shape), _mitsuba_version())
         return cached_brdf(key, lambda: tabulate_mitsuba(source, name, shape), cache)
     s = os.fspath(source)
     if s.startswith("mitsuba:"):
-        from .analytic import tabulate_mitsuba
-        from .corpora import mitsuba_catalog
-
         name = s.split(":", 1)[1]
         catalog = mitsuba_catalog()
         if name not in catalog:
@@ -46,24 +46,18 @@ def load_brdf(
     path = Path(s)
     suffix = path.suffix.lower()
     if suffix == ".binary":
-        from .merl import read_merl
-
         return read_merl(path)
     if suffix == ".h5":
-        from .nbrdf import tabulate_nbrdf
-
         data = require_file(path, "Neural-BRDF file").read_bytes()
         key = content_key("nbrdf", data, list(shape))
         return cached_brdf(key, lambda: tabulate_nbrdf(path, shape), cache)
     if suffix == ".sbrdf":
-        from ..model.sbrdf import decode_file
-
         return decode_file(path)
     require_file(path)
     raise BRDFFileError(f"{path}: unknown BRDF format (expected one of {', '.join(SUFFIXES)})")
 
 
 def _mitsuba_version() -> str:
-    import mitsuba as mi
+    import mitsuba as mi  # lazy: Mitsuba is slow to import and only needed for mitsuba: sources
 
     return mi.__version__

@@ -1,4 +1,5 @@
-"""MERL ``.binary`` files (also the DTU data set): read and write (SPEC section 1).
+"""MERL ``.binary`` files (also the DTU data set): read and write (``docs/method.md``,
+"Grid, lookup convention, validity").
 
 Layout: three little-endian int32 dimensions (n_h, n_d, n_p), then 3 x n float64
 values, all red, then all green, then all blue, C order, phi_d fastest. A stored value

@@ -21,7 +21,7 @@ _LAYERS = ("dense_1", "dense_2", "dense_3")
 
 def read_nbrdf_weights(path: str | os.PathLike) -> list[tuple[np.ndarray, np.ndarray]]:
     """The (kernel, bias) float32 pairs of the three dense layers of a Neural-BRDF file."""
-    import h5py
+    import h5py  # lazy: h5py adds ~25 ms to `import sparse_brdf`
 
     path = require_file(path, "Neural-BRDF file")
     try:

@@ -1,11 +1,17 @@
-"""Per-material data of the two BSDFs, prepared with numpy at scene-load time.
+"""The flat buffers a renderer reads for a sparse BRDF, their byte counts, and numpy
+reference decoders for testing without a renderer.
 
-Nothing here depends on Mitsuba: the arrays built here are uploaded to Dr.Jit by
-:mod:`mitsuba_plugin.bsdfs`, and the small numpy evaluators below (``grouped_eval``,
-``strict_eval``) mirror the Dr.Jit kernels so the decoders can be checked without a
-renderer.
+Everything here is plain numpy, prepared at scene-load time: the ``sparse_brdf`` Mitsuba
+plugin (:mod:`mitsuba_plugin.bsdfs`) uploads these arrays to Dr.Jit as they are
+(:func:`grouped_layout`, :func:`strict_layout`, :func:`float_buffer`), their byte counts
+are known without a renderer (:func:`grouped_bytes`, ``StrictChannel.nbytes``), and the
+numpy evaluators below (``grouped_eval``, ``strict_eval``, ``layout_eval``) mirror its
+Dr.Jit kernels so the decoders can be checked without Mitsuba. The decoder, layout and
+sampling names the plugin accepts are defined here (:data:`DECODERS`, :data:`LAYOUTS`,
+:data:`SAMPLING`), as is the glossy sampling lobe fitted at load time (:func:`fit_lobe`).
 
-Sparse model of one channel (SPEC section 3)::
+Sparse model of one channel (Tongbuasirilai et al., "A Sparse Non-parametric BRDF
+Model", and docs/method.md)::
 
     X[i, j, k] = sum_t s_t U1[i, a_t] U2[j, b_t] U3[k, c_t]
     rho        = max((exp(X) - 1) / w, 0)
@@ -14,9 +20,10 @@ with w = 1 (log-plus) or w = clip(cos_i cos_o, 0.01, 1) at the bin's lower-edge 
 (log-plus-cosine). Neither decoder ever builds the (n1, n2, n3) tensor:
 
 - **grouped**: the terms are grouped by the atom of one mode ``g`` (the same mode for the
-  three channels: the fewest packets read per lookup, see below). The two other modes ``p < q`` are
-  contracted at load time into ``table[ip * nq + iq, G] = sum_{t in G} s_t Up[ip, p_t]
-  Uq[iq, q_t]`` (shape (np * nq, K), K = distinct atoms of mode g), and the K atom
+  three channels: the fewest packets read per lookup, see below). The two other modes
+  ``p < q`` are contracted at load time into
+  ``table[ip * nq + iq, G] = sum_{t in G} s_t Up[ip, p_t] Uq[iq, q_t]``
+  (shape (np * nq, K), K = distinct atoms of mode g), and the K atom
   columns of mode g are kept as rows ``V[G, :]``. A lookup is
   ``X = sum_G table[(ip, iq), G] * V[G, ig]``: K fused multiply-adds. As uploaded
   (:func:`grouped_layout`), the three channels share one row per bin pair and one row
@@ -40,8 +47,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sparse_brdf.coords import bin_angles, cos_io
-from sparse_brdf.transforms import COS_CLIP
+from ..coords import bin_angles, cos_io
+from ..transforms import COS_CLIP
+
+#: The ``sparse_brdf`` plugin's decoders ("auto": :func:`choose_decoder` picks one).
+DECODERS = ("grouped", "strict", "auto")
+
+#: The grouped decoder's row layouts ("auto": :func:`layout_kind` picks one).
+LAYOUTS = ("auto", "union", "slots")
+
+#: Both plugins' sampling modes: cosine-weighted hemisphere, or that mixed with the
+#: glossy lobe of :func:`fit_lobe`.
+SAMPLING = ("cosine", "lobe")
 
 #: ``decoder="auto"`` uses "grouped" unless its tables would take more than this many
 #: bytes (all three channels), then "strict". The grouped decoder is many times faster
@@ -178,6 +195,33 @@ def strict_channel(s, modes, us) -> StrictChannel:
     return StrictChannel(values, packed.astype(np.uint32), tuple(rows))
 
 
+@dataclass
+class StrictLayout:
+    """The three channels' strict data as uploaded (:func:`strict_layout`): each array
+    holds channel 0's data, then channel 1's, then channel 2's."""
+
+    values: np.ndarray  # float32: the terms' coefficients
+    packed: np.ndarray  # uint32: their packed atom indices and group-end flags
+    rows: np.ndarray  # flat float32: per channel, its distinct atom rows of modes 1, 2, 3
+    n_terms: tuple[int, ...]  # per channel: its number of terms
+    term_offsets: tuple[int, ...]  # per channel: index of its first term
+    row_offsets: tuple[tuple[int, int, int], ...]  # per channel and mode: first float
+
+
+def strict_layout(chans) -> StrictLayout:
+    """The :class:`StrictChannel` data of the three channels, concatenated."""
+    soff = np.cumsum([0] + [ch.n_terms for ch in chans])
+    rows = [r for ch in chans for r in ch.rows]
+    roff = np.cumsum([0] + [r.size for r in rows])
+    return StrictLayout(
+        np.concatenate([ch.values for ch in chans]),
+        np.concatenate([ch.packed for ch in chans]),
+        np.concatenate([r.ravel() for r in rows]),
+        tuple(ch.n_terms for ch in chans),
+        tuple(int(soff[c]) for c in range(len(chans))),
+        tuple(tuple(int(roff[3 * c + mode]) for mode in range(3)) for c in range(len(chans))))
+
+
 def atom_keys(model, ensemble, g: int) -> list[set]:
     """Per channel of ``model``, its distinct atoms of mode ``g`` as (dictionary, atom)."""
     out = []
@@ -256,11 +300,11 @@ def _layout_bytes(kind: str, chunks: int, shape, g: int) -> int:
 def weight_factors(shape, mode_g: int) -> tuple[np.ndarray, np.ndarray]:
     """Rank-2 factors of the bins' ``cos_i cos_o`` for the grouped layout.
 
-    At the lower-edge angles of bin (i, j, k), ``cos_i cos_o = cos_d^2 cos_h^2 -
-    sin_d^2 sin_h^2 cos_p^2`` (SPEC section 1), a sum of two products separable into
-    the contracted pair (p, q) and the grouped mode g. Returns (pair, atom): shapes
-    (n_p * n_q, 2) and (n_g, 2), float64, with ``cos_i cos_o = pair[(ip, iq)] .
-    atom[ig]``.
+    At the lower-edge angles of bin (i, j, k) (docs/method.md, "Grid, lookup convention,
+    validity"), ``cos_i cos_o = cos_d^2 cos_h^2 - sin_d^2 sin_h^2 cos_p^2``, a sum of two
+    products separable into the contracted pair (p, q) and the grouped mode g. Returns
+    (pair, atom): shapes (n_p * n_q, 2) and (n_g, 2), float64, with ``cos_i cos_o =
+    pair[(ip, iq)] . atom[ig]``.
     """
     th, td, pd = bin_angles(tuple(shape))
     # per mode: its factor in the first product and in the second
@@ -383,11 +427,44 @@ def grouped_bytes(model, ensemble) -> int:
 def choose_decoder(decoder: str, model, ensemble,
                    max_bytes: int = AUTO_GROUPED_MAX_BYTES) -> str:
     """Resolve ``"auto"`` to "grouped" or "strict"; check the name."""
-    if decoder not in ("grouped", "strict", "auto"):
+    if decoder not in DECODERS:
         raise ValueError(f"unknown decoder {decoder!r}: expected grouped, strict or auto")
     if decoder != "auto":
         return decoder
     return "grouped" if grouped_bytes(model, ensemble) <= max_bytes else "strict"
+
+
+# ------------------------------------------------------------------ buffers as uploaded
+
+
+def float_buffer(a, align: int = 64) -> np.ndarray:
+    """``a`` as a flat float32 array whose data starts on an ``align``-byte boundary.
+
+    Dr.Jit's LLVM backend may map a numpy buffer instead of copying it, and reads an
+    unaligned source with per-lane gathers instead of packet loads; which of the two a
+    kernel gets would then depend on where numpy happened to allocate, and a material
+    swap could compile a new kernel.
+    """
+    a = np.asarray(a, np.float32).ravel()
+    item = a.dtype.itemsize
+    buf = np.empty(a.size + align // item, a.dtype)
+    off = (-buf.ctypes.data % align) // item
+    out = buf[off:off + a.size]
+    out[:] = a
+    return out
+
+
+def uint_buffer(a) -> np.ndarray:
+    """``a`` as a flat, contiguous uint32 array."""
+    return np.ascontiguousarray(np.asarray(a, np.uint32).ravel())
+
+
+def angle_tables(shape) -> tuple[np.ndarray, ...]:
+    """cos theta_h, sin theta_h, cos theta_d, sin theta_d and cos phi_d at the bins'
+    lower-edge angles (:func:`sparse_brdf.coords.bin_angles`): the five small tables
+    from which a renderer gets a bin's ``cos_i cos_o`` without trigonometry."""
+    th, td, pd = bin_angles(tuple(shape))
+    return np.cos(th), np.sin(th), np.cos(td), np.sin(td), np.cos(pd)
 
 
 # ----------------------------------------------------------------------- numpy mirrors

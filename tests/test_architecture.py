@@ -1,0 +1,235 @@
+"""The package's structure: no import cycles, layers that only look down, lazy imports
+that say why, and a non-editable install that finds its own scenes and configs."""
+
+from __future__ import annotations
+
+import ast
+import os
+import shutil
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("sparse_brdf", "mitsuba_plugin")
+# Modules of sparse_brdf allowed to import the Mitsuba plugin: the render helpers.
+PLUGIN_USERS = {"sparse_brdf.evaluation.render", "sparse_brdf.evaluation.speed"}
+# Imports that may sit inside a function, with a comment saying why (heavy or optional).
+LAZY_OK = ("mitsuba", "drjit", "mitsuba_plugin", "matplotlib", "tqdm", "dask", "OpenEXR",
+           "Imath", "h5py", "scipy", "tensorly", "threadpoolctl")
+
+
+def _module_name(path: Path) -> str:
+    rel = path.relative_to(ROOT).with_suffix("")
+    parts = rel.parts[:-1] if rel.name == "__init__" else rel.parts
+    return ".".join(parts)
+
+
+def _resolve(mod: str, node: ast.ImportFrom, is_pkg: bool) -> str:
+    if node.level == 0:
+        return node.module or ""
+    base = mod.split(".") if is_pkg else mod.split(".")[:-1]
+    base = base[: len(base) - (node.level - 1)]
+    return ".".join(base + ([node.module] if node.module else []))
+
+
+def _imports(path: Path) -> list[tuple[str, bool, int]]:
+    """(imported module, at top level?, line) for every import in a file."""
+    mod = _module_name(path)
+    tree = ast.parse(path.read_text(), filename=str(path))
+    top = {id(n) for n in tree.body}
+    for n in tree.body:  # `if TYPE_CHECKING:` / try blocks at module level count as top
+        if isinstance(n, (ast.If, ast.Try)):
+            top |= {id(c) for c in ast.walk(n)}
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            out += [(a.name, id(node) in top, node.lineno) for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            target = _resolve(mod, node, path.name == "__init__.py")
+            names = [f"{target}.{a.name}" for a in node.names]
+            out += [(n, id(node) in top, node.lineno) for n in names]
+    return out
+
+
+def _graph() -> dict[str, set[str]]:
+    files = [p for pkg in PACKAGES for p in (ROOT / pkg).rglob("*.py")]
+    mods = {_module_name(p): p for p in files}
+    graph: dict[str, set[str]] = {}
+    for m, p in mods.items():
+        deps = set()
+        for name, _, _ in _imports(p):
+            while name and name not in mods:  # "pkg.mod.attr" -> "pkg.mod"
+                name = name.rpartition(".")[0]
+            if name and name != m and not m.startswith(name + "."):
+                deps.add(name)
+        graph[m] = deps
+    return graph
+
+
+def test_no_import_cycles():
+    graph = _graph()
+    assert len(graph) > 30
+    state: dict[str, int] = {}
+    stack: list[str] = []
+
+    def visit(m: str) -> None:
+        state[m] = 1
+        stack.append(m)
+        for d in sorted(graph[m]):
+            if d.endswith("__init__") or graph.get(d) is None:
+                continue
+            if state.get(d) == 1:
+                cycle = stack[stack.index(d):] + [d]
+                raise AssertionError("import cycle: " + " -> ".join(cycle))
+            if d not in state:
+                visit(d)
+        stack.pop()
+        state[m] = 2
+
+    for m in sorted(graph):
+        if m not in state and m not in PACKAGES:
+            visit(m)
+
+
+def _group(m: str) -> str:
+    parts = m.split(".")
+    if parts[0] != "sparse_brdf" or len(parts) < 2:
+        return parts[0]
+    if parts[1] in ("sources", "model", "evaluation"):
+        return parts[1]
+    return "top" if parts[1] in ("cli", "demo", "__init__") else "core"
+
+
+# Which groups each group may import (docs/architecture.md, "Rules").
+ALLOWED = {
+    "core": {"core"},
+    "model": {"core", "model"},
+    "sources": {"core", "sources", "model"},
+    "evaluation": {"core", "sources", "model", "evaluation", "mitsuba_plugin"},
+    "top": {"core", "sources", "model", "evaluation", "top"},
+    "mitsuba_plugin": {"core", "model", "sources", "mitsuba_plugin"},
+}
+
+
+def test_groups_import_one_way():
+    bad = []
+    for m, deps in _graph().items():
+        for d in deps:
+            if m == "sparse_brdf" or d == "sparse_brdf":
+                continue
+            if _group(d) not in ALLOWED[_group(m)]:
+                bad.append(f"{m} -> {d}")
+    # sources may read .sbrdf files through the model, nothing else of it
+    bad += [f"{m} -> {d}" for m, deps in _graph().items() if _group(m) == "sources"
+            for d in deps if _group(d) == "model" and m != "sparse_brdf.sources.load"]
+    assert bad == []
+
+
+def test_library_does_not_import_the_plugin():
+    graph = _graph()
+    offenders = sorted(m for m, deps in graph.items() if m.startswith("sparse_brdf")
+                       and any(d.startswith("mitsuba_plugin") for d in deps)
+                       and m not in PLUGIN_USERS)
+    assert offenders == []
+
+
+def test_plugin_holds_no_numpy_layouts():
+    """mitsuba_plugin is Dr.Jit and Mitsuba code; numpy layouts live in sparse_brdf."""
+    for p in (ROOT / "mitsuba_plugin").rglob("*.py"):
+        names = {n.split(".")[0] for n, _, _ in _imports(p)}
+        # evaluators.py only checks and converts each baseline's numpy parameters on upload
+        assert "numpy" not in names or p.name == "evaluators.py", p
+
+
+def test_lazy_imports_are_deliberate_and_explained():
+    bad = []
+    for pkg in PACKAGES:
+        for p in (ROOT / pkg).rglob("*.py"):
+            lines = p.read_text().splitlines()
+            for name, at_top, line in _imports(p):
+                if at_top or name == "__future__.annotations":
+                    continue
+                root = name.split(".")[0]
+                if root not in LAZY_OK:
+                    bad.append(f"{p.relative_to(ROOT)}:{line}: {name} imported inside a function")
+                    continue
+                near = " ".join(lines[max(0, line - 6): line])
+                if "#" not in near:
+                    bad.append(f"{p.relative_to(ROOT)}:{line}: lazy {name} without a reason")
+    assert bad == []
+
+
+def test_functions_stay_short():
+    """No function over 80 lines, unless its first line carries a ``# long:`` reason."""
+    long = []
+    for pkg in PACKAGES:
+        for p in (ROOT / pkg).rglob("*.py"):
+            lines = p.read_text().splitlines()
+            for node in ast.walk(ast.parse("\n".join(lines))):
+                if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                    n = node.end_lineno - node.lineno + 1
+                    if n > 80 and "# long:" not in lines[node.lineno - 1]:
+                        long.append(f"{p.relative_to(ROOT)}:{node.lineno} {node.name}: {n} lines")
+    assert long == []
+
+
+def test_no_pointer_to_files_outside_the_repository():
+    hits = [f"{p.relative_to(ROOT)}:{i}" for pkg in PACKAGES for p in (ROOT / pkg).rglob("*.py")
+            for i, line in enumerate(p.read_text().splitlines(), 1) if "SPEC" in line]
+    assert hits == []
+
+
+def test_import_stays_light():
+    """`import sparse_brdf` (and the CLI module) must not pull in Mitsuba or matplotlib."""
+    code = ("import sys, sparse_brdf, sparse_brdf.cli; "
+            "print(sorted(m for m in ('mitsuba', 'drjit', 'matplotlib', 'mitsuba_plugin') "
+            "if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, cwd=ROOT).stdout.strip()
+    assert out == "[]"
+
+
+@pytest.mark.render
+def test_wheel_ships_scenes_and_configs(tmp_path):
+    """A non-editable install renders a shipped scene by name and finds its configs."""
+    # build from a copy of what a source distribution holds, so the checkout stays clean
+    src = tmp_path / "src"
+    src.mkdir()
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy(ROOT / name, src / name)
+    for name in ("sparse_brdf", "mitsuba_plugin", "scenes"):
+        shutil.copytree(ROOT / name, src / name,
+                        ignore=shutil.ignore_patterns("__pycache__", "*.egg-info"))
+    wheel_dir = tmp_path / "wheel"
+    build = subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation",
+         "-w", str(wheel_dir), str(src)], capture_output=True, text=True)
+    if build.returncode != 0:
+        pytest.fail(f"building the wheel failed:\n{build.stderr[-2000:]}")
+    (wheel,) = wheel_dir.glob("*.whl")
+    names = set(zipfile.ZipFile(wheel).namelist())
+    for need in ("sparse_brdf/scenes/sphere.xml", "sparse_brdf/scenes/paper_sphere.xml",
+                 "sparse_brdf/scenes/envmaps/studio.exr", "sparse_brdf/data/configs/ci.toml",
+                 "sparse_brdf/data/default_ensemble.npz", "mitsuba_plugin/__init__.py"):
+        assert need in names, need
+    site = tmp_path / "site"
+    subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--target",
+                    str(site), str(wheel)], check=True, capture_output=True)
+    work = tmp_path / "work"
+    work.mkdir()
+    env = {**os.environ, "PYTHONPATH": str(site)}
+    code = ("import sparse_brdf, sparse_brdf.paths as p, sparse_brdf.cli as c; "
+            "print(sparse_brdf.__file__); print(p.SCENES_DIR); "
+            "c.main(['render', 'sphere.xml', '-o', 'out.exr', '--spp', '1', '--res', '16'])")
+    run = subprocess.run([sys.executable, "-c", code], cwd=work, env=env, capture_output=True,
+                         text=True)
+    assert run.returncode == 0, run.stderr[-2000:]
+    first, second = run.stdout.splitlines()[:2]
+    assert first.startswith(str(site)) and second.startswith(str(site))
+    assert (work / "out.exr").stat().st_size > 0
+    assert not (work / "scenes").exists()
+    shutil.rmtree(site)
