@@ -63,3 +63,41 @@ def inverse_at_bins(
 
 def _inverse(t: np.ndarray, weight: np.ndarray | float) -> np.ndarray:
     return np.maximum(np.expm1(t) / weight, 0.0).astype(np.float32)
+
+
+#: Bases in which the three transformed colour channels can be coded: ``rgb`` codes R, G, B
+#: as they are (the paper); ``opponent`` codes an orthonormal luminance / red-green /
+#: yellow-blue mix of them, so most of a material's energy lands in one channel.
+COLOUR_BASES: tuple[str, str] = ("rgb", "opponent")
+
+_OPPONENT = np.array([[1, 1, 1], [1, -1, 0], [1, 1, -2]], np.float64) / np.sqrt(
+    [[3.0], [2.0], [6.0]])
+
+
+def check_basis(name: str) -> str:
+    if name not in COLOUR_BASES:
+        raise ValueError(f"unknown colour basis {name!r}: expected one of "
+                         f"{', '.join(COLOUR_BASES)}")
+    return name
+
+
+def colour_matrix(basis: str) -> np.ndarray:
+    """Orthonormal 3 x 3 matrix M (float64) of a colour basis: coded channels are
+    M @ (transformed R, G, B) and back, (transformed R, G, B) = M.T @ coded."""
+    return np.eye(3) if check_basis(basis) == "rgb" else _OPPONENT.copy()
+
+
+def to_basis(t: np.ndarray, basis: str) -> np.ndarray:
+    """Transformed channels (3, ...) -> coded channels (3, ...) in ``basis``, float32."""
+    if basis == "rgb":
+        return np.asarray(t, np.float32)
+    m = colour_matrix(basis).astype(np.float32)
+    return np.tensordot(m, np.asarray(t, np.float32), axes=1)
+
+
+def from_basis(c: np.ndarray, basis: str) -> np.ndarray:
+    """Coded channels (3, ...) in ``basis`` -> transformed channels (3, ...), float32."""
+    if basis == "rgb":
+        return np.asarray(c, np.float32)
+    m = colour_matrix(basis).astype(np.float32)
+    return np.tensordot(m.T, np.asarray(c, np.float32), axes=1)

@@ -9,7 +9,7 @@ import numpy as np
 from ..brdf import BRDF
 from ..coords import dirs_to_bins, geometric_valid
 from ..errors import EnsembleMismatchError
-from ..transforms import check_transform, inverse, inverse_at_bins
+from ..transforms import check_basis, check_transform, from_basis, inverse, inverse_at_bins
 from .ensemble import Ensemble
 from .tensor import parallel_map, reconstruct_sparse
 
@@ -30,6 +30,9 @@ class SparseBRDF:
         Flat coefficient indices a * n2 * n3 + b * n3 + c, sorted by decreasing |value|.
     values : list of 3 float32 arrays of shape (T_c,)
     name : material name
+    basis : colour basis of the coded channels, "rgb" (channels are R, G, B) or
+        "opponent" (channels are ``transforms.colour_matrix("opponent")`` times the
+        transformed R, G, B; decoding mixes them back before the inverse transform)
     stats : encoding statistics (errors per transform); not stored in files
     """
 
@@ -41,9 +44,11 @@ class SparseBRDF:
     values: list[np.ndarray]
     name: str = "brdf"
     stats: dict = field(default_factory=dict)
+    basis: str = "rgb"
 
     def __post_init__(self) -> None:
         check_transform(self.transform)
+        check_basis(self.basis)
         self.shape = tuple(int(n) for n in self.shape)  # type: ignore[assignment]
         self.dict_index = np.asarray(self.dict_index, np.int64).reshape(3)
         self.locations = [np.asarray(a, np.int64).reshape(-1) for a in self.locations]
@@ -78,8 +83,8 @@ class SparseBRDF:
         if int(self.dict_index.max()) >= ensemble.n_dicts:
             raise EnsembleMismatchError(f"{self.name}: dictionary index out of range")
 
-    def transformed(self, ensemble: Ensemble) -> np.ndarray:
-        """The transformed tensor, shape (3, n1, n2, n3), float32 (full decode)."""
+    def coded(self, ensemble: Ensemble) -> np.ndarray:
+        """The coded channels (in :attr:`basis`), shape (3, n1, n2, n3), float32."""
         self.check_ensemble(ensemble)
 
         def channel(c):
@@ -87,6 +92,10 @@ class SparseBRDF:
                                       *ensemble.dictionary(int(self.dict_index[c])))
 
         return np.stack(list(parallel_map(channel, range(3))))
+
+    def transformed(self, ensemble: Ensemble) -> np.ndarray:
+        """The transformed R, G, B tensor, shape (3, n1, n2, n3), float32 (full decode)."""
+        return from_basis(self.coded(ensemble), self.basis)
 
     def decode(self, ensemble: Ensemble, valid: np.ndarray | None = None) -> BRDF:
         """Full linear-RGB BRDF on the grid (invalid bins: geometric, or ``valid``)."""
@@ -118,6 +127,7 @@ class SparseBRDF:
                 sl = slice(lo, lo + chunk)
                 g = u1[bins[0][sl]][:, a] * u2[bins[1][sl]][:, b] * u3[bins[2][sl]][:, k]
                 out[sl, c] = g @ s
+        out = from_basis(out.T, self.basis).T
         rho = inverse_at_bins(out, self.transform, tuple(b[:, None] for b in bins), self.shape)
         keep = above & geometric_valid(self.shape)[bins]  # as decode() and the plugins
         return np.where(keep[:, None], rho, 0.0).astype(np.float32)
