@@ -1,26 +1,80 @@
 """Training time and objective per iteration of an ensemble, from its stored history.
 
     .venv/bin/python benchmarks/training_report.py [ENSEMBLE.npz] --out docs/figures
+    .venv/bin/python benchmarks/training_report.py --checkpoint-dir ckpt/ --out /tmp/r
 
-Writes ``training.png`` and ``training.md`` (one table row per sparsity and iteration).
+Writes ``training.png`` (relative objective per iteration), ``training_objective.png``
+(the objective curve: before and after each iteration's dictionary update, clusterings
+marked, and the fraction of tensors each clustering moved) and ``training.md`` (one
+table row per sparsity and iteration). With ``--checkpoint-dir`` the histories are read
+from a running (or interrupted) training's checkpoints instead.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
+import numpy as np
+
 from sparse_brdf.model.ensemble import resolve_ensemble
+
+
+def _histories(args) -> tuple[dict, dict]:
+    """{tau: history} and the ensemble's meta (empty for checkpoints)."""
+    if args.checkpoint_dir:
+        hist = {}
+        for p in sorted(Path(args.checkpoint_dir).glob("tau-*.npz"),
+                        key=lambda p: int(p.stem.split("-")[1])):
+            with np.load(p, allow_pickle=False) as z:
+                hist[p.stem.split("-")[1]] = json.loads(str(z["history"]))
+        if not hist:
+            raise SystemExit(f"{args.checkpoint_dir}: no tau-*.npz checkpoints")
+        return hist, {}
+    ens = resolve_ensemble(args.ensemble)
+    return ens.meta["history"], {**ens.meta, "n_dicts": ens.n_dicts}
+
+
+def _plot_objective(hist: dict, meta: dict, path: Path) -> None:
+    import matplotlib.pyplot as plt  # lazy: slow to import; backend chosen by the caller
+
+    fig, (ax, bx) = plt.subplots(2, 1, figsize=(7, 6), sharex=True, height_ratios=(3, 1),
+                                 constrained_layout=True)
+    for n, (tau, h) in enumerate(hist.items()):
+        colour = f"C{n}"
+        total = h[0]["objective"] / h[0]["relative_objective"]
+        xs, ys = [], []
+        for r in h:  # sawtooth: clustering / re-coding, then the dictionary update
+            xs += [r["iteration"] - 0.5, r["iteration"]]
+            ys += [r["objective_before_update"] / total, r["relative_objective"]]
+        ax.plot(xs[1:], ys[1:], color=colour, lw=1, label=f"tau = {tau}")
+        for r in h:
+            ax.plot(r["iteration"], r["relative_objective"], "o", color=colour,
+                    mfc=colour if r["assigned"] else "white", ms=5)
+        cl = [r for r in h if r["assigned"]]
+        frac = [r.get("moved_fraction", r["moved"] / meta.get("n_tensors", np.nan))
+                for r in cl]
+        bx.plot([r["iteration"] for r in cl], frac, "o-", color=colour, ms=4)
+    what = "valid bins" if meta.get("masked", False) else "all bins"
+    ax.set_ylabel(f"training error / data energy\n(transformed, {what})")
+    ax.set_yscale("log")
+    ax.legend(title="filled: clustering iteration", fontsize=8, loc="upper right")
+    bx.set_ylabel("moved by\nclustering")
+    bx.set_yscale("log")
+    bx.axhline(meta.get("max_moved", 0.01), color="grey", ls=":", lw=1)
+    bx.set_xlabel("iteration")
+    fig.savefig(path, dpi=100)
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("ensemble", nargs="?", help="default: the shipped ensemble")
+    p.add_argument("--checkpoint-dir", help="read the histories from these checkpoints")
     p.add_argument("--out", default="docs/figures")
     args = p.parse_args()
-    ens = resolve_ensemble(args.ensemble)
-    hist = ens.meta["history"]
+    hist, meta = _histories(args)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
 
@@ -46,9 +100,15 @@ def main() -> None:
     ax.set_yscale("log")
     ax.legend()
     fig.savefig(out / "training.png", dpi=100)
-    lines += ["", f"{ens.meta['n_tensors']} tensors, {ens.n_dicts} dictionaries; iterations "
-              f"{total:.0f} s, whole training {ens.meta['seconds']:.0f} s, loading "
-              f"{ens.meta.get('load_seconds', 0):.0f} s."]
+    _plot_objective(hist, meta, out / "training_objective.png")
+    if meta:
+        opts = ", ".join(f"{k} {meta[k]}" for k in ("masked", "init", "basis", "reassign_every",
+                                                     "tol", "max_moved") if k in meta)
+        lines += ["", f"{meta['n_tensors']} tensors, {meta['n_dicts']} dictionaries; "
+                  f"iterations {total:.0f} s, whole training {meta['seconds']:.0f} s, loading "
+                  f"{meta.get('load_seconds', 0):.0f} s." + (f" Options: {opts}." if opts else "")]
+    else:
+        lines += ["", f"from checkpoints: iterations {total:.0f} s so far."]
     (out / "training.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

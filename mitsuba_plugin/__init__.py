@@ -25,7 +25,9 @@ sampling code, and return ``BSDF * cos(theta_o)`` from ``eval``. Parameters:
 
 A missing or corrupt file fails at scene load with a :class:`PluginError` naming the
 plugin and the file. The loaded objects expose ``memory_bytes`` (bytes of the arrays
-they hold) and, for ``sparse_brdf``, ``decoder``, ``n_terms`` and ``distinct_atoms``.
+they hold) and, for ``sparse_brdf``, ``decoder``, ``n_terms``, ``distinct_atoms`` and
+``basis`` (the file's colour basis: "rgb", or "opponent", whose coded channels the kernel
+mixes back to R, G, B).
 
 The package holds only Dr.Jit/Mitsuba code: :mod:`~mitsuba_plugin.bsdfs` (the BSDFs,
 their decoder kernels and registration), :mod:`~mitsuba_plugin.kernels` (the shared

@@ -38,6 +38,7 @@ from sparse_brdf.model.layouts import (
     UNION_ATOMS,
     channel_terms,
     choose_decoder,
+    colour_mix,
     fit_lobe,
     grouped_channels,
     grouped_layout,
@@ -60,6 +61,7 @@ from .kernels import (
     interp_weight,
     linear_bins,
     lobe_pdf,
+    mix_colour,
     nearest_bins,
     power_cosine_sample,
 )
@@ -509,9 +511,12 @@ class SparseBSDF(GlossyBSDF):
     """Sparse non-parametric BRDF (``sparse_brdf``): the model of Tongbuasirilai et al.,
     "A Sparse Non-parametric BRDF Model" (see docs/method.md).
 
-    Evaluates ``X = sum_t s_t U1[i, a_t] U2[j, b_t] U3[k, c_t]`` per channel at the bin of
-    (wi, wo), then ``rho = max((exp(X) - 1) / w, 0)``, without ever building the full
-    tensor (:func:`grouped_x`, :func:`strict_x`; data from :mod:`sparse_brdf.model.layouts`).
+    Evaluates ``X = sum_t s_t U1[i, a_t] U2[j, b_t] U3[k, c_t]`` per coded channel at the
+    bin of (wi, wo), mixes the three back to the transformed R, G, B if the file's colour
+    basis is "opponent" (:func:`~mitsuba_plugin.kernels.mix_colour`; "rgb" materials trace
+    no mix, so their kernel is unchanged), then ``rho = max((exp(X) - 1) / w, 0)``, without
+    ever building the full tensor (:func:`grouped_x`, :func:`strict_x`; data from
+    :mod:`sparse_brdf.model.layouts`).
     Per-material data lives in Dr.Jit arrays and opaque scalars, so every material shares
     one compiled kernel. ``memory_bytes`` reports the bytes of the arrays the BSDF holds.
 
@@ -572,6 +577,9 @@ class SparseBSDF(GlossyBSDF):
         self.name = model.name
         self.shape = model.shape
         self.transform = model.transform
+        self.basis = model.basis
+        # M^T of the colour basis, traced as constants; None ("rgb"): no mix is traced
+        self._mix = colour_mix(model.basis)
         self.n_terms = tuple(int(n) for n in model.n_coeffs)
         self.decoder = choose_decoder(decoder, model, ens)
         self._shape = Shape(ops, model.shape)
@@ -636,6 +644,8 @@ class SparseBSDF(GlossyBSDF):
             valid = dr.select(ok, 1.0, 0.0)
         if not grouped:
             xs = [self._x_strict(c, bins, lin, active) for c in range(3)]
+        if self._mix is not None:  # a Python branch: rgb materials trace no mix
+            xs = mix_colour(xs, self._mix)
         scale = valid * dr.rcp(w)
         # a select, not only the product: an invalid bin gives 0 even where the
         # model's X there is large enough for expm1 to overflow (inf * 0 = nan)
@@ -645,8 +655,8 @@ class SparseBSDF(GlossyBSDF):
 
     def to_string(self):
         return (f"SparseBRDF[filename={self.filename!r}, transform={self.transform}, "
-                f"terms={self.n_terms}, decoder={self.decoder}, layout={self.layout}, "
-                f"sampling={self.sampling}, "
+                f"basis={self.basis}, terms={self.n_terms}, decoder={self.decoder}, "
+                f"layout={self.layout}, sampling={self.sampling}, "
                 f"interpolate={self.interpolate}, memory_bytes={self.memory_bytes}]")
 
 

@@ -132,6 +132,23 @@ def expm1(x):
     return dr.select(dr.abs(x) < 0.1, p * x, dr.exp(x) - 1.0)
 
 
+def mix_colour(xs, mt):
+    """Transformed R, G, B from the three coded values ``xs``: ``M^T @ xs`` for the
+    constant matrix ``mt`` (M^T as nested Python floats, from
+    :func:`sparse_brdf.model.layouts.colour_mix`): at most 9 multiply-adds, its zero
+    entries skipped. Kernel constants, not opaque scalars: one colour basis, one matrix.
+    The caller skips this for the "rgb" basis (``mt`` None), so rgb kernels are unchanged.
+    """
+    out = []
+    for row in mt:
+        acc = None
+        for v, x in zip(row, xs, strict=True):
+            if v != 0.0:
+                acc = v * x if acc is None else dr.fma(v, x, acc)
+        out.append(0.0 * xs[0] if acc is None else acc)
+    return out
+
+
 class Shape:
     """A material's grid shape as opaque scalars (plus its Python values), and the
     cosines and sines of its bins' lower-edge angles as small buffers."""

@@ -23,17 +23,32 @@ from .evaluation.render import (
     write_mask,
 )
 from .metrics import snr_forms
-from .model.encode import DEFAULT_N_COEFFS, encode
+from .model.encode import (
+    BUDGETS,
+    DEFAULT_FILL_ITERS,
+    DEFAULT_N_COEFFS,
+    FILLS,
+    SELECTORS,
+    encode,
+)
 from .model.ensemble import Ensemble, resolve_ensemble
 from .model.interpolate import interpolate
 from .model.layouts import DECODERS, SAMPLING
 from .model.sbrdf import decode_file, load_sbrdf, save_sbrdf
-from .model.train import train_ensemble
+from .model.train import (
+    DEFAULT_INIT,
+    DEFAULT_MAX_MOVED,
+    DEFAULT_N_ITER,
+    DEFAULT_REASSIGN_EVERY,
+    DEFAULT_TOL,
+    INITS,
+    train_ensemble,
+)
 from .sources.corpora import get_corpus, list_corpora
-from .sources.dataset import training_tensors
+from .sources.dataset import training_data
 from .sources.load import load_brdf
 from .sources.merl import write_merl
-from .transforms import TRANSFORMS
+from .transforms import COLOUR_BASES, TRANSFORMS
 
 EPILOG = f"""examples:
   sparse-brdf corpus list
@@ -41,7 +56,7 @@ EPILOG = f"""examples:
   sparse-brdf convert ../shared/data/nbrdf/merl/gold-metallic-paint.h5 gold.binary
   sparse-brdf encode gold.binary -o gold.sbrdf --coeffs {DEFAULT_N_COEFFS}
   sparse-brdf decode gold.sbrdf -o gold-decoded.binary
-  sparse-brdf train --corpus merl rgl -o my_ensemble.npz --checkpoint-dir ckpt/
+  sparse-brdf train -o my_ensemble.npz --checkpoint-dir ckpt/
 """
 
 
@@ -91,18 +106,21 @@ def cmd_train(args: argparse.Namespace) -> int:
         materials += get_corpus(name).split(args.split)
     shape = tuple(args.grid)
     t0 = time.perf_counter()
-    x, labels = training_tensors(materials, args.transform, shape)
+    data = training_data(materials, args.transform, shape, basis=args.basis)
+    x = data.x
     load_s = time.perf_counter() - t0
     meta = {
         "data": [f"{m.corpus}/{m.name}" for m in materials],
         "corpora": args.corpus, "split": args.split, "transforms": list(args.transform),
-        "grid": list(shape), "load_seconds": load_s,
+        "basis": args.basis, "grid": list(shape), "load_seconds": load_s,
         "command": "sparse-brdf " + " ".join(sys.argv[1:]),
         "created": time.strftime("%Y-%m-%d %H:%M:%S %Z"),
     }
     ens = train_ensemble(x, args.taus, args.dicts, args.iterations, seed=args.seed,
                          checkpoint_dir=args.checkpoint_dir, meta=meta,
-                         reassign_every=args.reassign_every)
+                         reassign_every=args.reassign_every, masked=args.masked,
+                         missing=data.missing, init=args.init, tol=args.tol,
+                         max_moved=args.max_moved)
     if args.extend:
         ens = Ensemble.load(args.extend).union(ens)
     ens.save(args.output)
@@ -118,7 +136,9 @@ def _ensemble(path: str | None):
 def cmd_encode(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     model = encode(load_brdf(args.source), _ensemble(args.ensemble), args.coeffs,
-                   args.max_error, args.transform)
+                   args.max_error, args.transform, fill_iters=args.fill_iters,
+                   selector=args.selector, fill=args.fill, basis=args.basis,
+                   budget=args.budget)
     seconds = time.perf_counter() - t0
     path = save_sbrdf(args.output, model)
     info = {"output": str(path), "bytes": path.stat().st_size, "seconds": seconds,
@@ -254,16 +274,30 @@ def _add_data_commands(sub) -> None:
 def _add_train(sub) -> None:
     t = sub.add_parser("train", help="train a dictionary ensemble (docs/method.md, Training)",
                        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    t.add_argument("--corpus", nargs="+", default=["merl", "rgl"],
+    t.add_argument("--corpus", nargs="+", default=["merl", "rgl", "mitsuba"],
                    help="corpora to train on (names or folders)")
     t.add_argument("--split", default="train", choices=["train", "test", "all"])
     t.add_argument("--transform", nargs="+", default=list(TRANSFORMS), choices=TRANSFORMS)
+    t.add_argument("--basis", default="rgb", choices=COLOUR_BASES,
+                   help="colour basis of the training channels (the encoder's coded channels)")
     t.add_argument("--taus", nargs="+", type=int, default=[32, 64, 128, 256],
                    help="training sparsities; one set of dictionaries per value")
     t.add_argument("--dicts", type=int, default=8, help="dictionaries per sparsity")
-    t.add_argument("--iterations", type=int, default=8)
-    t.add_argument("--reassign-every", type=int, default=3,
+    t.add_argument("--iterations", type=int, default=DEFAULT_N_ITER,
+                   help="at most this many iterations per sparsity")
+    t.add_argument("--reassign-every", type=int, default=DEFAULT_REASSIGN_EVERY,
                    help="cluster against every dictionary at every N-th iteration")
+    t.add_argument("--tol", type=float, default=DEFAULT_TOL,
+                   help="stop once an iteration lowers the objective by less than this "
+                        "(relative) and the latest clustering moved at most --max-moved")
+    t.add_argument("--max-moved", type=float, default=DEFAULT_MAX_MOVED,
+                   help="fraction of tensors a clustering may move for training to stop")
+    t.add_argument("--masked", action=argparse.BooleanOptionalAction, default=True,
+                   help="fit valid bins only (bins below the horizon and unmeasured bins "
+                        "are free values); --no-masked fits them as zeros")
+    t.add_argument("--init", default=DEFAULT_INIT, choices=INITS,
+                   help="initial clusters: seeded (k-means++ in the training error) or "
+                        "random balanced")
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--grid", nargs=3, type=int, default=[90, 90, 180],
                    metavar=("N_H", "N_D", "N_P"))
@@ -285,7 +319,21 @@ def _add_codec_commands(sub) -> None:
                    help="stop adding coefficients once the relative squared residual in the "
                         "transformed domain is below this (e.g. 1e-4)")
     e.add_argument("--transform", default="auto", choices=["auto", *TRANSFORMS],
-                   help="auto: the one with the smaller gamma-mapped MSE")
+                   help="auto: the one --selector prefers")
+    e.add_argument("--selector", default=SELECTORS[0], choices=SELECTORS,
+                   help="how auto picks the transform: the smaller gamma-mapped MSE, or "
+                        "the smaller render-proxy error")
+    e.add_argument("--fill", default=FILLS[0], choices=FILLS,
+                   help="bins filled from the model instead of fitted as zeros: unmeasured "
+                        "bins above the horizon, or every invalid bin")
+    e.add_argument("--fill-iters", type=int, default=None,
+                   help="fill rounds (0: no fill; default per --fill: "
+                        + ", ".join(f"{k} {v}" for k, v in DEFAULT_FILL_ITERS.items()) + ")")
+    e.add_argument("--basis", default=COLOUR_BASES[0], choices=COLOUR_BASES,
+                   help="colour basis of the coded channels")
+    e.add_argument("--budget", default=None, choices=BUDGETS,
+                   help="--coeffs per channel, or 3 x --coeffs over the channels "
+                        "(default: joint for --basis opponent, else channel)")
     e.add_argument("--ensemble", help="ensemble .npz (default: the shipped one)")
     e.add_argument("--json", action="store_true", help="print the encoding statistics as JSON")
     _add_source_help(e)

@@ -169,3 +169,20 @@ def geometric_valid(shape: tuple[int, int, int] = MERL_SHAPE) -> np.ndarray:
     """Bins whose two directions are both above the horizon, bool array of ``shape``
     (a fresh, writable copy)."""
     return _cosines(tuple(shape))[1].copy()
+
+
+def bin_solid_angle(shape: tuple[int, int, int] = MERL_SHAPE) -> np.ndarray:
+    """Measure of each grid bin in (wi, wo) space (sr^2), float64 array of ``shape``.
+
+    d(wi) d(wo) = 4 cos(theta_d) sin(theta_h) sin(theta_d) d(theta_h) d(phi_h) d(theta_d)
+    d(phi_d), integrated exactly over each bin's angle ranges (:func:`bin_edges`),
+    phi_h over 2 pi and phi_d doubled for the reciprocal half folded onto [0, pi). The
+    first theta_h bins of the MERL grid are tiny (the square-root spacing): bin 0
+    measures ~1e-11 of bin 45.
+    """
+    n3 = shape[2]
+    th, td, _ = bin_edges(shape)
+    per_h = np.cos(th[:-1]) - np.cos(th[1:])
+    per_d = 0.5 * (np.sin(td[1:]) ** 2 - np.sin(td[:-1]) ** 2)
+    hd = (4.0 * 2.0 * np.pi * 2.0 * np.pi / n3) * per_h[:, None] * per_d[None, :]
+    return np.repeat(hd[:, :, None], n3, axis=2)

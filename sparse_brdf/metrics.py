@@ -3,11 +3,12 @@ every caller."""
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import numpy as np
 
-from .coords import cosine_product
+from .coords import MERL_SHAPE, bin_solid_angle, cos_io, cosine_product
 
 GAMMA = 2.0
 
@@ -109,6 +110,70 @@ def cosine_weighted_snr(ref: np.ndarray, rec: np.ndarray, valid: np.ndarray) -> 
     c = np.clip(cosine_product(ref.shape[:3]), 0, None)[..., None]
     ref, rec = _masked(ref * c, rec * c, valid)
     return render_snr(ref, rec)
+
+
+@functools.lru_cache(maxsize=4)
+def make_render_proxy(shape: tuple[int, int, int] = MERL_SHAPE,
+                      blur_deg: float = 2.0) -> dict[str, np.ndarray]:
+    """The kernel of :func:`render_proxy_error` on a grid (cached per shape; read-only).
+
+    Per bin: its measure in (wi, wo) space ``omega`` (:func:`coords.bin_solid_angle`) and
+    the point-light, cos_o-pixel weight cos_i cos_o (cos_i + cos_o) / 2 omega (cosines at
+    bin centres, clamped >= 0; symmetrised by reciprocity), summed over cells of about
+    ``blur_deg`` degrees of theta_h (``starts``: first theta_h bin of each cell).
+    Arrays are (cells or n1, n2, n3) without a channel axis.
+    """
+    n1, n2, n3 = shape
+    th = ((np.arange(n1) + 0.5) / n1) ** 2 * np.pi / 2  # bin centres (square-root spacing)
+    td = (np.arange(n2) + 0.5) / n2 * np.pi / 2
+    pd = (np.arange(n3) + 0.5) / n3 * np.pi
+    ci, co = (np.clip(c, 0, None) for c in cos_io(*np.meshgrid(th, td, pd, indexing="ij")))
+    omega = bin_solid_angle(shape)
+    point = ci * co * 0.5 * (ci + co) * omega
+    cell = np.floor(np.degrees(th) / blur_deg)
+    starts = np.flatnonzero(np.r_[True, cell[1:] != cell[:-1]])
+    out = {"omega": omega.astype(np.float32), "starts": starts,
+           "cell_omega": np.add.reduceat(omega, starts, axis=0),
+           "cell_point": np.add.reduceat(point, starts, axis=0)}
+    for a in out.values():
+        a.flags.writeable = False
+    return out
+
+
+def render_proxy_error(ref: np.ndarray, rec: np.ndarray,
+                       kernel: dict[str, np.ndarray] | None = None,
+                       valid: np.ndarray | None = None) -> float:
+    """A BRDF-space predictor of a rendering's squared error (``docs/method.md``,
+    "Encoding"): the linear error averaged (with the bins' solid angles) over cells of
+    ~2 degrees of theta_h, squared, and weighted by the cell's sum of
+    cos_i cos_o (cos_i + cos_o) / 2 times the bins' solid angle in (wi, wo) space.
+
+    ``ref``/``rec``: linear BRDF values, channel-last (n1, n2, n3, C) or channel-first
+    (C, n1, n2, n3) (told apart by the last axis: at most 4 colour channels), 0 on
+    invalid bins, or give ``valid`` (bool (n1, n2, n3)) to zero them here. ``kernel``:
+    :func:`make_render_proxy` of the grid (default: the cached one, 2-degree cells).
+    Smaller is better; the sum is accumulated in float64.
+    """
+    ref = np.asarray(ref)
+    rec = np.asarray(rec)
+    if ref.shape != rec.shape or ref.ndim != 4:
+        raise ValueError(f"expected two equal 4-D arrays, got {ref.shape} and {rec.shape}")
+    first = ref.shape[-1] > 4  # the last axis is phi_d, not colour: channel-first
+    shape = ref.shape[1:] if first else ref.shape[:3]
+    k = make_render_proxy(tuple(shape)) if kernel is None else kernel
+    if k["omega"].shape != tuple(shape):
+        raise ValueError(f"kernel grid {k['omega'].shape} does not match the arrays' {shape}")
+    d = np.asarray(ref, np.float32) - np.asarray(rec, np.float32)
+    if valid is not None:
+        d = np.where(valid, d, np.float32(0)) if first else np.where(valid[..., None], d, 0)
+    if first:
+        d = np.add.reduceat(d * k["omega"], k["starts"], axis=1) / k["cell_omega"]
+        w = k["cell_point"]
+    else:
+        d = np.add.reduceat(d * k["omega"][..., None], k["starts"], axis=0)
+        d /= k["cell_omega"][..., None]
+        w = k["cell_point"][..., None]
+    return float(np.sum(d * d * w, dtype=np.float64))
 
 
 def _masked(ref: np.ndarray, rec: np.ndarray, valid: np.ndarray | None):

@@ -1,3 +1,5 @@
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -46,6 +48,54 @@ def test_errors(pair, small_ensemble):
                transform="log-plus-cosine")
     with pytest.raises(ValueError, match="same --transform"):
         interpolate(a, c, 0.5, small_ensemble)
+
+
+def _opponent(model, counts):
+    """``model``'s coefficients read as opponent channels, cut to ``counts``."""
+    return dataclasses.replace(
+        model, basis="opponent", name=f"{model.name}-opp",
+        locations=[a[:n] for a, n in zip(model.locations, counts, strict=True)],
+        values=[v[:n] for v, n in zip(model.values, counts, strict=True)])
+
+
+@pytest.mark.parametrize("order", ["rgb+opponent", "opponent+rgb", "opponent+opponent"])
+def test_blend_across_colour_bases_is_linear_in_the_transformed_domain(pair, small_ensemble,
+                                                                       order):
+    """B is brought into A's basis exactly: with a full budget the blend is the linear
+    mix of the two materials' transformed R, G, B; the result is in A's basis."""
+    a, b = pair
+    b_opp = _opponent(b, (64, 30, 0))
+    x, y = {"rgb+opponent": (a, b_opp), "opponent+rgb": (b_opp, a),
+            "opponent+opponent": (_opponent(a, (64, 0, 20)), b_opp)}[order]
+    full = int(np.prod(SMALL))
+    for alpha in (0.0, 0.3, 1.0):
+        mid = interpolate(x, y, alpha, small_ensemble, n_coeffs=full)
+        assert mid.basis == x.basis
+        want = ((1 - alpha) * x.transformed(small_ensemble)
+                + alpha * y.transformed(small_ensemble))
+        np.testing.assert_allclose(mid.transformed(small_ensemble), want, atol=1e-4)
+
+
+def test_opponent_blend_budget_is_joint(pair, small_ensemble):
+    """An opponent result keeps the largest |s| over the three channels: 3 n_coeffs in
+    all (default: the sum of the per-channel maxima), in any split, each channel sorted
+    by decreasing |s|; an rgb result keeps n_coeffs per channel, as always."""
+    a, b = pair
+    x, y = _opponent(a, (64, 0, 20)), _opponent(b, (40, 30, 0))
+    mid = interpolate(x, y, 0.5, small_ensemble)
+    assert mid.n_coeffs.sum() == 64 + 30 + 20
+    small = interpolate(x, y, 0.5, small_ensemble, n_coeffs=10)
+    assert small.n_coeffs.sum() == 30
+    kept = np.concatenate(small.values)
+    full = interpolate(x, y, 0.5, small_ensemble, n_coeffs=int(np.prod(SMALL)))
+    alls = np.sort(np.abs(np.concatenate(full.values)))[::-1]
+    np.testing.assert_allclose(np.sort(np.abs(kept))[::-1], alls[:30], rtol=1e-6)
+    for v in small.values:
+        assert np.all(np.diff(np.abs(v)) <= 0)
+    # rgb A, opponent B: per channel, B's mean count standing for its count
+    rgb = interpolate(a, y, 0.5, small_ensemble)
+    assert rgb.basis == "rgb" and rgb.n_coeffs.tolist() == [64, 64, 64]
+    assert interpolate(a, y, 0.5, small_ensemble, n_coeffs=7).n_coeffs.tolist() == [7] * 3
 
 
 def test_cli_blend(pair, small_ensemble, tmp_path):

@@ -3,6 +3,9 @@ data they upload (sparse_brdf.model.layouts)."""
 
 from __future__ import annotations
 
+import dataclasses
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -27,7 +30,10 @@ from sparse_brdf.model.layouts import (
     grouped_eval,
     grouped_layout,
     layout_eval,
+    mix_channels,
+    model_x,
     n_slots,
+    sparse_profile,
     strict_channel,
     strict_eval,
 )
@@ -36,7 +42,7 @@ from sparse_brdf.model.sparse import SparseBRDF
 from sparse_brdf.model.tensor import hosvd_factors, mode_grams
 from sparse_brdf.sources.load import load_brdf
 from sparse_brdf.sources.merl import write_merl
-from sparse_brdf.transforms import TRANSFORMS, cosine_weight, forward, inverse
+from sparse_brdf.transforms import TRANSFORMS, colour_matrix, cosine_weight, forward, inverse
 
 mi = pytest.importorskip("mitsuba")
 dr = pytest.importorskip("drjit")
@@ -168,6 +174,25 @@ def eval_brdf(bsdf, wi, wo):
     return f / wo[:, 2:3]
 
 
+def as_opponent(model: SparseBRDF, counts, name: str | None = None) -> SparseBRDF:
+    """``model``'s coefficients read as opponent-basis channels, channel c cut to its
+    ``counts[c]`` largest (0: an empty channel): a valid material of unequal counts."""
+    return dataclasses.replace(
+        model, basis="opponent", name=name or f"{model.name}-opponent",
+        locations=[a[:n] for a, n in zip(model.locations, counts, strict=True)],
+        values=[v[:n] for v, n in zip(model.values, counts, strict=True)])
+
+
+@pytest.fixture(scope="session")
+def opponent_material(exact_material, tmp_path_factory):
+    """The exact material's coefficients as an opponent-basis material with 400, 0 and
+    90 coefficients in its channels (the middle one empty), as a .sbrdf file."""
+    ens = Ensemble.load(exact_material["ensemble"])
+    model = as_opponent(load_sbrdf(exact_material["sbrdf"], ens), (400, 0, 90))
+    path = save_sbrdf(tmp_path_factory.mktemp("opponent") / "opponent.sbrdf", model)
+    return {"ensemble": exact_material["ensemble"], "sbrdf": str(path)}
+
+
 # ------------------------------------------------------------------------ registration
 
 
@@ -232,6 +257,32 @@ def test_grouped_layout_reproduces_channels_and_bin_weight(exact_material):
         grouped_layout(mixed, SMALL)
 
 
+@pytest.mark.parametrize("counts", [(400, 0, 90), (0, 37, 400), (5, 400, 0)])
+def test_numpy_decoders_mix_the_opponent_basis(exact_material, counts):
+    """Both decoders' data and the layouts give the coded channels (an empty channel
+    gives 0), and the mix M^T turns them into the transformed R, G, B at every bin."""
+    ens = Ensemble.load(exact_material["ensemble"])
+    model = as_opponent(load_sbrdf(exact_material["sbrdf"], ens), counts)
+    assert model.n_coeffs.tolist() == list(counts)
+    coded, x = model.coded(ens), model.transformed(ens)
+    np.testing.assert_allclose(x, np.tensordot(colour_matrix("opponent").T, coded, 1),
+                               atol=1e-5)
+    bins = tuple(a.ravel() for a in np.indices(SMALL))
+    for c in range(3):
+        st = strict_channel(*channel_terms(model, ens, c))
+        np.testing.assert_allclose(strict_eval(st, bins), coded[c].ravel(), atol=2e-5)
+        assert st.n_terms == counts[c]
+    np.testing.assert_allclose(mix_channels(coded.reshape(3, -1), "opponent"),
+                               x.reshape(3, -1), atol=1e-5)
+    assert mix_channels(coded, "rgb") is coded
+    for decoder, kind in (("grouped", "slots"), ("grouped", "union"), ("strict", None)):
+        np.testing.assert_allclose(model_x(model, ens, bins, decoder, kind),
+                                   x.reshape(3, -1), atol=3e-5)
+    # the lobe fit sees the R, G, B profile, not the coded channels'
+    rgb = dataclasses.replace(model, basis="rgb")
+    assert not np.allclose(sparse_profile(model, ens), sparse_profile(rgb, ens))
+
+
 def test_auto_decoder_and_memory(exact_material, llvm):
     ens = Ensemble.load(exact_material["ensemble"])
     model = load_sbrdf(exact_material["sbrdf"], ens)
@@ -273,6 +324,35 @@ def test_sparse_eval_matches_numpy_decoder(full_random, variant, transform):
         assert np.all(out[~valid] == 0)
         np.testing.assert_allclose(out[valid], ref[valid], rtol=1e-5,
                                    atol=1e-6 * float(np.abs(ref).max()))
+
+
+@pytest.mark.parametrize("transform", TRANSFORMS)
+def test_opponent_eval_matches_numpy_decoder(full_random, variant, transform, tmp_path):
+    """An opponent-basis material with unequal counts (one channel empty): both decoders
+    and layouts, scalar and LLVM, against SparseBRDF.eval (which mixes in numpy)."""
+    ens = full_random["ens"]
+    model = as_opponent(load_sbrdf(full_random[transform], ens), (61, 23, 0))
+    path = str(save_sbrdf(tmp_path / "opponent.sbrdf", model))
+    rng = np.random.default_rng(12)
+    n = 150 if variant.startswith("scalar") else 4000
+    wi, wo, bins = random_pairs(FULL, n, rng, min_h=1)
+    valid = geometric_valid(FULL)[bins]
+    ref = model.eval(ens, wi, wo)
+    # the mix matters: the same coefficients read as R, G, B give other values
+    rgb = dataclasses.replace(model, basis="rgb").eval(ens, wi, wo)
+    assert np.abs(rgb - ref)[valid].max() > 0.1 * np.abs(ref).max()
+    for opts in DECODER_OPTIONS:
+        b = mi.load_dict({"type": "sparse_brdf", "filename": path,
+                          "ensemble": full_random["ensemble"], **opts})
+        assert b.basis == "opponent" and "basis=opponent" in b.to_string()
+        assert b.n_terms == (61, 23, 0)
+        out = eval_brdf(b, wi, wo)
+        assert np.all(out[~valid] == 0)
+        np.testing.assert_allclose(out[valid], ref[valid], rtol=1e-5,
+                                   atol=1e-6 * float(np.abs(ref).max()))
+        err = np.sum((out[valid] - ref[valid]) ** 2)
+        snr = 10 * np.log10(np.sum(ref[valid] ** 2) / max(err, 1e-300))
+        assert snr > 110, f"{opts}: {snr:.1f} dB"
 
 
 def test_invalid_bins_stay_zero_when_the_model_overflows(full_random, tmp_path, llvm):
@@ -380,6 +460,66 @@ def test_interpolation_matches_numpy(exact_material, llvm):
                           **opts})
         np.testing.assert_allclose(eval_brdf(s, wi, wo), ref, rtol=1e-4,
                                    atol=1e-5 * ref.max())
+
+
+def test_opponent_interpolation_matches_numpy(opponent_material, llvm):
+    """Interpolated lookups of an opponent material: the coded X interpolated, mixed
+    back to R, G, B, then the inverse transform (interpolation and mix commute)."""
+    ens = Ensemble.load(opponent_material["ensemble"])
+    model = load_sbrdf(opponent_material["sbrdf"], ens)
+    assert model.basis == "opponent" and model.n_coeffs.tolist() == [400, 0, 90]
+    rng = np.random.default_rng(4)
+    wi, wo, _ = random_pairs(SMALL, 3000, rng, 0.0, 1.0)
+    th, td, pd = dirs_to_angles(wi, wo)
+    pd = np.where(pd < 0, pd + np.pi, pd)
+    x = _trilinear(np.moveaxis(model.transformed(ens), 0, -1), th, td, pd)
+    use_cos = model.transform == "log-plus-cosine"
+    w = _trilinear(cosine_weight(SMALL).astype(np.float64), th, td, pd) if use_cos else 1.0
+    v = _trilinear(geometric_valid(SMALL).astype(np.float64), th, td, pd)
+    ref = np.maximum(np.expm1(x) / np.reshape(w, (-1, 1)) * v[:, None], 0)
+    for opts in DECODER_OPTIONS:
+        s = mi.load_dict({"type": "sparse_brdf", "filename": opponent_material["sbrdf"],
+                          "ensemble": opponent_material["ensemble"], "interpolate": True,
+                          **opts})
+        np.testing.assert_allclose(eval_brdf(s, wi, wo), ref, rtol=1e-4,
+                                   atol=1e-5 * ref.max())
+
+
+def test_rgb_kernels_are_unchanged_by_the_opponent_mix(exact_material, opponent_material,
+                                                       llvm):
+    """The mix is a Python branch at trace time: an rgb material traces the kernel it
+    always did (a second rgb material reuses it), an opponent one its own, and a second
+    opponent material reuses that (M^T is a constant, not per-material data)."""
+    rng = np.random.default_rng(8)
+    wi, wo, _ = random_pairs(SMALL, 512, rng)
+    ens = Ensemble.load(exact_material["ensemble"])
+    rgb2 = dataclasses.replace(load_sbrdf(exact_material["sbrdf"], ens), name="rgb2",
+                               values=[0.5 * v for v in load_sbrdf(exact_material["sbrdf"],
+                                                                   ens).values])
+    opp2 = as_opponent(load_sbrdf(exact_material["sbrdf"], ens), (100, 100, 3), "opp2")
+    folder = Path(opponent_material["sbrdf"]).parent
+    files = {"rgb": exact_material["sbrdf"], "opp": opponent_material["sbrdf"],
+             "rgb2": str(save_sbrdf(folder / "rgb2.sbrdf", rgb2)),
+             "opp2": str(save_sbrdf(folder / "opp2.sbrdf", opp2))}
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        for decoder in ("grouped", "strict"):
+            hashes = {}
+            for key, path in files.items():
+                b = mi.load_dict({"type": "sparse_brdf", "filename": path,
+                                  "ensemble": exact_material["ensemble"],
+                                  "decoder": decoder})
+                dr.kernel_history()  # clear
+                eval_brdf(b, wi, wo)
+                hashes[key] = {k["hash"] for k in dr.kernel_history()
+                               if k["type"] == dr.KernelType.JIT
+                               and k["operation_count"] > 200}
+            assert hashes["rgb"] and hashes["opp"], decoder
+            assert hashes["rgb2"] <= hashes["rgb"], decoder
+            assert hashes["opp2"] <= hashes["opp"], decoder
+            assert not hashes["opp"] & hashes["rgb"], decoder
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
 
 
 # ------------------------------------------------------------------------------ errors

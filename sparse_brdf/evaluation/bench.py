@@ -126,12 +126,22 @@ class BenchConfig:
 
 
 def make_model(spec: str, ensemble=None) -> BRDFModel:
-    """A model from its spec: sparse:N[:TRANSFORM], naive, cpd:L, tucker:AxBxC, pca:N,
-    tabulated."""
+    """A model from its spec: sparse:N[:TRANSFORM][:OPTIONS], naive, cpd:L, tucker:AxBxC,
+    pca:N, tabulated.
+
+    The sparse model's OPTIONS are ``KEY=VALUE`` pairs separated by commas, the keyword
+    options of :func:`~sparse_brdf.model.encode.encode` (``ENCODE_OPTIONS``):
+    ``selector`` (gamma-mse, render), ``fill`` (missing, invalid), ``fill_iters`` (an
+    integer), ``basis`` (rgb, opponent), ``budget`` (channel, joint); TRANSFORM is auto
+    (the default), log-plus or log-plus-cosine and may be left out before the options.
+    E.g. ``sparse:262``, ``sparse:262:log-plus``,
+    ``sparse:262:selector=render,fill=invalid,basis=opponent``,
+    ``sparse:262:auto:basis=opponent``. The model's name (the reports' label) lists the
+    options not at their defaults: ``sparse-262-selector=render-fill=invalid-basis=opponent``.
+    """
     kind, _, arg = spec.partition(":")
     if kind == "sparse":
-        n, _, transform = arg.partition(":")
-        return SparseModel(ensemble, int(n or DEFAULT_N_COEFFS), transform or "auto")
+        return _sparse_model(spec, arg, ensemble)
     if kind == "naive":
         return NaiveModel()
     if kind == "cpd":
@@ -144,6 +154,28 @@ def make_model(spec: str, ensemble=None) -> BRDFModel:
         return TabulatedModel()
     raise ValueError(f"unknown model {spec!r}: use sparse:N, naive, cpd:L, tucker:AxBxC, "
                      "pca:N or tabulated")
+
+
+def _sparse_model(spec: str, arg: str, ensemble) -> SparseModel:
+    """The sparse model of ``spec`` (``arg``: what follows ``sparse:``; see make_model)."""
+    n, *rest = arg.split(":") if arg else [""]
+    transform, options = "auto", {}
+    for part in rest:
+        if "=" not in part and not options and transform == "auto":
+            transform = part or "auto"
+            continue
+        for item in filter(None, part.split(",")):
+            key, eq, value = (x.strip() for x in item.partition("="))
+            if not eq or key in options:
+                raise ValueError(f"model {spec!r}: expected distinct KEY=VALUE options, "
+                                 f"got {item!r}")
+            if key == "fill_iters":
+                if not value.isdigit():
+                    raise ValueError(f"model {spec!r}: fill_iters must be an integer >= 0, "
+                                     f"got {value!r}")
+                value = int(value)
+            options[key] = value
+    return SparseModel(ensemble, int(n or DEFAULT_N_COEFFS), transform, **options)
 
 
 def _key(m) -> str:

@@ -29,9 +29,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..brdf import BRDF
-from ..coords import bin_edges, cosine_product
-from ..transforms import cosine_weight, forward, inverse
-from .encode import DEFAULT_N_COEFFS, encode
+from ..coords import bin_solid_angle, cosine_product
+from ..transforms import check_transform, cosine_weight, forward, inverse
+from .encode import DEFAULT_N_COEFFS, ENCODE_OPTIONS, check_options, encode
 from .ensemble import resolve_ensemble
 from .sbrdf import RECORD_BYTES
 
@@ -127,38 +127,31 @@ class TabulatedModel(BRDFModel):
 
 
 class SparseModel(BRDFModel):
-    """The sparse ensemble model at ``n_coeffs`` per channel (see :func:`encode`)."""
+    """The sparse ensemble model at ``n_coeffs`` per channel (see :func:`encode`; the
+    keyword options ``selector``, ``fill``, ``fill_iters``, ``basis``, ``budget`` are
+    passed on). ``name``: ``sparse-N``, then ``-TRANSFORM`` unless "auto", then
+    ``-KEY=VALUE`` for each option not at its default, in the order above (so that
+    every option set has its own name, e.g. ``sparse-262-fill=invalid-basis=opponent``)."""
 
     def __init__(self, ensemble=None, n_coeffs: int = DEFAULT_N_COEFFS,
-                 transform: str = "auto"):
+                 transform: str = "auto", **options):
         self.ensemble = resolve_ensemble(ensemble)
         self.n_coeffs = n_coeffs
-        self.transform = transform
-        self.name = f"sparse-{n_coeffs}" + ("" if transform == "auto" else f"-{transform}")
+        self.transform = transform if transform == "auto" else check_transform(transform)
+        full = check_options(**options)
+        implied = check_options(basis=full["basis"], fill=full["fill"])
+        self.options = {k: full[k] for k in ENCODE_OPTIONS
+                        if full[k] != (implied if k in ("fill_iters", "budget")
+                                       else ENCODE_OPTIONS)[k]}
+        self.name = (f"sparse-{n_coeffs}" + ("" if transform == "auto" else f"-{transform}")
+                     + "".join(f"-{k}={v}" for k, v in self.options.items()))
 
     def fit(self, brdf: BRDF) -> Compact:
-        m = encode(brdf, self.ensemble, self.n_coeffs, transform=self.transform)
+        m = encode(brdf, self.ensemble, self.n_coeffs, transform=self.transform,
+                   **self.options)
         return Compact(self.name, RECORD_BYTES * int(m.n_coeffs.sum()),
                        lambda: m.decode(self.ensemble, valid=brdf.valid).values,
                        {"transform": m.transform, "model": m})
-
-
-def bin_solid_angle(shape: tuple[int, int, int]) -> np.ndarray:
-    """Measure of each grid bin in (wi, wo) space (sr^2), float64 array of ``shape``.
-
-    d(wi) d(wo) = 4 cos(theta_d) sin(theta_h) sin(theta_d) d(theta_h) d(phi_h) d(theta_d)
-    d(phi_d), integrated exactly over each bin's angle ranges (the MERL grid of
-    ``docs/method.md``, "Grid, lookup convention, validity": theta_h edges
-    (i/n1)^2 pi/2, theta_d edges j/n2 pi/2, phi_d edges k/n3 pi), phi_h over 2 pi and
-    phi_d doubled for the reciprocal half folded onto [0, pi). The first theta_h bins of
-    the MERL grid are tiny (the square-root spacing): bin 0 measures ~1e-11 of bin 45.
-    """
-    n3 = shape[2]
-    th, td, _ = bin_edges(shape)
-    per_h = np.cos(th[:-1]) - np.cos(th[1:])
-    per_d = 0.5 * (np.sin(td[1:]) ** 2 - np.sin(td[:-1]) ** 2)
-    hd = (4.0 * 2.0 * np.pi * 2.0 * np.pi / n3) * per_h[:, None] * per_d[None, :]
-    return np.repeat(hd[:, :, None], n3, axis=2)
 
 
 def _axis_sums(t: np.ndarray, x: np.ndarray, y: np.ndarray, axis: int) -> np.ndarray:

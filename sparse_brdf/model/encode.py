@@ -9,6 +9,11 @@ dictionary; the largest |s| are kept until ``n_coeffs`` are kept or the relative
 dictionary needing the fewest coefficients, then the least residual, then the lowest
 index. The transform (the same for all channels) is the one whose reconstruction has
 the smaller gamma-mapped MSE against the BRDF, unless forced.
+
+Options beyond the paper (``encode(selector=, fill=, basis=, budget=)``; defaults: the
+paper's encoder): the transform chosen by the render-proxy error; every invalid bin a
+free value (hard thresholding pursuit on the valid bins); the channels coded in an
+opponent colour basis with a joint budget of 3 ``n_coeffs``.
 """
 
 from __future__ import annotations
@@ -20,13 +25,43 @@ import numpy as np
 
 from ..brdf import BRDF
 from ..coords import geometric_valid
-from ..metrics import cosine_weighted_snr, gamma_mse, mse, rae
-from ..transforms import TRANSFORMS, check_transform, forward, inverse
+from ..metrics import (
+    cosine_weighted_snr,
+    gamma_mse,
+    make_render_proxy,
+    mse,
+    rae,
+    render_proxy_error,
+)
+from ..transforms import TRANSFORMS, check_basis, check_transform, forward, inverse, to_basis
 from .ensemble import Ensemble, resolve_ensemble
 from .sparse import SparseBRDF
-from .tensor import n_threads, parallel_map, phi_major_to_flat, project_phi_major, top_k
+from .tensor import (
+    n_threads,
+    parallel_map,
+    phi_major_to_flat,
+    project,
+    project_phi_major,
+    top_k,
+)
 
 DEFAULT_N_COEFFS = 262
+
+#: How ``encode(transform="auto")`` picks the transform (``docs/method.md``, "Encoding").
+SELECTORS: tuple[str, str] = ("gamma-mse", "render")
+#: The ``stats["transforms"][t]`` entry each selector minimises.
+SELECTOR_KEYS = {"gamma-mse": "gamma_mse", "render": "render_proxy"}
+#: Which bins ``encode`` fills from the model instead of fitting them as zeros.
+FILLS: tuple[str, str] = ("missing", "invalid")
+#: Fill rounds when ``fill_iters`` is not given: full re-searches for "missing",
+#: least-squares fits on the chosen dictionaries for "invalid" (:func:`_fill_invalid`).
+DEFAULT_FILL_ITERS = {"missing": 3, "invalid": 3}
+#: How the coefficients are budgeted: ``n_coeffs`` per channel, or 3 ``n_coeffs`` over
+#: the three channels.
+BUDGETS: tuple[str, str] = ("channel", "joint")
+#: The keyword options of :func:`encode` beyond the paper's, with their defaults.
+ENCODE_OPTIONS = {"selector": "gamma-mse", "fill": "missing", "fill_iters": None,
+                  "basis": "rgb", "budget": None}
 
 
 @dataclass
@@ -167,9 +202,12 @@ def project_pruned(brdf: BRDF, ens: Ensemble, transform: str, n_coeffs: int,
     u3t = [np.ascontiguousarray(ens.u3[k].T) for k in range(n_dicts)]
 
     # slice order per (channel, dictionary): energy of Y along each row of U3^T
-    grams = list(parallel_map(lambda c: yt[c] @ yt[c].T, range(3)))
-    order = [[np.argsort(-np.einsum("ij,ij->j", g @ ens.u3[k], ens.u3[k]), kind="stable")
-              for k in range(n_dicts)] for g in grams]
+    def slice_order(c):  # on the workers: small products on threaded BLAS stall under load
+        g = yt[c] @ yt[c].T
+        return [np.argsort(-np.einsum("ij,ij->j", g @ ens.u3[k], ens.u3[k]), kind="stable")
+                for k in range(n_dicts)]
+
+    order = list(parallel_map(slice_order, range(3)))
 
     search = _PruneSearch.start(n_dicts, n3, n, max_error)
     pairs, done, alive = search.pairs, search.done, search.alive
@@ -278,9 +316,11 @@ def select(p: Projections, n_coeffs: int, max_error: float | None = None,
     return model
 
 
-def pick_transform(stats: dict[str, dict]) -> str:
-    """The transform rule (``docs/method.md``, "Encoding"): the smaller gamma-mapped MSE."""
-    return min(stats, key=lambda t: stats[t]["gamma_mse"])
+def pick_transform(stats: dict[str, dict], selector: str = "gamma-mse") -> str:
+    """The transform rule (``docs/method.md``, "Encoding"): the smaller gamma-mapped MSE
+    (``selector="gamma-mse"``) or the smaller render-proxy error (``"render"``)."""
+    key = SELECTOR_KEYS[check_choice("selector", selector, SELECTORS)]
+    return min(stats, key=lambda t: stats[t][key])
 
 
 def error_curve(brdf: BRDF, ens: Ensemble, counts: list[int]) -> dict:
@@ -306,28 +346,38 @@ def error_curve(brdf: BRDF, ens: Ensemble, counts: list[int]) -> dict:
     return out
 
 
-def choose_transform(brdf: BRDF, models: dict[str, SparseBRDF], ens: Ensemble) -> SparseBRDF:
-    """The model with the smaller gamma-mapped MSE; ``stats`` gets every model's errors."""
+def choose_transform(brdf: BRDF, models: dict[str, SparseBRDF], ens: Ensemble,
+                     selector: str = "gamma-mse") -> SparseBRDF:
+    """The model that ``selector`` prefers (:func:`pick_transform`); ``stats`` gets every
+    model's errors (gamma-mapped MSE, MSE, RAE, render-proxy error on valid bins)."""
     valid = brdf.valid
-    ref = brdf.channel_first()[:, valid]  # (3, n_valid): mask once, then flat metrics
+    ref_full = brdf.channel_first()
+    ref = ref_full[:, valid]  # (3, n_valid): mask once, then flat metrics
     decoded = {name: model.transformed(ens) for name, model in models.items()}
+    kernel = make_render_proxy(brdf.shape)
 
     def errors(name):  # numpy only (no BLAS): the models' metrics run side by side
-        rec = inverse(decoded[name], name)[:, valid]
+        full = inverse(decoded[name], name)
+        rec = full[:, valid]
+        st = models[name].stats
         return name, {
             "gamma_mse": gamma_mse(ref, rec),
             "mse": mse(ref, rec),
             "rae": rae(ref, rec),
-            "relative_residual": models[name].stats["relative_residual"],
-            "projections_completed": models[name].stats.get("projections_completed"),
+            "render_proxy": render_proxy_error(ref_full, full, kernel, valid),
+            **{k: st[k] for k in _MODEL_STATS if k in st},
         }
 
     with ThreadPoolExecutor(max(1, min(len(models), n_threads()))) as ex:
         stats = dict(ex.map(errors, list(models)))
-    chosen = pick_transform(stats)
+    chosen = pick_transform(stats, selector)
     model = models[chosen]
-    model.stats = {"transforms": stats, "chosen": chosen}
+    model.stats = {"transforms": stats, "chosen": chosen, "selector": selector}
     return model
+
+
+#: Per-transform statistics of :func:`_encode_one` carried into ``stats["transforms"]``.
+_MODEL_STATS = ("relative_residual", "projections_completed", "budget", "fill")
 
 
 def encode(
@@ -336,24 +386,51 @@ def encode(
     n_coeffs: int = DEFAULT_N_COEFFS,
     max_error: float | None = None,
     transform: str = "auto",
-    fill_iters: int = 3,
+    fill_iters: int | None = None,
+    selector: str = "gamma-mse",
+    fill: str = "missing",
+    basis: str = "rgb",
+    budget: str | None = None,
 ) -> SparseBRDF:
     """Encode ``brdf`` as a :class:`SparseBRDF` over ``ensemble`` (default: shipped one).
 
     Parameters
     ----------
     n_coeffs : at most this many coefficients per channel (default DEFAULT_N_COEFFS = 262,
-        the paper's).
-    max_error : optional relative squared residual in the transformed domain at which a
-        channel stops adding coefficients (e.g. 1e-4); None keeps ``n_coeffs``.
-    transform : "auto" (gamma-mapped MSE picks), "log-plus" or "log-plus-cosine".
-    fill_iters : for BRDFs with unmeasured bins above the horizon (negative entries in a
-        MERL file), that many rounds of filling them from the model and re-encoding, so
-        that holes are not fitted as zeros (0 disables; the paper fits them as zeros).
+        the paper's); with a joint budget, at most 3 ``n_coeffs`` over the three channels.
+    max_error : optional relative squared residual in the transformed domain at which
+        coding stops adding coefficients (e.g. 1e-4); None keeps ``n_coeffs``. Per
+        channel, relative to the channel's ||Y_c||^2; with a joint budget, the total
+        residual relative to the total ||Y||^2 (the basis is orthonormal, so that is the
+        transformed R, G, B energy in either basis).
+    transform : "auto" (``selector`` picks), "log-plus" or "log-plus-cosine".
+    fill_iters : rounds of filling (see ``fill``); None: ``DEFAULT_FILL_ITERS[fill]``
+        (3 for either); 0 disables filling (the paper fits every invalid bin as zero).
+    selector : how "auto" picks the transform (``SELECTORS``): "gamma-mse", the smaller
+        gamma-mapped MSE (the default), or "render", the smaller
+        :func:`~sparse_brdf.metrics.render_proxy_error`.
+    fill : which bins are filled from the model instead of being fitted as zeros
+        (``FILLS``). "missing": unmeasured bins above the horizon (negative entries in a
+        MERL file), each round re-running the full dictionary search; a BRDF without
+        such bins is encoded as in the paper. "invalid": every invalid bin (below the
+        horizon too) is a free value; one dictionary search, then ``fill_iters``
+        least-squares fits to the valid bins on the chosen dictionaries, each followed
+        by a new support from the filled channels (:func:`_fill_invalid`), fewer if
+        the support repeats.
+    basis : colour basis of the coded channels (``transforms.COLOUR_BASES``): "rgb" (the
+        paper) or "opponent" (luminance / red-green / yellow-blue of the transformed
+        channels).
+    budget : "channel" (``n_coeffs`` per channel) or "joint" (3 ``n_coeffs`` over the
+        three channels, largest |s| first across the channels' chosen dictionaries);
+        None: "joint" for the opponent basis, "channel" for rgb (``BUDGETS``).
 
     ``result.stats`` holds, per transform tried: gamma-mapped MSE, plain MSE, RAE, the
-    relative residual per channel and how many of the 3 K (channel, dictionary)
-    projections were completed (the others were pruned, see :func:`project_pruned`).
+    render-proxy error, the relative residual per channel, how many of the 3 K (channel,
+    dictionary) projections were completed (the others were pruned, see
+    :func:`project_pruned`), ``budget`` (coefficients per channel and the coded
+    channels' share of the energy) and, when filling, ``fill`` (rounds; for "invalid"
+    the fits run and the valid-bin residual after each, and before the first). Beside
+    them: ``chosen``, ``selector`` and ``options`` (every option, defaults resolved).
     """
     ens = resolve_ensemble(ensemble)
     if brdf.shape != ens.shape:
@@ -363,29 +440,308 @@ def encode(
         raise ValueError(f"n_coeffs must be >= 1, got {n_coeffs}")
     if max_error is not None and not (0 <= max_error < 1):
         raise ValueError(f"max_error must be in [0, 1), got {max_error}")
+    kw = check_options(selector=selector, fill=fill, fill_iters=fill_iters, basis=basis,
+                       budget=budget)
+    opts = _Options(n_coeffs, max_error, kw["fill"], kw["fill_iters"], kw["basis"],
+                    kw["budget"] == "joint")
     names = TRANSFORMS if transform == "auto" else (check_transform(transform),)
-    models = {t: _encode_one(brdf, ens, t, n_coeffs, max_error, fill_iters) for t in names}
-    return choose_transform(brdf, models, ens)
+    if opts.fill == "invalid":
+        models = _fill_invalid(brdf, ens, names, opts)
+    else:
+        models = {t: _encode_one(brdf, ens, t, opts) for t in names}
+    model = choose_transform(brdf, models, ens, selector)
+    model.stats["options"] = kw
+    return model
 
 
-def _encode_one(brdf, ens, transform, n_coeffs, max_error, fill_iters) -> SparseBRDF:
-    """Encode with one transform; unmeasured bins are filled from the model (EM)."""
-    y = forward(brdf.channel_first(), transform, brdf.valid)
+def check_options(**options) -> dict:
+    """:func:`encode`'s options (``ENCODE_OPTIONS``), checked, with every default
+    resolved: ``budget`` from ``basis``, ``fill_iters`` from ``fill``. Unknown names and
+    values raise ValueError."""
+    unknown = sorted(set(options) - set(ENCODE_OPTIONS))
+    if unknown:
+        raise ValueError(f"unknown encoding option(s) {', '.join(unknown)}: expected "
+                         f"{', '.join(ENCODE_OPTIONS)}")
+    o = {**ENCODE_OPTIONS, **options}
+    check_choice("selector", o["selector"], SELECTORS)
+    check_choice("fill", o["fill"], FILLS)
+    check_basis(o["basis"])
+    o["budget"] = check_choice(
+        "budget", o["budget"] or ("channel" if o["basis"] == "rgb" else "joint"), BUDGETS)
+    if o["fill_iters"] is None:
+        o["fill_iters"] = DEFAULT_FILL_ITERS[o["fill"]]
+    elif int(o["fill_iters"]) != o["fill_iters"] or o["fill_iters"] < 0:
+        raise ValueError(f"fill_iters must be an integer >= 0, got {o['fill_iters']!r}")
+    o["fill_iters"] = int(o["fill_iters"])
+    return o
 
-    def one_round():
-        p = project_pruned(brdf, ens, transform, n_coeffs, max_error, y=y)
-        m = select(p, n_coeffs, max_error, brdf.name)
-        # (channel, dictionary) projections completed; the others were pruned
-        m.stats["projections_completed"] = int(np.isfinite(p.residual[:, :, 0]).sum())
-        return m
 
-    model = one_round()
+def check_choice(what: str, value: str, choices: tuple[str, ...]) -> str:
+    """``value`` if it is one of ``choices``, else a ValueError naming them."""
+    if value not in choices:
+        raise ValueError(f"unknown {what} {value!r}: expected one of {', '.join(choices)}")
+    return value
+
+
+@dataclass(frozen=True)
+class _Options:
+    """The coding options of one :func:`encode` call."""
+
+    n: int
+    max_error: float | None
+    fill: str
+    fill_iters: int
+    basis: str
+    joint: bool
+
+
+def _coded_channels(brdf: BRDF, transform: str, basis: str) -> np.ndarray:
+    """The channels to code: ``to_basis`` of the transformed R, G, B, a fresh array."""
+    return to_basis(forward(brdf.channel_first(), transform, brdf.valid), basis)
+
+
+def _encode_one(brdf: BRDF, ens: Ensemble, transform: str, o: _Options) -> SparseBRDF:
+    """Encode with one transform; unmeasured bins above the horizon are filled from the
+    model (EM, ``fill="missing"``)."""
+    y = _coded_channels(brdf, transform, o.basis)
+    model = _search(brdf, ens, transform, y, o)
     missing = geometric_valid(brdf.shape) & ~brdf.valid
     if not missing.any():
         return model
     # Bins above the horizon without a measurement would act as zeros in the projection;
     # replace them by the current reconstruction and re-encode (expectation-maximisation).
-    for _ in range(fill_iters):
-        y[:, missing] = model.transformed(ens)[:, missing]
-        model = one_round()
+    # The mask is the same for the three channels, so filling the coded channels is
+    # filling the transformed R, G, B (the basis is a per-bin 3 x 3 mix).
+    for _ in range(o.fill_iters):
+        y[:, missing] = model.coded(ens)[:, missing]
+        model = _search(brdf, ens, transform, y, o)
+    model.stats["fill"] = {"rounds": o.fill_iters}
     return model
+
+
+def _search(brdf: BRDF, ens: Ensemble, transform: str, y: np.ndarray,
+            o: _Options) -> SparseBRDF:
+    """Each coded channel's dictionary by the (pruned) search over the ensemble, and its
+    coefficients: the selection's own, or with a joint budget, re-coded on the chosen
+    dictionaries (:func:`_code`)."""
+    p = project_pruned(brdf, ens, transform, o.n, o.max_error, y=y)
+    m = select(p, o.n, o.max_error, brdf.name)
+    m.basis = o.basis
+    if o.joint:
+        m = _code(y, ens, m, o, norms=p.norms)
+    else:
+        m.stats["budget"] = _budget_stats(m, p.norms)
+    # (channel, dictionary) projections completed; the others were pruned
+    m.stats["projections_completed"] = int(np.isfinite(p.residual[:, :, 0]).sum())
+    return m
+
+
+def _budget_stats(m: SparseBRDF, norms: np.ndarray) -> dict:
+    total = float(np.sum(norms))
+    return {"coefficients": m.n_coeffs.tolist(),
+            "energy_share": [float(x / total) if total > 0 else 0.0 for x in norms]}
+
+
+def _code(y: np.ndarray, ens: Ensemble, m: SparseBRDF, o: _Options,
+          norms: np.ndarray | None = None) -> SparseBRDF:
+    """Re-code the channels ``y`` (3, n1, n2, n3) on the dictionaries ``m`` chose: each
+    projected on its own dictionary, then the largest |s| kept, ``o.n`` per channel, or
+    with a joint budget 3 ``o.n`` over the channels (largest first across them). With
+    ``o.max_error``, coefficients are added until the relative residual (per channel, or
+    of the total for a joint budget) is reached."""
+    shape = tuple(y.shape[1:])
+    norms = _energies(y) if norms is None else norms
+    cap = 3 * o.n if o.joint else o.n
+
+    def one(c):
+        s = project(y[c], *ens.dictionary(int(m.dict_index[c]))).ravel()
+        idx = top_k(s * s, cap)
+        return idx, s[idx]
+
+    top = list(parallel_map(one, range(3)))
+    if o.joint:
+        val = np.concatenate([v for _, v in top])
+        chan = np.concatenate([np.full(v.size, c) for c, (_, v) in enumerate(top)])
+        order = np.argsort(-(val * val), kind="stable")[:cap]
+        need = _needed(np.cumsum(val[order].astype(np.float64) ** 2), float(norms.sum()),
+                       o.max_error)
+        keep = [np.sort(order[:need][chan[order[:need]] == c]) for c in range(3)]
+        starts = np.cumsum([0] + [v.size for _, v in top])
+        locs = [top[c][0][keep[c] - starts[c]] for c in range(3)]
+        vals = [top[c][1][keep[c] - starts[c]] for c in range(3)]
+    else:
+        locs, vals = [], []
+        for c, (idx, v) in enumerate(top):
+            need = _needed(np.cumsum(v.astype(np.float64) ** 2), norms[c], o.max_error)
+            locs.append(idx[:need])
+            vals.append(v[:need])
+    out = SparseBRDF(m.transform, shape, m.ensemble_id, m.dict_index, locs, vals,
+                     name=m.name, basis=o.basis)
+    kept = np.array([float(np.sum(v.astype(np.float64) ** 2)) for v in vals])
+    out.stats = {"relative_residual": [max(float(n - k), 0.0) / n if n > 0 else 0.0
+                                       for n, k in zip(norms, kept, strict=True)],
+                 "budget": _budget_stats(out, norms)}
+    return out
+
+
+def _needed(cum: np.ndarray, norm: float, max_error: float | None) -> int:
+    """How many of the coefficients (cumulative kept energies ``cum``, largest first) to
+    keep: all, or the fewest whose residual norm - cum is within ``max_error`` norm."""
+    if norm <= 0:
+        return 0
+    if max_error is None:
+        return cum.size
+    ok = np.flatnonzero(norm - cum <= max_error * norm)
+    return int(ok[0]) + 1 if ok.size else cum.size
+
+
+def _fill_invalid(brdf: BRDF, ens: Ensemble, transforms: tuple[str, ...],
+                  o: _Options) -> dict[str, SparseBRDF]:
+    """Encode with every invalid bin a free value (``docs/method.md``, "Encoding"), one
+    model per transform.
+
+    Minimises the residual on valid bins only, ||P_V (Y - U S)||^2 over sparse S, by hard
+    thresholding pursuit on the dictionaries the search chose (:func:`_search`, run
+    once on the zero-filled channels): the values of the current support are the least
+    squares fit to the valid bins (:func:`_fit_supports`, conjugate gradients); the
+    invalid bins of Y are then set to that reconstruction, the channels re-projected on
+    their dictionaries and the largest |s| kept (:func:`_code`) as the next support.
+    Stops when the support repeats or after ``o.fill_iters`` fits. The mask is the same
+    for the three channels, so filling the coded channels is filling the transformed
+    R, G, B (the basis is a per-bin 3 x 3 mix), and the channels' least squares
+    problems are independent: the fits of every transform and channel run side by side.
+    """
+    invalid = ~brdf.valid
+    ys = {t: _coded_channels(brdf, t, o.basis) for t in transforms}
+    models = {t: _search(brdf, ens, t, ys[t], o) for t in transforms}
+    if not invalid.any() or o.fill_iters == 0:
+        return models
+    searched = {t: m.stats for t, m in models.items()}
+    history: dict[str, list[float]] = {t: [] for t in transforms}
+    residual: dict[str, np.ndarray] = {}
+    active = list(transforms)
+    for fit in range(o.fill_iters):
+        fitted = _fit_supports([(ys[t], models[t]) for t in active], invalid, ens)
+        for t, (m, r) in zip(active, fitted, strict=True):
+            models[t], residual[t] = m, r
+            history[t].append(float(r.sum()))
+        if fit == o.fill_iters - 1:
+            break
+        for t in list(active):
+            ys[t][:, invalid] = models[t].coded(ens)[:, invalid]
+            new = _code(ys[t], ens, models[t], o)
+            if all(np.array_equal(np.sort(a), np.sort(b))
+                   for a, b in zip(models[t].locations, new.locations, strict=True)):
+                active.remove(t)  # the support has settled: its fit is done
+            else:
+                models[t] = new
+        if not active:
+            break
+    for t, m in models.items():
+        valid_energy = _energies(np.where(invalid, np.float32(0), ys[t]))
+        m.stats = {
+            "relative_residual": [float(r / n) if n > 0 else 0.0
+                                  for r, n in zip(residual[t], valid_energy, strict=True)],
+            "budget": _budget_stats(m, _energies(ys[t])),
+            "projections_completed": searched[t]["projections_completed"],
+            "fill": {"fits": len(history[t]), "valid_residual": history[t],
+                     "valid_residual_unfilled": float(np.sum(
+                         np.asarray(searched[t]["relative_residual"]) * valid_energy))},
+        }
+    return models
+
+
+#: Conjugate-gradient iterations of each least-squares fit of :func:`_fit_supports`, at
+#: most; a fit stops early once a step lowers the residual by less than FIT_CG_RTOL of it.
+FIT_CG_ITERS = 10
+FIT_CG_RTOL = 1e-3
+
+
+def _fit_supports(jobs: list[tuple[np.ndarray, SparseBRDF]], invalid: np.ndarray,
+                  ens: Ensemble) -> list[tuple[SparseBRDF, np.ndarray]]:
+    """For each (channels y, model m): the values on m's support (its coefficient
+    locations and dictionaries) that fit y on the valid bins in least squares,
+    ``FIT_CG_ITERS`` conjugate-gradient steps on the normal equations from m's values.
+    Returns, per job, the model (sorted by decreasing |value|) and each channel's
+    residual on valid bins (3,). The 3 x len(jobs) channels run on the thread pool."""
+    keep = (~invalid).astype(np.float32)  # masks by a product: cheaper than fancy indexing
+
+    def one(task):
+        y, m, c = task
+        if m.locations[c].size == 0:  # nothing to fit (a joint budget spent elsewhere)
+            res = y[c] * keep
+            return m.locations[c], m.values[c], float(np.sum(np.square(res, dtype=np.float64)))
+        sup = _Support(m.locations[c], m.shape, ens.dictionary(int(m.dict_index[c])))
+        s = m.values[c].astype(np.float32)  # a copy, updated in place
+        res = y[c] - sup.expand(s)
+        res *= keep
+        energy = float(np.dot(res.ravel(), res.ravel()))  # ||res||^2, tracked below
+        r = sup.gather(res)
+        p, rr = r.copy(), float(r @ r)
+        for _ in range(FIT_CG_ITERS):
+            q = sup.expand(p)
+            q *= keep
+            qq = float(np.dot(q.ravel(), q.ravel()))  # float32 BLAS dot: enough for steps
+            if rr <= 0.0 or qq <= 0.0:
+                break
+            alpha = rr / qq
+            s += np.float32(alpha) * p
+            q *= np.float32(alpha)
+            res -= q
+            energy -= alpha * rr  # the step lowers ||res||^2 by exactly alpha rr
+            if alpha * rr <= FIT_CG_RTOL * energy:
+                break
+            r = sup.gather(res)
+            rr_new = float(r @ r)
+            p = r + np.float32(rr_new / rr) * p
+            rr = rr_new
+        order = np.argsort(-np.abs(s), kind="stable")
+        return m.locations[c][order], s[order], float(np.sum(np.square(res, dtype=np.float64)))
+
+    # the largest supports first, so that the pool's last tasks are short
+    tasks = sorted(((y, m, c) for y, m in jobs for c in range(3)),
+                   key=lambda t: -t[1].locations[t[2]].size)
+    done = {(id(m), c): out for (y, m, c), out in zip(tasks, parallel_map(one, tasks),
+                                                      strict=True)}
+    out = []
+    for _, m in jobs:
+        res = [done[(id(m), c)] for c in range(3)]
+        fitted = SparseBRDF(m.transform, m.shape, m.ensemble_id, m.dict_index,
+                            [a for a, _, _ in res], [v for _, v, _ in res], name=m.name,
+                            basis=m.basis)
+        out.append((fitted, np.array([e for _, _, e in res])))
+    return out
+
+
+class _Support:
+    """The atoms of a set of coefficient locations on one dictionary: ``expand`` maps
+    their values to the tensor (as :func:`tensor.reconstruct_sparse`), ``gather`` is its
+    adjoint (the projection of a tensor on those atoms only), each about n1 n2 n3 K3
+    multiply-adds for K3 distinct mode-3 atoms (a full projection: n1 n2 n3 (n1+n2+n3))."""
+
+    def __init__(self, flat: np.ndarray, shape: tuple[int, int, int], u) -> None:
+        self.shape = shape
+        a, b, c = np.unravel_index(np.asarray(flat, np.int64), shape)
+        (ka, self.ia), (kb, self.ib), (kc, self.ic) = (
+            np.unique(x, return_inverse=True) for x in (a, b, c))
+        self.u1 = np.ascontiguousarray(u[0][:, ka])
+        self.u2 = np.ascontiguousarray(u[1][:, kb])
+        self.u3 = np.ascontiguousarray(u[2][:, kc])
+        self.core = (ka.size, kb.size, kc.size)
+
+    def expand(self, v: np.ndarray) -> np.ndarray:
+        n1, n2, n3 = self.shape
+        ka, kb, kc = self.core
+        core = np.zeros(self.core, np.float32)
+        core[self.ia, self.ib, self.ic] = v  # the locations are distinct
+        t = (self.u1 @ core.reshape(ka, -1)).reshape(n1, kb, kc)
+        t = np.matmul(self.u2, t)  # (n1, n2, Kc)
+        return (t.reshape(n1 * n2, kc) @ self.u3.T).reshape(n1, n2, n3)
+
+    def gather(self, x: np.ndarray) -> np.ndarray:
+        n1, n2, n3 = self.shape
+        ka, kb, kc = self.core
+        t = (x.reshape(n1 * n2, n3) @ self.u3).reshape(n1, n2 * kc)
+        t = (self.u1.T @ t).reshape(ka, n2, kc)
+        t = np.matmul(self.u2.T, t)  # (Ka, Kb, Kc)
+        return t[self.ia, self.ib, self.ic]

@@ -39,6 +39,12 @@ with w = 1 (log-plus) or w = clip(cos_i cos_o, 0.01, 1) at the bin's lower-edge 
   end of each b-group and c-group (flag bits of the packed indices, the same for every
   lane), so U2 and U3 are read once per group rather than once per term. Least memory,
   slowest.
+
+Colour basis: the three channels are the model's *coded* channels. In the "rgb" basis they
+are the transformed R, G, B; in the "opponent" basis (``SparseBRDF.basis``) a lookup mixes
+the three coded values X_0, X_1, X_2 back into the transformed R, G, B with the constant
+3 x 3 matrix M^T (:func:`colour_mix`, 9 multiply-adds, fewer for its zero entries) before
+the inverse transform; a channel may hold no terms (its X is 0).
 """
 
 from __future__ import annotations
@@ -48,7 +54,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..coords import bin_angles, cos_io
-from ..transforms import COS_CLIP
+from ..transforms import COS_CLIP, colour_matrix
 
 #: The ``sparse_brdf`` plugin's decoders ("auto": :func:`choose_decoder` picks one).
 DECODERS = ("grouped", "strict", "auto")
@@ -479,6 +485,44 @@ def bin_weight(i, j, k, shape, use_cos: bool) -> np.ndarray:
     return np.clip(ci * co, *COS_CLIP).astype(np.float32)
 
 
+def colour_mix(basis: str) -> tuple[tuple[float, float, float], ...] | None:
+    """The matrix M^T that maps coded channels back to the transformed R, G, B in
+    ``basis``, as Python floats (kernel constants: the same for every material of that
+    basis), or None for "rgb", whose kernels skip the mix."""
+    m = colour_matrix(basis)
+    if np.array_equal(m, np.eye(3)):
+        return None
+    return tuple(tuple(float(v) for v in row) for row in m.T.astype(np.float32))
+
+
+def mix_channels(xs, basis: str) -> np.ndarray:
+    """Coded X (3, ...) -> transformed R, G, B (3, ...) with :func:`colour_mix` (numpy
+    mirror of the kernels' mix; "rgb": ``xs`` unchanged)."""
+    mt = colour_mix(basis)
+    xs = np.asarray(xs)
+    if mt is None:
+        return xs
+    return np.tensordot(np.array(mt, np.float64), xs.astype(np.float64), axes=1)
+
+
+def model_x(model, ensemble, bins, decoder: str = "grouped",
+            kind: str | None = None) -> np.ndarray:
+    """Transformed R, G, B (3, N) of ``model`` at integer bins (i, j, k), as the plugin's
+    ``decoder`` computes them at the nearest bin: the three coded channels from the
+    uploaded data (grouped: the layout ``kind``, default the automatic one), then the
+    colour mix of the model's basis (numpy mirror of the whole lookup before the inverse
+    transform)."""
+    if decoder == "grouped":
+        chans = grouped_channels(model, ensemble)
+        xs, _ = layout_eval(grouped_layout(chans, tuple(model.shape), kind), chans[0], bins)
+    elif decoder == "strict":
+        xs = np.stack([strict_eval(strict_channel(*channel_terms(model, ensemble, c)), bins)
+                       for c in range(3)])
+    else:
+        raise ValueError(f"unknown decoder {decoder!r}: expected grouped or strict")
+    return mix_channels(xs, model.basis)
+
+
 def grouped_eval(ch: GroupedChannel, bins) -> np.ndarray:
     """X at integer bins (i, j, k) from a grouped channel (numpy mirror of the kernel)."""
     pair = bins[ch.mode_p] * ch.n_q + bins[ch.mode_q]
@@ -502,7 +546,7 @@ def strict_eval(ch: StrictChannel, bins) -> np.ndarray:
 def fit_lobe(profile: np.ndarray, shape: tuple[int, int, int]) -> tuple[float, float]:
     """Fit the glossy sampling lobe to a theta_h profile of the BRDF.
 
-    ``profile[i]`` is the mean BRDF value (over channels, phi_d and the first theta_d
+    ``profile[i]`` is the mean BRDF value (over R, G, B, phi_d and the first theta_d
     bins) at theta_h bin i. Model: ``base + peak * cos(theta_h)^n``; n comes from the
     half-width at half maximum of ``profile - base``. The lobe's share of the mixture is
     its albedo share, ``8 pi peak / (n + 2)`` (a normalised Blinn lobe) against
@@ -543,20 +587,23 @@ def fit_lobe(profile: np.ndarray, shape: tuple[int, int, int]) -> tuple[float, f
 def sparse_profile(model, ensemble, n_d: int = 3) -> np.ndarray:
     """theta_h profile of a sparse model for :func:`fit_lobe` (no full decode).
 
-    Mean over channels, phi_d and the first ``n_d`` theta_d bins of the model's BRDF.
+    Mean over R, G, B, phi_d and the first ``n_d`` theta_d bins of the model's BRDF (the
+    coded channels mixed back to R, G, B first, :func:`mix_channels`).
     """
     n1, n2, n3 = model.shape
     use_cos = model.transform == "log-plus-cosine"
     ii, kk = np.arange(n1)[:, None], np.arange(n3)[None, :]
     acc = np.zeros(n1)
     js = range(min(n_d, n2))
+    terms = [channel_terms(model, ensemble, c) for c in range(3)]
+    xs = {j: mix_channels(np.stack([(u1[:, a] * (s * u2[j, b])) @ u3[:, k].T  # (n1, n3)
+                                    for s, (a, b, k), (u1, u2, u3) in terms]), model.basis)
+          for j in js}
     for c in range(3):
-        s, (a, b, k), (u1, u2, u3) = channel_terms(model, ensemble, c)
         for j in js:
-            x = (u1[:, a] * (s * u2[j, b])) @ u3[:, k].T  # (n1, n3)
             w = bin_weight(ii, np.full_like(ii, j), kk, model.shape, use_cos)
             with np.errstate(over="ignore"):  # fit_lobe treats a non-finite profile
-                acc += np.maximum(np.expm1(x) / w, 0.0).mean(axis=1)
+                acc += np.maximum(np.expm1(xs[j][c]) / w, 0.0).mean(axis=1)
     return acc / (3 * len(js))
 
 

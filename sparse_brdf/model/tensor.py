@@ -89,6 +89,8 @@ def reconstruct_sparse(flat: np.ndarray, values: np.ndarray, shape: tuple[int, i
     multiplied out: about n1 n2 n3 K3 multiply-adds instead of n1 n2 n3 (n1 + n2 + n3).
     """
     n1, n2, n3 = shape
+    if np.size(flat) == 0:  # a channel without terms (an opponent basis's joint budget)
+        return np.zeros(shape, np.float32)
     a, b, c = np.unravel_index(np.asarray(flat, np.int64), shape)
     (ka, ia), (kb, ib), (kc, ic) = (np.unique(m, return_inverse=True) for m in (a, b, c))
     core = np.zeros((ka.size, kb.size, kc.size), np.float32)

@@ -11,6 +11,11 @@ by alternating hard-thresholded sparse coding, clustering by least error and one
 orthogonal-Procrustes update per mode (Gauss-Seidel over the modes, so no step can
 raise the objective). :func:`train_ensemble` unites the dictionaries of several
 sparsities (default 4 x 8 = 32); :func:`hosvd_ensemble` is the one-dictionary baseline.
+
+Masked training (``masked=True``, the default): only valid bins count. Bins below the
+horizon (shared by every tensor) and a material's unmeasured bins are free values: after
+each tensor is coded they are set to its reconstruction (expectation-maximisation), so
+the norm above runs over valid bins only and still cannot increase.
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..coords import geometric_valid
 from ..fileio import atomic_write
 from .ensemble import Ensemble
 from .tensor import (
@@ -33,11 +39,22 @@ from .tensor import (
     parallel_map,
     procrustes,
     project,
+    reconstruct_sparse,
     top_k,
 )
 
 DEFAULT_TAUS: tuple[int, ...] = (32, 64, 128, 256)
 DEFAULT_N_DICTS = 8
+#: Iteration cap, clustering cadence and stopping rule of a training run (docs/ensemble.md
+#: gives the measurements behind them).
+DEFAULT_N_ITER = 8
+DEFAULT_REASSIGN_EVERY = 3
+DEFAULT_TOL = 1e-4
+DEFAULT_MAX_MOVED = 0.01
+#: Initialisations (:func:`_init_state`): ``seeded`` (k-means++-style seeding in the
+#: training error itself) and ``random`` (random balanced clusters, the first trainer's).
+INITS: tuple[str, ...] = ("seeded", "random")
+DEFAULT_INIT = "seeded"
 
 
 @dataclass
@@ -53,6 +70,7 @@ class TrainState:
     errors: np.ndarray  # (N,) squared error of each tensor under its dictionary
     iteration: int = 0
     history: list = field(default_factory=list)
+    init_seconds: float = 0.0  # time taken by the initialisation
 
 
 def _sq_norms(x: np.ndarray) -> np.ndarray:
@@ -66,49 +84,278 @@ def _code(s: np.ndarray, tau: int) -> tuple[np.ndarray, np.ndarray, float]:
     return idx.astype(np.int32), flat[idx].astype(np.float32), float(e[idx].sum(dtype=np.float64))
 
 
-def _assign_all(x, norms, state_u, tau, progress, known=None) -> tuple[np.ndarray, ...]:
-    """Project every tensor on every dictionary; return best labels, codes and errors.
+def _sq64(v: np.ndarray) -> float:
+    """Squared norm accumulated in float64."""
+    return float(np.sum(np.square(v, dtype=np.float64)))
+
+
+class _Tensors:
+    """The training tensors as the trainer sees them (``docs/method.md``, Training).
+
+    Unmasked: the tensors as given. Masked: each tensor's free bins -- below the horizon
+    (one index set shared by every tensor) plus, rarely, its material's unmeasured bins --
+    hold the reconstruction from the tensor's latest code (zero before the first).
+    Only those values are stored (N x 24 % of the grid, float32); ``x`` is never
+    written, so the caller's array is unchanged and a read-only memory map works.
+    ``norms[i]`` is ||X~_i||^2 of the filled tensor, ``energy[i]`` its valid part.
+    """
+
+    def __init__(self, x: np.ndarray, masked: bool, missing: dict | None = None):
+        self.x, self.masked = x, masked
+        self.shape = tuple(int(n) for n in x.shape[1:])
+        self.raw_norms = _sq_norms(x)  # of x as given (the checkpoint fingerprint)
+        self.extra: dict[int, np.ndarray] = {}
+        if not masked:
+            self.free = np.zeros(0, np.int64)
+            self.energy = self.raw_norms
+            self.norms = self.raw_norms
+            return
+        geo = geometric_valid(self.shape).reshape(-1)
+        self.free = np.flatnonzero(~geo)
+        by_mask: dict[int, np.ndarray] = {}  # a material's channels share one mask object
+        for i, m in (missing or {}).items():
+            if id(m) not in by_mask:
+                mask = np.asarray(m, bool)
+                if mask.shape != self.shape:
+                    raise ValueError(f"missing-bin mask of tensor {i} has shape {mask.shape}, "
+                                     f"expected {self.shape}")
+                by_mask[id(m)] = np.flatnonzero(mask.reshape(-1) & geo)
+            if by_mask[id(m)].size:
+                self.extra[int(i)] = by_mask[id(m)]
+        self.fill = np.zeros((len(x), self.free.size), np.float32)
+        self.fill_extra = {i: np.zeros(e.size, np.float32) for i, e in self.extra.items()}
+
+        def valid_energy(i):  # independent of what x holds in free bins
+            flat = np.asarray(x[i], np.float32).reshape(-1)
+            if i not in self.extra:
+                return _sq64(flat[geo])
+            keep = geo.copy()
+            keep[self.extra[i]] = False
+            return _sq64(flat[keep])
+
+        self.energy = np.array(list(parallel_map(valid_energy, range(len(x)))))
+        self.norms = self.energy.copy()
+
+    def __len__(self) -> int:
+        return len(self.x)
+
+    def __getitem__(self, i: int) -> np.ndarray:
+        """X~_i: tensor i with its free bins filled (a copy when masked)."""
+        if not self.masked:
+            return self.x[i]
+        y = np.array(self.x[i], np.float32)
+        flat = y.reshape(-1)
+        flat[self.free] = self.fill[i]
+        if i in self.extra:
+            flat[self.extra[i]] = self.fill_extra[i]
+        return y
+
+    def reconstruct_free(self, i, idx, val, u) -> tuple[tuple, float]:
+        """The free-bin values of the reconstruction of tensor i from the code (idx, val)
+        in dictionary u, and their squared distance to the values held now."""
+        rec = reconstruct_sparse(idx, val, self.shape, *u).reshape(-1)
+        new = rec[self.free]
+        change = _sq64(new - self.fill[i])
+        new_extra = None
+        if i in self.extra:
+            new_extra = rec[self.extra[i]]
+            change += _sq64(new_extra - self.fill_extra[i])
+        return (new, new_extra), change
+
+    def set_fill(self, i: int, fill: tuple) -> None:
+        new, new_extra = fill
+        self.fill[i] = new
+        self.norms[i] = self.energy[i] + _sq64(new)
+        if new_extra is not None:
+            self.fill_extra[i] = new_extra
+            self.norms[i] += _sq64(new_extra)
+
+
+def _code_tensor(data: _Tensors, i: int, s: np.ndarray, tau: int, u) -> tuple:
+    """Code tensor i from its coefficients ``s`` in dictionary ``u``.
+
+    Returns (idx, val, error, fill): error is the squared error over the tensor's valid
+    bins; masked, ``fill`` holds the free-bin values of the new reconstruction (once they
+    are filled in, ``error`` is the error over the whole filled tensor)."""
+    idx, val, kept = _code(s, tau)
+    err = data.norms[i] - kept
+    if not data.masked:
+        return idx, val, err, None
+    fill, change = data.reconstruct_free(i, idx, val, u)
+    return idx, val, max(err - change, 0.0), fill
+
+
+#: Cumulative mode-3 atoms (phi_d slices of the coefficients) computed per dictionary in
+#: the rounds of :func:`_search_codes`; the dictionaries still in the running are then
+#: completed.
+PRUNE_ROUNDS = (12, 36, 90)
+#: Safety margin of the pruning bounds, relative to ||X||^2 (float32 rounding of the
+#: energies is about 1e-6).
+PRUNE_SLACK = 1e-5
+#: Clustering searches with pruning (False: every tensor projected on every dictionary in
+#: full, the reference the tests compare it with).
+PRUNE = True
+
+
+@dataclass
+class _Dicts:
+    """Mode matrices laid out for :func:`_search_codes` (U1^T and U3^T contiguous)."""
+
+    u1t: list
+    u2: np.ndarray
+    u3: np.ndarray
+    u3t: list
+
+    @classmethod
+    def of(cls, u1, u2, u3) -> _Dicts:
+        return cls([np.ascontiguousarray(u.T) for u in u1], u2, u3,
+                   [np.ascontiguousarray(u.T) for u in u3])
+
+
+def _search_codes(xi: np.ndarray, norm: float, cands: list[int], d: _Dicts, tau: int,
+                  floor: float = np.inf, gram: np.ndarray | None = None,
+                  stats: dict | None = None, upto: int | None = None) -> dict[int, tuple]:
+    """The tau-sparse codes of tensor ``xi`` on the dictionaries of ``cands`` that may give
+    it the least error, or an error below ``floor``: {k: (idx, val, error)}, exact.
+
+    As the encoder's pruned search (``docs/benchmarks.md``): the coefficients are computed
+    one phi_d slice (mode-3 atom) at a time, the slices of most energy first (from one
+    n3 x n3 Gram matrix). After each round the kept energy of a dictionary lies between
+    the tau largest coefficients computed (L) and L plus the energy not computed yet; a
+    dictionary whose best case loses to another's worst case, or cannot beat ``floor``,
+    is dropped (margin ``PRUNE_SLACK`` ||X||^2); the others are completed. ``gram``: the
+    tensor's mode-3 Gram matrix if known; ``stats``, if given, counts the slices computed
+    (``"slices"``) against a full search's (``"full"``). ``upto``: stop after that many
+    slices of every candidate, without pruning: the codes are then the tau largest
+    coefficients of those slices and the errors upper bounds of the exact ones.
+    """
+    n1, n2, n3 = xi.shape
+    x3 = xi.reshape(n1 * n2, n3)
+    if gram is None:
+        gram = x3.T @ x3
+    order = {k: np.argsort(-np.einsum("ij,ij->j", gram @ d.u3[k], d.u3[k]), kind="stable")
+             for k in cands}
+    done = dict.fromkeys(cands, 0)
+    energy = dict.fromkeys(cands, 0.0)
+    top = {k: (np.zeros(0, np.int64), np.zeros(0, np.float32)) for k in cands}
+    alive = list(cands)
+    kept: dict[int, float] = {}
+    rounds = (min(upto, n3),) if upto else (*[r for r in PRUNE_ROUNDS if r < n3], n3)
+    for hi in rounds:
+        if not alive:
+            break
+        for k in alive:
+            rows = order[k][done[k]:hi]
+            r = rows.size
+            t = d.u1t[k] @ (x3 @ d.u3t[k][rows].T).reshape(n1, n2 * r)
+            # (n1, r, n2): coefficient (a, b, rows[slot]) at [a, slot, b]
+            sv = np.tensordot(t.reshape(n1, n2, r), d.u2[k], axes=([1], [0])).reshape(-1)
+            e = sv * sv
+            loc = top_k(e, tau)
+            a, slot, b = np.unravel_index(loc, (n1, r, n2))
+            idx = np.concatenate([top[k][0], (a * n2 + b) * n3 + rows[slot]])
+            val = np.concatenate([top[k][1], sv[loc]])
+            keep = top_k(val * val, tau)
+            top[k], done[k] = (idx[keep], val[keep]), hi
+            energy[k] += float(e.sum(dtype=np.float64))
+            if stats is not None:
+                stats["slices"] = stats.get("slices", 0) + rows.size
+        kept = {k: float(np.sum(np.square(top[k][1], dtype=np.float64))) for k in alive}
+        if hi == rounds[-1]:
+            break
+        bar = max(max(kept.values()), norm - floor)  # kept energy a winner must reach
+        alive = [k for k in alive
+                 if kept[k] + max(norm - energy[k], 0.0) + PRUNE_SLACK * norm >= bar]
+    if stats is not None:
+        stats["full"] = stats.get("full", 0) + len(cands) * n3
+    return {k: (top[k][0].astype(np.int32), top[k][1], norm - kept[k]) for k in alive}
+
+
+def _assign_all(data: _Tensors, state_u, tau, progress, known=None) -> tuple[np.ndarray, ...]:
+    """Cluster every tensor: its least-error dictionary, codes and errors.
 
     ``known``: optional (labels, codes_idx, codes_val, errors) already computed with the
-    current dictionaries; each tensor's own dictionary is then not projected again.
+    current dictionaries; each tensor's own dictionary is then not projected again. The
+    other dictionaries are searched with pruning (:func:`_search_codes`; ``PRUNE``), so
+    a dictionary that cannot win is not projected in full; its entry of the returned
+    error matrix is inf. A tensor moves only if its error over the whole (filled) tensor
+    there is below its current error, so masked training's objective cannot increase.
+    Masked, the free bins of every tensor whose code changed are refilled.
     """
     u1, u2, u3 = state_u
     k = u1.shape[0]
+    n = len(data)
+    dicts = _Dicts.of(u1, u2, u3)
 
     def one(i):
+        xi = data[i]
+        own = int(known[0][i]) if known is not None else -1
+        cands = [j for j in range(k) if j != own]
+        if PRUNE:
+            found = _search_codes(xi, data.norms[i], cands, dicts, tau,
+                                  known[3][i] if own >= 0 else np.inf)
+        else:
+            found = {}
+            for j in cands:
+                idx, val, kept = _code(project(xi, u1[j], u2[j], u3[j]), tau)
+                found[j] = (idx, val, data.norms[i] - kept)
+        if own >= 0:
+            found[own] = (known[1][i], known[2][i], known[3][i])
+        errs = np.full(k, np.inf)
         best = None
-        errs = np.empty(k)
-        for j in range(k):
-            if known is not None and known[0][i] == j:
-                idx, val, err = known[1][i], known[2][i], known[3][i]
-            else:
-                idx, val, kept = _code(project(x[i], u1[j], u2[j], u3[j]), tau)
-                err = norms[i] - kept
-            errs[j] = err
-            if best is None or errs[j] < errs[best[0]]:
-                best = (j, idx, val)
-        return best, errs
+        for j in sorted(found):
+            errs[j] = found[j][2]
+            if best is None or errs[j] < errs[best]:
+                best = j
+        idx, val, err = found[best]
+        fill = None
+        if data.masked and best != own:
+            fill, change = data.reconstruct_free(i, idx, val, (u1[best], u2[best], u3[best]))
+            err = max(err - change, 0.0)
+        return best, idx, val, err, fill, errs
 
-    res = list(_progress(parallel_map(one, range(len(x))), len(x), progress, "assign"))
-    labels = np.array([r[0][0] for r in res])
-    idx = np.stack([r[0][1] for r in res])
-    val = np.stack([r[0][2] for r in res])
-    all_err = np.stack([r[1] for r in res])
-    return labels, idx, val, all_err[np.arange(len(x)), labels], all_err
+    labels = np.zeros(n, np.int64)
+    idx_all, val_all = np.zeros((n, tau), np.int32), np.zeros((n, tau), np.float32)
+    errors, all_err = np.zeros(n), np.zeros((n, k))
+    for i, (j, idx, val, err, fill, errs) in enumerate(
+            _progress(parallel_map(one, range(n)), n, progress, "assign")):
+        labels[i], idx_all[i], val_all[i], errors[i], all_err[i] = j, idx, val, err, errs
+        if fill is not None:
+            data.set_fill(i, fill)
+    return labels, idx_all, val_all, errors, all_err
 
 
-def _code_own(x, norms, state: TrainState, tau, progress) -> None:
-    """Sparse-code each tensor in its own cluster's dictionary (in place)."""
+def _code_own(data: _Tensors, state: TrainState, tau, progress) -> None:
+    """Sparse-code each tensor in its own cluster's dictionary (in place); masked, then
+    refill its free bins from the new code."""
 
     def one(i):
         j = state.labels[i]
-        return _code(project(x[i], state.u1[j], state.u2[j], state.u3[j]), tau)
+        u = (state.u1[j], state.u2[j], state.u3[j])
+        return _code_tensor(data, i, project(data[i], *u), tau, u)
 
-    for i, (idx, val, kept) in enumerate(
-        _progress(parallel_map(one, range(len(x))), len(x), progress, "code")
+    for i, (idx, val, err, fill) in enumerate(
+        _progress(parallel_map(one, range(len(data))), len(data), progress, "code")
     ):
         state.codes_idx[i], state.codes_val[i] = idx, val
-        state.errors[i] = norms[i] - kept
+        state.errors[i] = err
+        if fill is not None:
+            data.set_fill(i, fill)
+
+
+def _refill_all(data: _Tensors, state: TrainState) -> None:
+    """Masked: set every tensor's free bins from its code in ``state`` (on resuming, to
+    restore the filled tensors the checkpointed iteration ended with)."""
+    if not data.masked:
+        return
+
+    def one(i):
+        j = state.labels[i]
+        return data.reconstruct_free(i, state.codes_idx[i], state.codes_val[i],
+                                     (state.u1[j], state.u2[j], state.u3[j]))[0]
+
+    for i, fill in enumerate(parallel_map(one, range(len(data)))):
+        data.set_fill(i, fill)
 
 
 #: Bytes of mode-3 partial products the dictionary update may keep between its first two
@@ -116,15 +363,14 @@ def _code_own(x, norms, state: TrainState, tau, progress) -> None:
 MAX_CACHE_BYTES = 3 * 1024**3
 
 
-def _update_dictionary(x, members, state: TrainState, j, progress) -> None:
+def _update_dictionary(x: _Tensors, members, state: TrainState, j, progress) -> None:
     """Gauss-Seidel Procrustes update of the three modes of dictionary j.
 
     The passes for U1 and U2 both start from A = X x3 U3^T with the same U3, so A is
     computed once per tensor and kept for the second pass (when the cluster's products fit
     in ``MAX_CACHE_BYTES``); the results are the same as recomputing it.
     """
-    n1, n2, n3 = x.shape[1:]
-    shape = (n1, n2, n3)
+    n1, n2, n3 = shape = x.shape
     cache: dict[int, np.ndarray] | None = (
         {} if len(members) * n1 * n2 * n3 * 4 <= MAX_CACHE_BYTES else None)
 
@@ -169,7 +415,7 @@ def _update_dictionary(x, members, state: TrainState, j, progress) -> None:
         (state.u1, state.u2, state.u3)[mode][j] = u_new
 
 
-def _reseed_empty(x, norms, state: TrainState, tau) -> int:
+def _reseed_empty(data: _Tensors, state: TrainState, tau) -> int:
     """Give every empty cluster the worst-represented tensor of a cluster with >= 2 members."""
     k = state.u1.shape[0]
     reseeded = 0
@@ -181,30 +427,41 @@ def _reseed_empty(x, norms, state: TrainState, tau) -> int:
         if donors.size == 0:
             break
         i = donors[np.argmax(state.errors[donors])]
-        f1, f2, f3 = hosvd_factors(mode_grams(x[i]))
+        xi = data[i]
+        f1, f2, f3 = hosvd_factors(mode_grams(xi))
         state.u1[j], state.u2[j], state.u3[j] = f1, f2, f3
-        idx, val, kept = _code(project(x[i], f1, f2, f3), tau)
-        if norms[i] - kept <= state.errors[i]:
+        idx, val, err, fill = _code_tensor(data, i, project(xi, f1, f2, f3), tau, (f1, f2, f3))
+        if err <= state.errors[i]:
             state.labels[i] = j
             state.codes_idx[i], state.codes_val[i] = idx, val
-            state.errors[i] = norms[i] - kept
+            state.errors[i] = err
+            if fill is not None:
+                data.set_fill(i, fill)
         reseeded += 1
     return reseeded
 
 
-def _init_state(x, tau, n_dicts, rng, progress) -> TrainState:
-    """Random balanced clusters, each initialised with its HOSVD."""
-    n = len(x)
-    labels = rng.permutation(np.arange(n) % n_dicts)
-    n1, n2, n3 = x.shape[1:]
-    grams = [[np.zeros((m, m)) for m in (n1, n2, n3)] for _ in range(n_dicts)]
-    for i, g in enumerate(_progress(parallel_map(lambda i: mode_grams(x[i]), range(n)), n,
-                                    progress, "init")):
+def _init_state(data: _Tensors, tau, n_dicts, rng, progress, init: str = "random"
+                ) -> TrainState:
+    """The first clusters, each initialised with its HOSVD: random balanced clusters
+    (``random``) or :func:`_seed_labels` (``seeded``)."""
+    n = len(data)
+    n1, n2, n3 = data.shape
+    grams = list(_progress(parallel_map(lambda i: mode_grams(data[i]), range(n)), n,
+                           progress, "init"))
+    if init == "random":
+        labels = rng.permutation(np.arange(n) % n_dicts)
+    elif init == "seeded":
+        labels = _seed_labels(data, grams, tau, n_dicts, rng, progress)
+    else:
+        raise ValueError(f"unknown init {init!r}: expected one of {', '.join(INITS)}")
+    sums = [[np.zeros((m, m)) for m in (n1, n2, n3)] for _ in range(n_dicts)]
+    for i, g in enumerate(grams):
         for m in range(3):
-            grams[labels[i]][m] += g[m]
+            sums[labels[i]][m] += g[m]
     factors = [hosvd_factors(tuple(g)) if np.any(labels == j) else
                [np.eye(m, dtype=np.float32) for m in (n1, n2, n3)]
-               for j, g in enumerate(grams)]
+               for j, g in enumerate(sums)]
     return TrainState(
         u1=np.stack([f[0] for f in factors]), u2=np.stack([f[1] for f in factors]),
         u3=np.stack([f[2] for f in factors]), labels=labels,
@@ -213,7 +470,49 @@ def _init_state(x, tau, n_dicts, rng, progress) -> TrainState:
     )
 
 
-def _check_training_args(x, tau: int, n_dicts: int) -> np.ndarray:
+#: Fraction of the mode-3 atoms of a seed dictionary that :func:`_seed_labels` projects
+#: each tensor on (the leading ones by the tensor's energy along them); None: all, with
+#: pruning (exact errors, about four times the cost).
+SEED_FRACTION: float | None = 0.2
+
+
+def _seed_labels(data: _Tensors, grams, tau, n_dicts, rng, progress) -> np.ndarray:
+    """k-means++ seeding in the training error itself.
+
+    The first seed is drawn with probability proportional to tensor energy, each further
+    one proportional to the error of each tensor under the best seed dictionary so far
+    (a seed's dictionary: its own HOSVD; error: tau-sparse coding, as in training). Each
+    tensor then joins the seed that represents it best. The errors come from the
+    ``SEED_FRACTION`` leading slices of each seed's coefficients (upper bounds of the
+    exact errors, :func:`_search_codes`): with 0.2, K seeds cost about 1.6 projections
+    per tensor.
+    """
+    upto = None if SEED_FRACTION is None else max(1, int(np.ceil(SEED_FRACTION * data.shape[2])))
+    n = len(data)
+    err = np.full(n, np.inf)
+    labels = np.zeros(n, np.int64)
+    weights = np.asarray(data.norms, np.float64)
+    for j in range(n_dicts):
+        p = weights / weights.sum() if weights.sum() > 0 else None
+        s = int(rng.choice(n, p=p))
+        d = _Dicts.of(*(f[None] for f in hosvd_factors(grams[s])))
+
+        def seed_error(i, d=d):
+            found = _search_codes(data[i], data.norms[i], [0], d, tau, err[i], grams[i][2],
+                                  upto=upto)
+            return found[0][2] if found else np.inf
+
+        e = np.array(list(_progress(parallel_map(seed_error, range(n)), n, progress,
+                                    f"seed {j + 1}")))
+        e[s] = -1.0  # a seed stays with its own dictionary
+        better = e < err
+        labels[better], err[better] = j, e[better]
+        weights = np.maximum(err, 0.0)
+    return labels
+
+
+def _check_training_args(x, tau: int, n_dicts: int, init: str = DEFAULT_INIT,
+                         reassign_every: int = 1) -> np.ndarray:
     """``x`` as an array (a memory map stays one); raise on unusable arguments."""
     x = np.asarray(x) if not isinstance(x, np.memmap) else x
     if x.ndim != 4:
@@ -223,21 +522,25 @@ def _check_training_args(x, tau: int, n_dicts: int) -> np.ndarray:
     if n_dicts < 1 or n_dicts > len(x):
         raise ValueError(f"n_dicts must be in [1, {len(x)}] (one tensor per cluster at least), "
                          f"got {n_dicts}")
+    if init not in INITS:
+        raise ValueError(f"unknown init {init!r}: expected one of {', '.join(INITS)}")
+    if reassign_every < 1:
+        raise ValueError(f"reassign_every must be >= 1, got {reassign_every}")
     return x
 
 
-def _recluster(x, norms, state: TrainState, tau, progress) -> int:
+def _recluster(data: _Tensors, state: TrainState, tau, progress) -> int:
     """Cluster every tensor against every dictionary (in place); return how many moved."""
     old = state.labels.copy()
     # after the first iteration the state's codes belong to the current dictionaries
     known = ((state.labels, state.codes_idx, state.codes_val, state.errors)
              if state.iteration > 0 else None)
     (state.labels, state.codes_idx, state.codes_val, state.errors,
-     _) = _assign_all(x, norms, (state.u1, state.u2, state.u3), tau, progress, known)
+     _) = _assign_all(data, (state.u1, state.u2, state.u3), tau, progress, known)
     return int(np.sum(old != state.labels))
 
 
-def _iterate(x, norms, total: float, state: TrainState, tau, n_dicts, reassign_every,
+def _iterate(data: _Tensors, total: float, state: TrainState, tau, n_dicts, reassign_every,
              progress) -> dict:
     """One training iteration (clustering or not, reseeding, dictionary updates, re-coding)
     on ``state`` in place; returns its history record."""
@@ -246,52 +549,67 @@ def _iterate(x, norms, total: float, state: TrainState, tau, n_dicts, reassign_e
     do_assign = it % reassign_every == 0
     # without clustering, the codes in the state are those of the current dictionaries
     # (re-coded at the end of the previous iteration, or read from its checkpoint)
-    moved = _recluster(x, norms, state, tau, progress) if do_assign else 0
-    reseeded = _reseed_empty(x, norms, state, tau)
+    moved = _recluster(data, state, tau, progress) if do_assign else 0
+    reseeded = _reseed_empty(data, state, tau)
     obj_before_update = float(state.errors.sum())
+    t1 = time.perf_counter()
     for j in range(n_dicts):
         members = np.flatnonzero(state.labels == j)
         if members.size:
-            _update_dictionary(x, members, state, j, progress)
-    _code_own(x, norms, state, tau, progress)
+            _update_dictionary(data, members, state, j, progress)
+    t2 = time.perf_counter()
+    _code_own(data, state, tau, progress)
     obj = float(state.errors.sum())
+    t3 = time.perf_counter()
     return {
         "iteration": it, "objective": obj, "relative_objective": obj / total,
         "objective_before_update": obj_before_update, "assigned": bool(do_assign),
-        "moved": moved, "reseeded": reseeded, "seconds": time.perf_counter() - t0,
+        "moved": moved, "moved_fraction": moved / len(data), "reseeded": reseeded,
+        "seconds": t3 - t0, "seconds_cluster": t1 - t0, "seconds_update": t2 - t1,
+        "seconds_code": t3 - t2,
     }
 
 
-def _converged(history: list, tol: float) -> bool:
-    """The last iteration moved nothing and lowered the objective by less than ``tol``."""
+def _converged(history: list, tol: float, max_moved: float, n: int) -> bool:
+    """Memberships and objective have settled: the latest clustering after the first
+    iteration moved at most a fraction ``max_moved`` of the ``n`` tensors, and the last
+    iteration lowered the objective by less than ``tol`` (relative)."""
     if len(history) < 2:
         return False
-    prev, last = history[-2]["objective"], history[-1]
-    return prev > 0 and (prev - last["objective"]) / prev < tol and last["moved"] == 0
+    clusterings = [h for h in history[1:] if h["assigned"]]
+    if not clusterings or clusterings[-1]["moved"] > max_moved * n:
+        return False
+    prev, last = history[-2]["objective"], history[-1]["objective"]
+    return prev > 0 and (prev - last) / prev < tol
 
 
 def train_dictionaries(
     x: np.ndarray,
     tau: int,
     n_dicts: int = DEFAULT_N_DICTS,
-    n_iter: int = 8,
-    tol: float = 1e-4,
+    n_iter: int = DEFAULT_N_ITER,
+    tol: float = DEFAULT_TOL,
     seed: int = 0,
-    reassign_every: int = 3,
+    reassign_every: int = DEFAULT_REASSIGN_EVERY,
     checkpoint: str | os.PathLike | None = None,
     progress: bool = True,
     callback: Callable[[TrainState], bool | None] | None = None,
+    masked: bool = True,
+    missing: dict[int, np.ndarray] | None = None,
+    init: str = DEFAULT_INIT,
+    max_moved: float = DEFAULT_MAX_MOVED,
 ) -> TrainState:
     """Train ``n_dicts`` dictionaries under sparsity ``tau`` on tensors ``x``.
 
     Parameters
     ----------
     x : ndarray of shape (N, n1, n2, n3), float32
-        Training tensors (transformed BRDF channels); may be a memory map.
+        Training tensors (transformed BRDF channels); may be a memory map. Never written.
     tau : int
         Coefficients kept per tensor in sparse coding.
-    n_iter, tol : stop after ``n_iter`` iterations or when the relative decrease of the
-        total error falls below ``tol``.
+    n_iter, tol, max_moved : stop after ``n_iter`` iterations, or earlier once the latest
+        clustering moved at most a fraction ``max_moved`` of the tensors and an iteration
+        lowered the objective by less than ``tol`` (relative).
     reassign_every : int
         Clustering against every dictionary (K projections per tensor, the dominant cost)
         happens at every ``reassign_every``-th iteration, starting with the first;
@@ -300,23 +618,38 @@ def train_dictionaries(
         variables, so the objective never increases either way.
     checkpoint : path, optional
         ``.npz`` written after every iteration; if it exists and matches the run's
-        fingerprint, training resumes from it.
+        fingerprint, training resumes from it (a larger ``n_iter`` continues a run).
     callback : called with the state after every iteration; returning True stops.
+    masked : bool
+        Fit valid bins only: bins below the horizon (``coords.geometric_valid``) and the
+        bins in ``missing`` are free values, refilled from each tensor's reconstruction
+        after it is coded (module docstring). False fits them as the zeros ``x`` holds
+        there (the paper; the first shipped ensemble).
+    missing : {tensor index: bool array (n1, n2, n3)}, optional
+        Unmeasured bins of the tensors that have any (``sources.dataset.training_data``);
+        the channels of one material may share one array. Used only when masked.
+    init : ``"seeded"`` or ``"random"`` (:func:`_init_state`).
 
     Returns the final :class:`TrainState`; ``state.history`` has one dict per iteration
-    (objective, relative objective, tensors moved, seconds).
+    (objective -- squared error over valid bins when masked --, relative objective,
+    tensors moved and their fraction, seconds).
     """
-    x = _check_training_args(x, tau, n_dicts)
-    norms = _sq_norms(x)
-    total = float(norms.sum())
-    fingerprint = _fingerprint(x, norms, tau, n_dicts, seed)
+    x = _check_training_args(x, tau, n_dicts, init, reassign_every)
+    data = _Tensors(x, masked, missing)
+    total = float(data.energy.sum())
+    fingerprint = _fingerprint(x, data.raw_norms, tau, n_dicts, seed,
+                               _run_options(data, masked, init))
     state = _load_checkpoint(checkpoint, fingerprint) if checkpoint else None
     if state is None:
-        state = _init_state(x, tau, n_dicts, np.random.default_rng(seed), progress)
+        t0 = time.perf_counter()
+        state = _init_state(data, tau, n_dicts, np.random.default_rng(seed), progress, init)
+        state.init_seconds = time.perf_counter() - t0
+    else:
+        _refill_all(data, state)
     bar = _bar(n_iter, progress, f"tau={tau}")
     bar.update(state.iteration)
-    while state.iteration < n_iter:
-        record = _iterate(x, norms, total, state, tau, n_dicts, reassign_every, progress)
+    while state.iteration < n_iter and not _converged(state.history, tol, max_moved, len(x)):
+        record = _iterate(data, total, state, tau, n_dicts, reassign_every, progress)
         state.history.append(record)
         state.iteration += 1
         if checkpoint:
@@ -324,8 +657,6 @@ def train_dictionaries(
         bar.set_postfix(rel_err=f"{record['objective'] / total:.3e}", moved=record["moved"])
         bar.update(1)
         if callback is not None and callback(state):
-            break
-        if _converged(state.history, tol):
             break
     bar.close()
     return state
@@ -335,7 +666,7 @@ def train_ensemble(
     x: np.ndarray,
     taus: Sequence[int] = DEFAULT_TAUS,
     n_dicts: int = DEFAULT_N_DICTS,
-    n_iter: int = 8,
+    n_iter: int = DEFAULT_N_ITER,
     seed: int = 0,
     checkpoint_dir: str | os.PathLike | None = None,
     progress: bool = True,
@@ -346,10 +677,12 @@ def train_ensemble(
 
     The sparsities are trained one after another, each with its own seed derived from
     ``seed``; with ``checkpoint_dir`` each writes ``tau-<tau>.npz`` there and resumes.
-    ``meta`` is stored in the ensemble with the training history and time taken.
+    ``kwargs`` go to :func:`train_dictionaries` (``masked``, ``missing``, ``init``,
+    ``reassign_every``, ``tol``, ``max_moved``). ``meta`` is stored in the ensemble with
+    the training options, history and time taken.
     """
     seeds = np.random.SeedSequence(seed).generate_state(len(taus))
-    parts, histories = [], {}
+    parts, histories, init_seconds = [], {}, {}
     t0 = time.perf_counter()
     for tau, s in zip(taus, seeds, strict=True):
         ckpt = Path(checkpoint_dir) / f"tau-{tau}.npz" if checkpoint_dir else None
@@ -357,12 +690,20 @@ def train_ensemble(
                                 progress=progress, **kwargs)
         parts.append(Ensemble(st.u1, st.u2, st.u3, np.full(n_dicts, tau)))
         histories[str(tau)] = st.history
+        init_seconds[str(tau)] = st.init_seconds
     ens = parts[0]
     for p in parts[1:]:
         ens = ens.union(p)
+    options = {"masked": bool(kwargs.get("masked", True)),
+               "n_missing_tensors": len(kwargs.get("missing") or {}),
+               "init": kwargs.get("init", DEFAULT_INIT),
+               "reassign_every": int(kwargs.get("reassign_every", DEFAULT_REASSIGN_EVERY)),
+               "tol": float(kwargs.get("tol", DEFAULT_TOL)),
+               "max_moved": float(kwargs.get("max_moved", DEFAULT_MAX_MOVED))}
     ens.meta = {**(meta or {}), "taus": list(map(int, taus)), "n_dicts_per_tau": n_dicts,
-                "n_iter": n_iter, "seed": seed, "n_tensors": int(len(x)),
-                "seconds": time.perf_counter() - t0, "history": histories}
+                "n_iter": n_iter, "seed": seed, "n_tensors": int(len(x)), **options,
+                "seconds": time.perf_counter() - t0, "init_seconds": init_seconds,
+                "history": histories}
     return ens
 
 
@@ -382,9 +723,23 @@ def hosvd_ensemble(x: np.ndarray, progress: bool = True) -> Ensemble:
 # ----------------------------------------------------------------------- helpers
 
 
-def _fingerprint(x, norms, tau, n_dicts, seed) -> str:
+def _run_options(data: _Tensors, masked: bool, init: str) -> dict | None:
+    """What besides data, tau, K and seed defines a run (None: the first trainer's
+    options, whose checkpoints keep their fingerprints)."""
+    if not masked and init == "random":
+        return None
+    h = hashlib.sha256()
+    for i in sorted(data.extra):
+        h.update(np.asarray([i], "<i8").tobytes())
+        h.update(np.asarray(data.extra[i], "<i8").tobytes())
+    return {"masked": masked, "init": init, "missing": h.hexdigest()}
+
+
+def _fingerprint(x, norms, tau, n_dicts, seed, options: dict | None = None) -> str:
     h = hashlib.sha256(json.dumps([list(x.shape), tau, n_dicts, seed]).encode())
     h.update(np.asarray(norms, "<f8").tobytes())
+    if options is not None:
+        h.update(json.dumps(options, sort_keys=True).encode())
     return h.hexdigest()
 
 
@@ -393,7 +748,7 @@ def _save_checkpoint(path, state: TrainState, fingerprint: str) -> None:
         np.savez(f, u1=state.u1, u2=state.u2, u3=state.u3, labels=state.labels,
                  codes_idx=state.codes_idx, codes_val=state.codes_val, errors=state.errors,
                  iteration=state.iteration, history=json.dumps(state.history),
-                 fingerprint=fingerprint)
+                 init_seconds=state.init_seconds, fingerprint=fingerprint)
 
 
 def _load_checkpoint(path, fingerprint: str) -> TrainState | None:
@@ -403,10 +758,12 @@ def _load_checkpoint(path, fingerprint: str) -> TrainState | None:
     with np.load(path, allow_pickle=False) as z:
         if str(z["fingerprint"]) != fingerprint:
             raise ValueError(f"{path}: checkpoint belongs to another training run "
-                             "(different data, tau, K or seed); delete it or use another folder")
+                             "(different data, tau, K, seed, masking or initialisation); "
+                             "delete it or use another folder")
         return TrainState(z["u1"], z["u2"], z["u3"], z["labels"], z["codes_idx"],
                           z["codes_val"], z["errors"], int(z["iteration"]),
-                          json.loads(str(z["history"])))
+                          json.loads(str(z["history"])),
+                          float(z["init_seconds"]) if "init_seconds" in z else 0.0)
 
 
 class _NoBar:

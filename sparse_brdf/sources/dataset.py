@@ -3,28 +3,57 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..coords import MERL_SHAPE
-from ..transforms import TRANSFORMS, forward
+from ..coords import MERL_SHAPE, geometric_valid
+from ..transforms import TRANSFORMS, check_basis, check_transform, forward, to_basis
 from .corpora import Material
 
+#: Names of the three coded channels of each colour basis (``transforms.COLOUR_BASES``).
+CHANNEL_NAMES = {"rgb": ("R", "G", "B"), "opponent": ("L", "RG", "YB")}
 
-def training_tensors(
+
+@dataclass
+class TrainingData:
+    """Training tensors and what the trainer needs to know about them.
+
+    ``x``: (N, n1, n2, n3) float32; ``labels``: one ``"<corpus>/<name>:<transform>:
+    <channel>"`` per tensor; ``missing``: {tensor index: bool array of the grid}, the
+    bins above the horizon that the material does not measure, only for the (rare)
+    materials that have any; the tensors of one material share one array.
+    """
+
+    x: np.ndarray
+    labels: list[str]
+    missing: dict[int, np.ndarray] = field(default_factory=dict)
+    basis: str = "rgb"
+    transforms: tuple[str, ...] = TRANSFORMS
+
+
+def training_data(
     materials: Sequence[Material],
     transforms: Sequence[str] = TRANSFORMS,
     shape: tuple[int, int, int] = MERL_SHAPE,
     progress: bool = True,
-) -> tuple[np.ndarray, list[str]]:
+    basis: str = "rgb",
+) -> TrainingData:
     """Stack transformed channels of ``materials`` into an (N, n1, n2, n3) float32 array.
 
-    N = len(materials) * len(transforms) * 3. Returns the array and one label per tensor,
-    ``"<corpus>/<name>:<transform>:<channel>"``.
+    N = len(materials) * len(transforms) * 3. Each material's three transformed channels
+    are taken to the colour ``basis`` (``transforms.to_basis``: ``rgb`` keeps R, G, B,
+    ``opponent`` codes luminance / red-green / yellow-blue), the channels the encoder codes
+    in that basis. Invalid bins hold 0 (``transforms.forward``).
     """
+    check_basis(basis)
+    for t in transforms:
+        check_transform(t)
     n = len(materials) * len(transforms) * 3
     x = np.empty((n, *shape), np.float32)
     labels: list[str] = []
+    missing: dict[int, np.ndarray] = {}
+    above = geometric_valid(shape)
     it = materials
     if progress:
         from tqdm.auto import tqdm  # lazy: tqdm.auto adds ~40 ms to `import sparse_brdf`
@@ -34,8 +63,23 @@ def training_tensors(
     for m in it:
         brdf = m.load(shape)
         rho = brdf.channel_first()
+        holes = above & ~brdf.valid
         for t in transforms:
-            x[i : i + 3] = forward(rho, t, brdf.valid)
-            labels += [f"{m.corpus}/{m.name}:{t}:{c}" for c in "RGB"]
+            x[i : i + 3] = to_basis(forward(rho, t, brdf.valid), basis)
+            labels += [f"{m.corpus}/{m.name}:{t}:{c}" for c in CHANNEL_NAMES[basis]]
+            if holes.any():
+                missing.update({j: holes for j in range(i, i + 3)})
             i += 3
-    return x, labels
+    return TrainingData(x, labels, missing, basis, tuple(transforms))
+
+
+def training_tensors(
+    materials: Sequence[Material],
+    transforms: Sequence[str] = TRANSFORMS,
+    shape: tuple[int, int, int] = MERL_SHAPE,
+    progress: bool = True,
+    basis: str = "rgb",
+) -> tuple[np.ndarray, list[str]]:
+    """The tensors and labels of :func:`training_data` (without the missing-bin masks)."""
+    d = training_data(materials, transforms, shape, progress, basis)
+    return d.x, d.labels
