@@ -3,6 +3,7 @@
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from sparse_brdf.evaluation.bench import Bench, BenchConfig, make_model
@@ -100,3 +101,27 @@ def test_ci_bench_report(tmp_path):
     again = Bench(cfg, progress=False)
     again.run()
     assert again.results["cells"] == before["cells"]
+
+
+def test_bench_renders_coefficient_files_with_its_own_ensemble(tmp_path, monkeypatch):
+    """A bench configured with an ensemble file hands it to the sparse plugin (the plugin
+    would otherwise decode with the shipped ensemble and refuse the files)."""
+    import sparse_brdf.evaluation.bench as bench_mod
+
+    seen = []
+
+    def fake_render(scene, materials, spp, seed, res, sparse_options=None):
+        seen.append((materials["material"], sparse_options))
+        return np.zeros((2, 2, 3), np.float32)
+
+    monkeypatch.setattr(bench_mod, "render_scene", fake_render)
+    monkeypatch.setattr(bench_mod, "write_exr", lambda path, img: None)
+    ens = tmp_path / "ens.npz"
+    cfg = BenchConfig(out=str(tmp_path / "out"), ensemble=str(ens))
+    b = Bench(cfg, progress=False)
+    b.scenes = {"sphere": tmp_path / "sphere.xml"}
+    (b.work / "sphere").mkdir(parents=True)
+    b._render("sphere", "merl/x", str(tmp_path / "x.sbrdf"), 0, "m")
+    b._render("sphere", "merl/x", str(tmp_path / "x.binary"), 0, "ref")
+    assert seen == [(str(tmp_path / "x.sbrdf"), {"ensemble": str(ens.resolve())}),
+                    (str(tmp_path / "x.binary"), None)]

@@ -332,8 +332,11 @@ class Bench:
             meta = json.loads(exr.with_suffix(".json").read_text())
             return read_exr(exr), meta["seconds"]
         t0 = time.perf_counter()
+        # coefficient files decode with the bench's ensemble, not the shipped default
+        ens = ({"ensemble": str(Path(self.cfg.ensemble).resolve())}
+               if self.cfg.ensemble and filename.endswith(".sbrdf") else None)
         img = render_scene(self.scenes[scene], {"material": filename}, spp=self.cfg.spp,
-                           seed=seed, res=self.cfg.res)
+                           seed=seed, res=self.cfg.res, sparse_options=ens)
         seconds = time.perf_counter() - t0
         write_exr(exr, img)
         with atomic_write(exr.with_suffix(".json"), "w") as f:
