@@ -628,7 +628,7 @@ def _fill_invalid(brdf: BRDF, ens: Ensemble, transforms: tuple[str, ...],
         if fit == o.fill_iters - 1:
             break
         for t in list(active):
-            ys[t][:, invalid] = models[t].coded(ens)[:, invalid]
+            np.copyto(ys[t], models[t].coded(ens), where=invalid)  # fill the invalid bins
             new = _code(ys[t], ens, models[t], o)
             if all(np.array_equal(np.sort(a), np.sort(b))
                    for a, b in zip(models[t].locations, new.locations, strict=True)):
