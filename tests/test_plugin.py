@@ -434,6 +434,26 @@ def _trilinear(grid, th, td, pd):
                      if grid.ndim == 4 else wt * grid[idx[0], idx[1], idx[2]])
     return out
 
+def _interpolated_sparse(model, ens, th, td, pd) -> np.ndarray:
+    """numpy reference of an interpolated sparse lookup: the transformed R, G, B (coded
+    channels already mixed back), the cosine weight and validity interpolated trilinearly,
+    then the inverse transform."""
+    x = _trilinear(np.moveaxis(model.transformed(ens), 0, -1), th, td, pd)
+    use_cos = model.transform == "log-plus-cosine"
+    w = _trilinear(cosine_weight(SMALL).astype(np.float64), th, td, pd) if use_cos else 1.0
+    v = _trilinear(geometric_valid(SMALL).astype(np.float64), th, td, pd)
+    return np.maximum(np.expm1(x) / np.reshape(w, (-1, 1)) * v[:, None], 0)
+
+
+def _check_interpolated_decoders(material, wi, wo, ref) -> None:
+    """Every decoder with ``interpolate=True`` evaluates ``ref`` at the pairs."""
+    for opts in DECODER_OPTIONS:
+        s = mi.load_dict({"type": "sparse_brdf", "filename": material["sbrdf"],
+                          "ensemble": material["ensemble"], "interpolate": True, **opts})
+        np.testing.assert_allclose(eval_brdf(s, wi, wo), ref, rtol=1e-4,
+                                   atol=1e-5 * ref.max())
+
+
 
 def test_interpolation_matches_numpy(exact_material, llvm):
     ens = Ensemble.load(exact_material["ensemble"])
@@ -449,17 +469,8 @@ def test_interpolation_matches_numpy(exact_material, llvm):
     np.testing.assert_allclose(eval_brdf(b, wi, wo), _trilinear(tab.values, th, td, pd),
                                rtol=1e-4, atol=1e-5 * tab.values.max())
     # sparse: interpolated X, w and validity, then the inverse transform
-    x = _trilinear(np.moveaxis(model.transformed(ens), 0, -1), th, td, pd)
-    use_cos = model.transform == "log-plus-cosine"
-    w = _trilinear(cosine_weight(SMALL).astype(np.float64), th, td, pd) if use_cos else 1.0
-    v = _trilinear(geometric_valid(SMALL).astype(np.float64), th, td, pd)
-    ref = np.maximum(np.expm1(x) / np.reshape(w, (-1, 1)) * v[:, None], 0)
-    for opts in DECODER_OPTIONS:
-        s = mi.load_dict({"type": "sparse_brdf", "filename": exact_material["sbrdf"],
-                          "ensemble": exact_material["ensemble"], "interpolate": True,
-                          **opts})
-        np.testing.assert_allclose(eval_brdf(s, wi, wo), ref, rtol=1e-4,
-                                   atol=1e-5 * ref.max())
+    ref = _interpolated_sparse(model, ens, th, td, pd)
+    _check_interpolated_decoders(exact_material, wi, wo, ref)
 
 
 def test_opponent_interpolation_matches_numpy(opponent_material, llvm):
@@ -472,17 +483,8 @@ def test_opponent_interpolation_matches_numpy(opponent_material, llvm):
     wi, wo, _ = random_pairs(SMALL, 3000, rng, 0.0, 1.0)
     th, td, pd = dirs_to_angles(wi, wo)
     pd = np.where(pd < 0, pd + np.pi, pd)
-    x = _trilinear(np.moveaxis(model.transformed(ens), 0, -1), th, td, pd)
-    use_cos = model.transform == "log-plus-cosine"
-    w = _trilinear(cosine_weight(SMALL).astype(np.float64), th, td, pd) if use_cos else 1.0
-    v = _trilinear(geometric_valid(SMALL).astype(np.float64), th, td, pd)
-    ref = np.maximum(np.expm1(x) / np.reshape(w, (-1, 1)) * v[:, None], 0)
-    for opts in DECODER_OPTIONS:
-        s = mi.load_dict({"type": "sparse_brdf", "filename": opponent_material["sbrdf"],
-                          "ensemble": opponent_material["ensemble"], "interpolate": True,
-                          **opts})
-        np.testing.assert_allclose(eval_brdf(s, wi, wo), ref, rtol=1e-4,
-                                   atol=1e-5 * ref.max())
+    ref = _interpolated_sparse(model, ens, th, td, pd)
+    _check_interpolated_decoders(opponent_material, wi, wo, ref)
 
 
 def test_rgb_kernels_are_unchanged_by_the_opponent_mix(exact_material, opponent_material,
