@@ -74,17 +74,18 @@ class PluginError(ValueError):
     """A BSDF parameter or file is unusable; the message names the plugin and the file."""
 
 
-def load_ensemble(path: str | None):
-    """The ensemble at ``path`` (None: the shipped one), cached by path, size and mtime."""
+def load_ensemble(path: str | None, for_id: str | None = None):
+    """The ensemble at ``path`` (None: the shipped one with id ``for_id``, or the shipped
+    default), cached by path, size and mtime."""
     if path is None:
-        key = ("<default>",)
+        key = ("<shipped>", for_id)
     else:
         st = os.stat(path)
         key = (os.path.realpath(path), st.st_size, st.st_mtime_ns)
     with _ENSEMBLE_LOCK:
         ens = _ENSEMBLES.get(key)
         if ens is None:
-            ens = resolve_ensemble(path)
+            ens = resolve_ensemble(path, for_id=for_id)
             _ENSEMBLES.clear()  # keep one ensemble in memory
             _ENSEMBLES[key] = ens
     return ens
@@ -147,12 +148,16 @@ def _load_table(filename: str, ensemble, plugin: str):
 
 def _load_model(filename: str, ens_path: str | None, plugin: str):
     try:
-        ens = load_ensemble(ens_path)
+        model = load_sbrdf(filename)
+    except Exception as exc:  # noqa: BLE001
+        raise PluginError(f"{plugin}: cannot load {filename!r}: {exc}") from exc
+    try:
+        ens = load_ensemble(ens_path, model.ensemble_id)
     except Exception as exc:  # noqa: BLE001
         what = "the shipped ensemble" if ens_path is None else repr(ens_path)
         raise PluginError(f"{plugin}: cannot load {what} for {filename!r}: {exc}") from exc
     try:
-        model = load_sbrdf(filename, ens)
+        model.check_ensemble(ens)
     except Exception as exc:  # noqa: BLE001
         raise PluginError(f"{plugin}: cannot load {filename!r}: {exc}") from exc
     if tuple(model.shape) != tuple(ens.shape):

@@ -7,6 +7,7 @@ decode/render -> evaluate.
 >>> import sparse_brdf as sb
 >>> brdf = sb.load_brdf("mitsuba:au-ggx-0.25")          # (90, 90, 180, 3) linear RGB
 >>> model = sb.encode(brdf, n_coeffs=262)                # shipped ensemble
+>>> paper = sb.encode(brdf, **sb.PAPER_OPTIONS)          # the paper's encoder
 >>> sb.save_sbrdf("gold.sbrdf", model)                   # 6.3 kB
 >>> rec = model.decode(sb.Ensemble.default())            # back to a BRDF
 """
@@ -14,7 +15,7 @@ decode/render -> evaluate.
 from .brdf import BRDF
 from .errors import BRDFFileError, EnsembleMismatchError, InvalidBRDFError, SparseBRDFError
 from .metrics import SNRForms, cosine_weighted_snr, gamma_mse, rae, render_snr, snr_forms
-from .model.encode import DEFAULT_N_COEFFS, encode
+from .model.encode import DEFAULT_N_COEFFS, ENCODE_OPTIONS, PAPER_OPTIONS, encode
 from .model.ensemble import Ensemble
 from .model.interpolate import interpolate
 from .model.sbrdf import decode_file, load_sbrdf, save_sbrdf
@@ -31,7 +32,8 @@ from .transforms import inverse as inverse_transform
 __version__ = "0.1.0"
 
 __all__ = [
-    "BRDF", "BRDFFileError", "Corpus", "DEFAULT_N_COEFFS", "Ensemble", "EnsembleMismatchError",
+    "BRDF", "BRDFFileError", "Corpus", "DEFAULT_N_COEFFS", "ENCODE_OPTIONS", "Ensemble",
+    "EnsembleMismatchError", "PAPER_OPTIONS",
     "InvalidBRDFError", "Material", "SNRForms", "SparseBRDF", "SparseBRDFError", "TRANSFORMS",
     "cosine_weighted_snr", "decode_file", "encode", "gamma_mse", "get_corpus",
     "interpolate", "inverse_transform", "list_corpora", "load_brdf", "load_sbrdf",

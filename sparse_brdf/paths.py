@@ -12,8 +12,12 @@ from pathlib import Path
 
 PACKAGE_DIR = Path(__file__).resolve().parent
 DATA_DIR = PACKAGE_DIR / "data"
-#: The shipped dictionary ensemble (``sparse-brdf train`` writes files of this format).
-DEFAULT_ENSEMBLE_PATH = DATA_DIR / "default_ensemble.npz"
+#: Every shipped dictionary ensemble, one ``<id>.npz`` per ensemble (``sparse-brdf train``
+#: writes files of this format), so that coefficient files find the ensemble they name.
+ENSEMBLES_DIR = DATA_DIR / "ensembles"
+#: The content hash of the ensemble used when none is given (docs/ensemble.md).
+DEFAULT_ENSEMBLE_ID = "5fea9b89b97e561857b3380fdef7d438"
+DEFAULT_ENSEMBLE_PATH = ENSEMBLES_DIR / f"{DEFAULT_ENSEMBLE_ID}.npz"
 #: fit-scene's calibration of its SNR proxy (written by ``benchmarks/calibrate.py``).
 CALIBRATION_PATH = DATA_DIR / "snr_calibration.json"
 #: Six measured ``merl`` test-split networks shipped for the demo (licence beside them).

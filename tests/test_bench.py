@@ -8,6 +8,7 @@ import pytest
 
 from sparse_brdf.evaluation.bench import Bench, BenchConfig, make_model
 from sparse_brdf.evaluation.report import pareto
+from sparse_brdf.model.encode import ENCODE_OPTIONS
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -103,7 +104,8 @@ def test_ci_bench_report(tmp_path):
     assert again.results["cells"] == before["cells"]
 
 
-def test_bench_renders_coefficient_files_with_its_own_ensemble(tmp_path, monkeypatch):
+def test_bench_renders_coefficient_files_with_its_own_ensemble(tmp_path, monkeypatch,
+                                                               small_ensemble):
     """A bench configured with an ensemble file hands it to the sparse plugin (the plugin
     would otherwise decode with the shipped ensemble and refuse the files)."""
     import sparse_brdf.evaluation.bench as bench_mod
@@ -116,7 +118,7 @@ def test_bench_renders_coefficient_files_with_its_own_ensemble(tmp_path, monkeyp
 
     monkeypatch.setattr(bench_mod, "render_scene", fake_render)
     monkeypatch.setattr(bench_mod, "write_exr", lambda path, img: None)
-    ens = tmp_path / "ens.npz"
+    ens = small_ensemble.save(tmp_path / "ens.npz")
     cfg = BenchConfig(out=str(tmp_path / "out"), ensemble=str(ens))
     b = Bench(cfg, progress=False)
     b.scenes = {"sphere": tmp_path / "sphere.xml"}
@@ -125,3 +127,24 @@ def test_bench_renders_coefficient_files_with_its_own_ensemble(tmp_path, monkeyp
     b._render("sphere", "merl/x", str(tmp_path / "x.binary"), 0, "ref")
     assert seen == [(str(tmp_path / "x.sbrdf"), {"ensemble": str(ens.resolve())}),
                     (str(tmp_path / "x.binary"), None)]
+
+
+def test_results_of_another_ensemble_or_encoder_are_not_reused(tmp_path, small_ensemble):
+    """A resumed bench keeps its results only when the config, the ensemble and the
+    encoder's defaults are unchanged; otherwise results and cached renders go."""
+    ens = small_ensemble.save(tmp_path / "ens.npz")
+    cfg = BenchConfig(out=str(tmp_path / "out"), ensemble=str(ens))
+    b = Bench(cfg, progress=False)
+    b.results["cells"]["merl/x|sparse-262"] = {"status": "finished"}
+    b.out.mkdir()
+    b._save()
+    (b.work / "sphere").mkdir(parents=True)
+    (b.work / "sphere" / "old.exr").write_bytes(b"x")
+    assert Bench(cfg, progress=False).results["cells"]  # same everything: resumed
+    data = json.loads((b.out / "results.json").read_text())
+    data["provenance"]["ensemble"] = "0" * 32  # written with another ensemble
+    (b.out / "results.json").write_text(json.dumps(data))
+    again = Bench(cfg, progress=False)
+    assert again.results["cells"] == {} and not b.work.exists()
+    assert again.results["provenance"] == {"ensemble": small_ensemble.id,
+                                           "encoder_defaults": dict(ENCODE_OPTIONS)}

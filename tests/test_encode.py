@@ -1,4 +1,7 @@
-"""Encoding, model selection, coefficient files and decoding."""
+"""Encoding, model selection, coefficient files and decoding: the paper's encoder
+(``PAPER_OPTIONS``); tests/test_encode_options.py covers the options beyond it."""
+
+import functools
 
 import numpy as np
 import pytest
@@ -10,17 +13,20 @@ from sparse_brdf.errors import BRDFFileError, EnsembleMismatchError
 from sparse_brdf.metrics import cosine_weighted_snr
 from sparse_brdf.model.encode import (
     DEFAULT_N_COEFFS,
-    encode,
+    PAPER_OPTIONS,
     project_all,
     project_pruned,
     select,
 )
+from sparse_brdf.model.encode import encode as _encode
 from sparse_brdf.model.ensemble import Ensemble
 from sparse_brdf.model.sbrdf import file_size, load_sbrdf, save_sbrdf
 from sparse_brdf.model.sparse import SparseBRDF
 from sparse_brdf.model.tensor import reconstruct, sparse_to_dense
 from sparse_brdf.sources.load import load_brdf
 from sparse_brdf.transforms import forward, inverse
+
+encode = functools.partial(_encode, **PAPER_OPTIONS)
 
 
 def _random_ensemble(k, seed=0):

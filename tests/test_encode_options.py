@@ -1,6 +1,9 @@
 """The encoder's options: the render-proxy transform selector, filling every invalid bin,
-the opponent colour basis with a joint budget; their spec grammar and CLI flags."""
+the opponent colour basis with a joint budget; their spec grammar and CLI flags. Each
+option is tested against the paper's encoder (``encode`` below defaults to
+``PAPER_OPTIONS``; explicit keywords override it)."""
 
+import functools
 import json
 
 import numpy as np
@@ -12,11 +15,14 @@ from sparse_brdf.coords import bin_solid_angle, geometric_valid
 from sparse_brdf.evaluation.bench import make_model
 from sparse_brdf.metrics import cosine_weighted_snr, make_render_proxy, render_proxy_error
 from sparse_brdf.model import baselines
-from sparse_brdf.model.encode import check_options, encode
+from sparse_brdf.model.encode import ENCODE_OPTIONS, PAPER_OPTIONS, check_options
+from sparse_brdf.model.encode import encode as _encode
 from sparse_brdf.model.sbrdf import load_sbrdf, save_sbrdf
 from sparse_brdf.sources.load import load_brdf
 from sparse_brdf.sources.merl import write_merl
 from sparse_brdf.transforms import forward, inverse, to_basis
+
+encode = functools.partial(_encode, **PAPER_OPTIONS)
 
 
 def _valid_error(brdf, model, ens):
@@ -159,7 +165,8 @@ def test_all_levers_combined(small_ensemble, tmp_path):
 
 
 def test_options_are_checked():
-    assert check_options()["budget"] == "channel"
+    assert check_options()["budget"] == "joint"
+    assert check_options(basis="rgb")["budget"] == "channel"
     assert check_options(basis="opponent")["budget"] == "joint"
     assert check_options(fill="invalid")["fill_iters"] == 3
     for bad, match in ((dict(fill="all"), "unknown fill"), (dict(basis="xyz"), "colour basis"),
@@ -172,20 +179,21 @@ def test_options_are_checked():
 # --------------------------------------------------------------- spec grammar and CLI
 def test_sparse_spec_grammar_gives_unique_names(small_ensemble):
     names = {spec: make_model(spec, small_ensemble).name for spec in (
-        "sparse:262", "sparse:262:log-plus", "sparse:262:selector=render",
-        "sparse:262:auto:fill=invalid", "sparse:262:basis=opponent",
-        "sparse:262:log-plus:selector=render,fill=invalid,basis=opponent",
-        "sparse:262:fill=invalid,fill_iters=5", "sparse:262:basis=opponent,budget=channel",
-        "sparse:262:budget=joint")}
+        "sparse:262", "sparse:262:log-plus", "sparse:262:selector=gamma-mse",
+        "sparse:262:auto:fill=missing", "sparse:262:basis=rgb", "sparse:262:paper",
+        "sparse:262:log-plus:selector=gamma-mse,fill=missing,basis=rgb",
+        "sparse:262:fill=invalid,fill_iters=5", "sparse:262:basis=rgb,budget=joint",
+        "sparse:262:budget=channel")}
     assert len(set(names.values())) == len(names)
     assert names["sparse:262"] == "sparse-262"
-    assert names["sparse:262:log-plus:selector=render,fill=invalid,basis=opponent"] == \
-        "sparse-262-log-plus-selector=render-fill=invalid-basis=opponent"
+    assert names["sparse:262:log-plus:selector=gamma-mse,fill=missing,basis=rgb"] == \
+        "sparse-262-log-plus-paper"
+    assert names["sparse:262:basis=rgb,budget=joint"] == "sparse-262-basis=rgb-budget=joint"
     # an option at its default, or in another order, is the same model
-    assert make_model("sparse:262:fill=missing,selector=gamma-mse", small_ensemble).name == \
+    assert make_model("sparse:262:fill=invalid,selector=render", small_ensemble).name == \
         "sparse-262"
-    assert make_model("sparse:262:basis=opponent,fill=invalid", small_ensemble).name == \
-        make_model("sparse:262:fill=invalid,basis=opponent,budget=joint", small_ensemble).name
+    assert make_model("sparse:262:basis=rgb,fill=missing", small_ensemble).name == \
+        make_model("sparse:262:fill=missing,basis=rgb,budget=channel", small_ensemble).name
     for bad in ("sparse:262:fill", "sparse:262:colour=rgb", "sparse:262:fill=all",
                 "sparse:262:fill=invalid,fill=missing", "sparse:262:fill_iters=x"):
         with pytest.raises(ValueError):
@@ -206,3 +214,17 @@ def test_cli_encode_flags(small_ensemble, tmp_path, capsys):
     assert info["options"]["basis"] == "opponent" and info["options"]["fill"] == "invalid"
     assert load_sbrdf(sb).basis == "opponent"
 
+
+
+def test_the_defaults_are_the_three_options(small_ensemble):
+    """Without options, ``encode`` is the render selector, invalid fill and opponent basis
+    with a joint budget; ``PAPER_OPTIONS`` gives the paper's encoder."""
+    b = load_brdf("mitsuba:cu-ggx-0.35", shape=SMALL)
+    m = _encode(b, small_ensemble, 16)
+    assert m.stats["options"] == {"selector": "render", "fill": "invalid", "fill_iters": 3,
+                                  "basis": "opponent", "budget": "joint"}
+    assert {k: ENCODE_OPTIONS[k] for k in PAPER_OPTIONS} != PAPER_OPTIONS
+    p = _encode(b, small_ensemble, 16, **PAPER_OPTIONS)
+    assert p.basis == "rgb" and p.stats["options"]["fill"] == "missing"
+    assert make_model("sparse:16:paper", small_ensemble).name == "sparse-16-paper"
+    assert make_model("sparse:16", small_ensemble).name == "sparse-16"

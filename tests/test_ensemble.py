@@ -6,7 +6,7 @@ import pytest
 
 from sparse_brdf.errors import BRDFFileError
 from sparse_brdf.model import train as train_mod
-from sparse_brdf.model.ensemble import Ensemble, resolve_ensemble
+from sparse_brdf.model.ensemble import Ensemble, resolve_ensemble, shipped_ids
 from sparse_brdf.model.train import train_dictionaries, train_ensemble
 
 
@@ -118,3 +118,55 @@ def test_resolve_ensemble_passes_ensembles_and_loads_paths(small_ensemble, tmp_p
     for given in (p, str(p)):
         loaded = resolve_ensemble(given)
         assert loaded.id == small_ensemble.id and loaded.u1.flags.writeable
+
+
+def _tiny_model(ensemble_id: str):
+    from sparse_brdf.coords import MERL_SHAPE
+    from sparse_brdf.model.sparse import SparseBRDF
+
+    locs = [np.array([0, 5, 700]), np.array([0, 9]), np.array([0])]
+    vals = [np.array([2.0, -0.3, 0.1]), np.array([1.5, 0.2]), np.array([1.0])]
+    return SparseBRDF("log-plus", MERL_SHAPE, ensemble_id, np.array([0, 1, 2]), locs, vals,
+                      name="tiny")
+
+
+@pytest.mark.parametrize("ensemble_id", shipped_ids())
+def test_files_find_the_shipped_ensemble_they_name(ensemble_id, tmp_path):
+    """A file encoded with any shipped ensemble (older defaults included) decodes without
+    ``--ensemble``, with exactly that ensemble."""
+    from sparse_brdf.model.sbrdf import decode_file, save_sbrdf
+
+    model = _tiny_model(ensemble_id)
+    path = save_sbrdf(tmp_path / "m.sbrdf", model)
+    got = decode_file(path)
+    want = model.decode(Ensemble.shipped(ensemble_id))
+    np.testing.assert_array_equal(got.values, want.values)
+    assert Ensemble.shipped(ensemble_id).id == ensemble_id
+
+
+def test_a_file_naming_an_unknown_ensemble_says_which_it_needs(tmp_path):
+    from sparse_brdf.errors import EnsembleMismatchError
+    from sparse_brdf.model.sbrdf import decode_file, save_sbrdf
+
+    path = save_sbrdf(tmp_path / "m.sbrdf", _tiny_model("ab" * 16))
+    with pytest.raises(EnsembleMismatchError, match=f"m.sbrdf: ensemble {'ab' * 16} is not "
+                       "shipped.*--ensemble"):
+        decode_file(path)
+    other = shipped_ids()[-1]
+    with pytest.raises(EnsembleMismatchError, match=f"encoded with ensemble {'ab' * 16}, but "
+                       f"ensemble {other} was given"):
+        decode_file(path, Ensemble.shipped(other))
+
+
+def test_the_default_is_the_first_shipped_ensemble():
+    from sparse_brdf.paths import DEFAULT_ENSEMBLE_ID
+
+    assert shipped_ids()[0] == DEFAULT_ENSEMBLE_ID == Ensemble.default().id
+    assert len(shipped_ids()) >= 2  # the previous default stays loadable
+
+
+def test_an_id_names_a_shipped_ensemble():
+    for ensemble_id in shipped_ids():
+        assert resolve_ensemble(ensemble_id) is Ensemble.shipped(ensemble_id)
+    with pytest.raises(ValueError, match=f"ensemble {'cd' * 16} is not shipped"):
+        resolve_ensemble("cd" * 16)

@@ -31,7 +31,7 @@ import numpy as np
 from ..brdf import BRDF
 from ..coords import bin_solid_angle, cosine_product
 from ..transforms import check_transform, cosine_weight, forward, inverse
-from .encode import DEFAULT_N_COEFFS, ENCODE_OPTIONS, check_options, encode
+from .encode import DEFAULT_N_COEFFS, ENCODE_OPTIONS, PAPER_OPTIONS, check_options, encode
 from .ensemble import resolve_ensemble
 from .sbrdf import RECORD_BYTES
 
@@ -131,7 +131,8 @@ class SparseModel(BRDFModel):
     keyword options ``selector``, ``fill``, ``fill_iters``, ``basis``, ``budget`` are
     passed on). ``name``: ``sparse-N``, then ``-TRANSFORM`` unless "auto", then
     ``-KEY=VALUE`` for each option not at its default, in the order above (so that
-    every option set has its own name, e.g. ``sparse-262-fill=invalid-basis=opponent``)."""
+    every option set has its own name, e.g. ``sparse-262-fill=missing``), or ``-paper``
+    for the paper's encoder (``PAPER_OPTIONS``)."""
 
     def __init__(self, ensemble=None, n_coeffs: int = DEFAULT_N_COEFFS,
                  transform: str = "auto", **options):
@@ -143,8 +144,10 @@ class SparseModel(BRDFModel):
         self.options = {k: full[k] for k in ENCODE_OPTIONS
                         if full[k] != (implied if k in ("fill_iters", "budget")
                                        else ENCODE_OPTIONS)[k]}
+        suffix = ("-paper" if self.options == PAPER_OPTIONS
+                  else "".join(f"-{k}={v}" for k, v in self.options.items()))
         self.name = (f"sparse-{n_coeffs}" + ("" if transform == "auto" else f"-{transform}")
-                     + "".join(f"-{k}={v}" for k, v in self.options.items()))
+                     + suffix)
 
     def fit(self, brdf: BRDF) -> Compact:
         m = encode(brdf, self.ensemble, self.n_coeffs, transform=self.transform,

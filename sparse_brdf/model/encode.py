@@ -10,10 +10,10 @@ dictionary needing the fewest coefficients, then the least residual, then the lo
 index. The transform (the same for all channels) is the one whose reconstruction has
 the smaller gamma-mapped MSE against the BRDF, unless forced.
 
-Options beyond the paper (``encode(selector=, fill=, basis=, budget=)``; defaults: the
-paper's encoder): the transform chosen by the render-proxy error; every invalid bin a
-free value (hard thresholding pursuit on the valid bins); the channels coded in an
-opponent colour basis with a joint budget of 3 ``n_coeffs``.
+Options beyond the paper (``encode(selector=, fill=, basis=, budget=)``), all on by
+default: the transform chosen by the render-proxy error; every invalid bin a free value
+(hard thresholding pursuit on the valid bins); the channels coded in an opponent colour
+basis with a joint budget of 3 ``n_coeffs``. ``PAPER_OPTIONS`` gives the paper's encoder.
 """
 
 from __future__ import annotations
@@ -59,9 +59,13 @@ DEFAULT_FILL_ITERS = {"missing": 3, "invalid": 3}
 #: How the coefficients are budgeted: ``n_coeffs`` per channel, or 3 ``n_coeffs`` over
 #: the three channels.
 BUDGETS: tuple[str, str] = ("channel", "joint")
-#: The keyword options of :func:`encode` beyond the paper's, with their defaults.
-ENCODE_OPTIONS = {"selector": "gamma-mse", "fill": "missing", "fill_iters": None,
-                  "basis": "rgb", "budget": None}
+#: The keyword options of :func:`encode` beyond the paper's, with their defaults: the
+#: render-proxy selector, free invalid bins and the opponent basis (docs/results.md,
+#: "Accuracy at equal coefficients", measures each).
+ENCODE_OPTIONS = {"selector": "render", "fill": "invalid", "fill_iters": None,
+                  "basis": "opponent", "budget": None}
+#: The paper's encoder as options of :func:`encode` (``sparse:N:paper`` in a bench).
+PAPER_OPTIONS = {"selector": "gamma-mse", "fill": "missing", "basis": "rgb"}
 
 
 @dataclass
@@ -387,9 +391,9 @@ def encode(
     max_error: float | None = None,
     transform: str = "auto",
     fill_iters: int | None = None,
-    selector: str = "gamma-mse",
-    fill: str = "missing",
-    basis: str = "rgb",
+    selector: str = ENCODE_OPTIONS["selector"],
+    fill: str = ENCODE_OPTIONS["fill"],
+    basis: str = ENCODE_OPTIONS["basis"],
     budget: str | None = None,
 ) -> SparseBRDF:
     """Encode ``brdf`` as a :class:`SparseBRDF` over ``ensemble`` (default: shipped one).
@@ -406,20 +410,21 @@ def encode(
     transform : "auto" (``selector`` picks), "log-plus" or "log-plus-cosine".
     fill_iters : rounds of filling (see ``fill``); None: ``DEFAULT_FILL_ITERS[fill]``
         (3 for either); 0 disables filling (the paper fits every invalid bin as zero).
-    selector : how "auto" picks the transform (``SELECTORS``): "gamma-mse", the smaller
-        gamma-mapped MSE (the default), or "render", the smaller
-        :func:`~sparse_brdf.metrics.render_proxy_error`.
+    selector : how "auto" picks the transform (``SELECTORS``): "render", the smaller
+        :func:`~sparse_brdf.metrics.render_proxy_error` (the default), or "gamma-mse",
+        the smaller gamma-mapped MSE (the paper's).
     fill : which bins are filled from the model instead of being fitted as zeros
-        (``FILLS``). "missing": unmeasured bins above the horizon (negative entries in a
-        MERL file), each round re-running the full dictionary search; a BRDF without
-        such bins is encoded as in the paper. "invalid": every invalid bin (below the
-        horizon too) is a free value; one dictionary search, then ``fill_iters``
+        (``FILLS``). "missing" (the paper's, plus filling): unmeasured bins above the
+        horizon (negative entries in a MERL file), each round re-running the full
+        dictionary search; a BRDF without such bins is encoded as in the paper.
+        "invalid" (the default): every invalid bin (below the horizon too) is a free
+        value; one dictionary search, then ``fill_iters``
         least-squares fits to the valid bins on the chosen dictionaries, each followed
         by a new support from the filled channels (:func:`_fill_invalid`), fewer if
         the support repeats.
-    basis : colour basis of the coded channels (``transforms.COLOUR_BASES``): "rgb" (the
-        paper) or "opponent" (luminance / red-green / yellow-blue of the transformed
-        channels).
+    basis : colour basis of the coded channels (``transforms.COLOUR_BASES``): "opponent"
+        (the default: luminance / red-green / yellow-blue of the transformed channels)
+        or "rgb" (the paper's).
     budget : "channel" (``n_coeffs`` per channel) or "joint" (3 ``n_coeffs`` over the
         three channels, largest |s| first across the channels' chosen dictionaries);
         None: "joint" for the opponent basis, "channel" for rgb (``BUDGETS``).

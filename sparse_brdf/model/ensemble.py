@@ -3,9 +3,9 @@
 Tongbuasirilai et al., "A Sparse Non-parametric BRDF Model"; ``docs/method.md``,
 "Training". An :class:`Ensemble` holds K dictionaries, each three orthonormal mode
 matrices ``U1[k]`` (n1, n1), ``U2[k]`` (n2, n2), ``U3[k]`` (n3, n3), and the training
-sparsity of each. :func:`resolve_ensemble` turns "an ensemble, a path or nothing" into an ensemble
-(nothing: the shipped one, read once per process). The trainer is
-:mod:`sparse_brdf.model.train`.
+sparsity of each. :func:`resolve_ensemble` turns "an ensemble, a path or nothing" into an
+ensemble (nothing: the shipped default, or the shipped ensemble a coefficient file names;
+each read once per process). The trainer is :mod:`sparse_brdf.model.train`.
 """
 
 from __future__ import annotations
@@ -20,9 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import BRDFFileError
+from ..errors import BRDFFileError, EnsembleMismatchError
 from ..fileio import atomic_write, require_file
-from ..paths import DEFAULT_ENSEMBLE_PATH
+from ..paths import DEFAULT_ENSEMBLE_ID, ENSEMBLES_DIR
 
 
 @dataclass
@@ -123,31 +123,61 @@ class Ensemble:
 
     @classmethod
     def default(cls) -> Ensemble:
-        """The ensemble shipped inside the package (see docs/ensemble.md).
+        """The ensemble used when none is given (see docs/ensemble.md).
 
         Read once per process and shared: every call returns the same instance, whose
         mode matrices and taus are read-only arrays.
         """
-        return _load_default()
+        return cls.shipped(DEFAULT_ENSEMBLE_ID)
+
+    @classmethod
+    def shipped(cls, ensemble_id: str) -> Ensemble:
+        """The shipped ensemble with this content hash (``shipped_ids()``), read once per
+        process with read-only arrays; an id that is not shipped raises
+        :class:`EnsembleMismatchError` naming it."""
+        return _load_shipped(str(ensemble_id))
+
+
+def shipped_ids() -> list[str]:
+    """Content hashes of the ensembles shipped in the package, the default first."""
+    ids = sorted(p.stem for p in ENSEMBLES_DIR.glob("*.npz"))
+    return sorted(ids, key=lambda i: i != DEFAULT_ENSEMBLE_ID)
 
 
 @functools.cache
-def _load_default() -> Ensemble:
-    """The shipped ensemble, with read-only arrays (not cached when it is missing)."""
-    if not DEFAULT_ENSEMBLE_PATH.is_file():
-        raise FileNotFoundError(
-            f"{DEFAULT_ENSEMBLE_PATH}: the default ensemble is not installed")
-    ens = Ensemble.load(DEFAULT_ENSEMBLE_PATH)
+def _load_shipped(ensemble_id: str) -> Ensemble:
+    """A shipped ensemble, with read-only arrays (not cached when it is missing)."""
+    path = ENSEMBLES_DIR / f"{ensemble_id}.npz"
+    if not path.is_file():
+        if ensemble_id == DEFAULT_ENSEMBLE_ID:
+            raise FileNotFoundError(f"{path}: the default ensemble is not installed")
+        raise EnsembleMismatchError(
+            f"ensemble {ensemble_id} is not shipped with this version (shipped: "
+            f"{', '.join(shipped_ids()) or 'none'}); pass its file with --ensemble")
+    ens = Ensemble.load(path)
+    if ens.id != ensemble_id:
+        raise BRDFFileError(f"{path}: holds ensemble {ens.id}, not the {ensemble_id} its "
+                            "name says")
     for a in (ens.u1, ens.u2, ens.u3, ens.taus):
         a.flags.writeable = False
     return ens
 
 
-def resolve_ensemble(ensemble: Ensemble | str | os.PathLike | None = None) -> Ensemble:
-    """``ensemble`` itself, the ensemble file at that path, or (None or "") the shipped
-    one (:meth:`Ensemble.default`)."""
+def resolve_ensemble(ensemble: Ensemble | str | os.PathLike | None = None,
+                     for_id: str | None = None) -> Ensemble:
+    """``ensemble`` itself, the ensemble file at that path, or the shipped ensemble with
+    that id (32 hex digits, when no such file exists); without one (None or ""), the
+    shipped ensemble ``for_id`` (the id a coefficient file names), else the shipped
+    default (:meth:`Ensemble.default`)."""
     if isinstance(ensemble, Ensemble):
         return ensemble
     if ensemble is None or ensemble == "":
-        return Ensemble.default()
+        return Ensemble.shipped(for_id) if for_id else Ensemble.default()
+    if _is_id(str(ensemble)) and not Path(ensemble).exists():
+        return Ensemble.shipped(str(ensemble))
     return Ensemble.load(ensemble)
+
+
+def _is_id(text: str) -> bool:
+    """Whether ``text`` looks like an ensemble id (32 lowercase hex digits)."""
+    return len(text) == 32 and all(ch in "0123456789abcdef" for ch in text)
