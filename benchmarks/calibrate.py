@@ -1,11 +1,12 @@
 """Calibrate fit-scene's proxy: rendering SNR = cosine-weighted BRDF SNR + offset.
 
-    .venv/bin/python benchmarks/calibrate.py BENCH_OUT/results.json [--scene sphere]
+    .venv/bin/python benchmarks/calibrate.py BENCH_OUT/results.json [--scene sphere] \
+        [--models sparse-262 ...]
 
 Takes the median of (object-only rendering SNR in SCENE - cosine-weighted SNR) over the
-finished sparse-model cells of a bench and writes it, with its provenance, to
-sparse_brdf/data/snr_calibration.json (read by sparse_brdf.evaluation.fit_scene, which targets the
-object-only SNR).
+finished sparse-model cells of a bench (or of the models named) and writes it, with its
+provenance, to sparse_brdf/data/snr_calibration.json (read by
+sparse_brdf.evaluation.fit_scene, which targets the object-only SNR).
 """
 
 from __future__ import annotations
@@ -26,18 +27,23 @@ def main() -> None:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("results", help="results.json of a bench run with renders")
     p.add_argument("--scene", default="sphere", help="the bench scene to calibrate on")
+    p.add_argument("--models", nargs="+", help="only these models' cells (names as in the "
+                   "bench report; default: every sparse model)")
     args = p.parse_args()
     res = json.loads(Path(args.results).read_text())
     snr = {k: (c.get("renders") or {}).get(args.scene, {}).get("snr_object", math.nan)
            for k, c in res["cells"].items()}
     d = [snr[k] - c["cos_snr"] for k, c in res["cells"].items()
-         if c["model"].startswith("sparse") and c.get("status") == "finished"
+         if (c["model"] in args.models if args.models else c["model"].startswith("sparse"))
+         and c.get("status") == "finished"
          and math.isfinite(snr[k]) and math.isfinite(c["cos_snr"])]
     if not d:
         raise SystemExit(f"{args.results}: no finished sparse cells with renders")
     cal = {"offset_db": float(np.median(d)), "spread_db": [float(np.percentile(d, 10)),
                                                           float(np.percentile(d, 90))],
-           "cells": len(d), "scene": args.scene, "form": "object-only",
+           "cells": len(d), "models": sorted({c["model"] for c in res["cells"].values()
+                                              if c["model"] in (args.models or [])}),
+           "scene": args.scene, "form": "object-only",
            "bench": res["config"], "date": time.strftime("%Y-%m-%d")}
     CALIBRATION_PATH.write_text(json.dumps(cal, indent=1))
     print(f"offset {cal['offset_db']:+.1f} dB (10-90 %: {cal['spread_db'][0]:+.1f} to "
