@@ -25,6 +25,7 @@ from pathlib import Path
 
 import drjit as dr
 
+from sparse_brdf.errors import PluginError
 from sparse_brdf.model.ensemble import resolve_ensemble
 from sparse_brdf.model.layouts import (
     DECODERS,
@@ -68,10 +69,6 @@ from .kernels import (
 
 _ENSEMBLES: dict = {}
 _ENSEMBLE_LOCK = threading.Lock()
-
-
-class PluginError(ValueError):
-    """A BSDF parameter or file is unusable; the message names the plugin and the file."""
 
 
 def load_ensemble(path: str | None, for_id: str | None = None):
@@ -297,9 +294,11 @@ class StrictBuffers:
 
 def upload_strict(ops: Ops, lay) -> StrictBuffers:
     """:class:`StrictBuffers` of layout ``lay``."""
-    values = ops.floats(lay.values)
-    packed = ops.uints(lay.packed)
-    rows = ops.floats(lay.rows)
+    # a buffer is never empty (a material without coefficients): Dr.Jit refuses to trace
+    # a gather from an empty array, even one a zero-trip loop never runs
+    values = ops.floats(lay.values if len(lay.values) else [0.0])
+    packed = ops.uints(lay.packed if len(lay.packed) else [0])
+    rows = ops.floats(lay.rows if len(lay.rows) else [0.0])
     per = [{"t": ops.u(t), "soff": ops.u(soff), "roff": [ops.u(r) for r in roff]}
            for t, soff, roff in zip(lay.n_terms, lay.term_offsets, lay.row_offsets,
                                     strict=True)]

@@ -8,13 +8,15 @@ decode/render -> evaluate.
 >>> brdf = sb.load_brdf("mitsuba:au-ggx-0.25")          # (90, 90, 180, 3) linear RGB
 >>> model = sb.encode(brdf, n_coeffs=262)                # shipped ensemble
 >>> paper = sb.encode(brdf, **sb.PAPER_OPTIONS)          # the paper's encoder
->>> sb.save_sbrdf("gold.sbrdf", model)                   # 6.3 kB
+>>> sb.save_sbrdf("gold.sbrdf", model)                   # about 1.6 kB (version 2)
+>>> small = sb.encode_to_bytes(brdf, n_bytes=1000)       # a file of at most 1000 bytes
 >>> rec = model.decode(sb.Ensemble.default())            # back to a BRDF
 """
 
 from .brdf import BRDF
 from .errors import BRDFFileError, EnsembleMismatchError, InvalidBRDFError, SparseBRDFError
 from .metrics import SNRForms, cosine_weighted_snr, gamma_mse, rae, render_snr, snr_forms
+from .model.budget import encode_to_bytes
 from .model.encode import DEFAULT_N_COEFFS, ENCODE_OPTIONS, PAPER_OPTIONS, encode
 from .model.ensemble import Ensemble
 from .model.interpolate import interpolate
@@ -35,7 +37,8 @@ __all__ = [
     "BRDF", "BRDFFileError", "Corpus", "DEFAULT_N_COEFFS", "ENCODE_OPTIONS", "Ensemble",
     "EnsembleMismatchError", "PAPER_OPTIONS",
     "InvalidBRDFError", "Material", "SNRForms", "SparseBRDF", "SparseBRDFError", "TRANSFORMS",
-    "cosine_weighted_snr", "decode_file", "encode", "gamma_mse", "get_corpus",
+    "cosine_weighted_snr", "decode_file", "encode", "encode_to_bytes", "gamma_mse",
+    "get_corpus",
     "interpolate", "inverse_transform", "list_corpora", "load_brdf", "load_sbrdf",
     "mitsuba_catalog", "rae",
     "read_merl", "render_snr", "save_sbrdf", "snr_forms", "train_dictionaries", "train_ensemble",

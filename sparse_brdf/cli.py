@@ -4,14 +4,31 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
+import os
+import signal
 import sys
 import time
+import traceback
+import warnings
 from pathlib import Path
 
-from .errors import SparseBRDFError
+import numpy as np
+
+from .coords import MERL_SHAPE
+from .errors import (
+    BRDFFileError,
+    ImageFileError,
+    InvalidBRDFError,
+    SparseBRDFError,
+    UsageError,
+    one_line,
+)
+from .evaluation.batch import encode_batch, is_batch
 from .evaluation.bench import Bench, BenchConfig
 from .evaluation.fit_scene import fit_scene
 from .evaluation.render import (
+    RENDER_LIMITS,
     find_scene,
     noise_floor_snr,
     object_mask,
@@ -22,12 +39,16 @@ from .evaluation.render import (
     write_exr,
     write_mask,
 )
+from .fileio import check_output, cleanup_on_signals, remove_temporaries
 from .metrics import snr_forms
+from .model.budget import encode_to_bytes
 from .model.encode import (
     BUDGETS,
     DEFAULT_FILL_ITERS,
     DEFAULT_N_COEFFS,
+    ENCODE_OPTIONS,
     FILLS,
+    PAPER_OPTIONS,
     SELECTORS,
     encode,
 )
@@ -44,6 +65,7 @@ from .model.train import (
     INITS,
     train_ensemble,
 )
+from .parallel import executor
 from .sources.corpora import get_corpus, list_corpora
 from .sources.dataset import training_data
 from .sources.load import load_brdf
@@ -60,6 +82,50 @@ EPILOG = f"""examples:
 """
 
 
+#: Bounds of the numeric options: coefficients per channel (the MERL grid's entries: no
+#: channel holds more), and the renders' samples per pixel, image side and 32-bit seed.
+MAX_COEFFS = math.prod(MERL_SHAPE)
+MAX_SPP, MAX_RES, MAX_SEED = (RENDER_LIMITS[k] for k in ("spp", "res", "seed"))
+
+
+def _int_option(lo: int, hi: int | None = None):
+    """An argparse type: an integer in [lo, hi] (one-line message otherwise)."""
+    def integer(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < lo or (hi is not None and value > hi):
+            bound = f">= {lo}" if hi is None else f"in [{lo}, {hi}]"
+            raise argparse.ArgumentTypeError(f"must be an integer {bound}, got {value}")
+        return value
+    return integer
+
+
+def _float_option(lo: float = -math.inf, hi: float = math.inf, below_hi: bool = False):
+    """An argparse type: a finite number in [lo, hi] (or [lo, hi) with ``below_hi``)."""
+    def number(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
+        if value < lo or value > hi or (below_hi and value >= hi):
+            bound = (f">= {lo:g}" if hi == math.inf else f"<= {hi:g}" if lo == -math.inf
+                     else f"in [{lo:g}, {hi:g}{')' if below_hi else ']'}")
+            raise argparse.ArgumentTypeError(f"must be {bound}, got {value:g}")
+        return value
+    return number
+
+
+def _check_outputs(outputs, inputs) -> None:
+    """Refuse an output that is a folder, one of the ``inputs``, or another output."""
+    outputs = [o for o in outputs if o]
+    for i, out in enumerate(outputs):
+        check_output(out, [*inputs, *outputs[:i]])
+
+
 def _add_source_help(p: argparse.ArgumentParser) -> None:
     p.epilog = ("A BRDF source is a MERL/DTU .binary file, a Neural-BRDF .h5 file, a .sbrdf "
                 "coefficient file, or mitsuba:<name> for a built-in material.")
@@ -70,7 +136,8 @@ def cmd_corpus_list(args: argparse.Namespace) -> int:
         c = get_corpus(args.corpus)
         test = {m.name for m in c.split("test")}
         for m in c.materials:
-            print(f"{m.name:40s} {'test' if m.name in test else 'train':5s} {m.source}")
+            print(one_line(f"{m.name:40s} {'test' if m.name in test else 'train':5s} "
+                           f"{m.source}"))
         return 0
     for name, desc in list_corpora().items():
         print(f"{name:8s} {desc}")
@@ -82,7 +149,7 @@ def cmd_info(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(info, indent=2))
         return 0
-    print(f"name        {info['name']}\nsource      {info['source']}")
+    print(f"name        {one_line(info['name'])}\nsource      {one_line(info['source'])}")
     print(f"shape       {tuple(info['shape'])}")
     print(f"valid bins  {info['valid_bins']} of {info['total_bins']}")
     for i, ch in enumerate("RGB"):
@@ -94,7 +161,8 @@ def cmd_info(args: argparse.Namespace) -> int:
 def cmd_convert(args: argparse.Namespace) -> int:
     out = Path(args.output)
     if out.suffix != ".binary":
-        raise ValueError(f"{out}: output must be a MERL .binary file")
+        raise UsageError(f"{out}: output must be a MERL .binary file")
+    _check_outputs([out], [args.source])
     write_merl(out, load_brdf(args.source))
     print(f"wrote {out}")
     return 0
@@ -105,9 +173,19 @@ def cmd_train(args: argparse.Namespace) -> int:
     for name in args.corpus:
         materials += get_corpus(name).split(args.split)
     shape = tuple(args.grid)
+    if math.prod(shape) > MAX_COEFFS:
+        raise UsageError(f"--grid {' '.join(map(str, shape))}: at most {MAX_COEFFS} bins "
+                         "(the MERL grid's)")
+    if max(args.taus) > math.prod(shape):
+        raise UsageError(f"--taus {max(args.taus)}: a tensor of that grid has only "
+                         f"{math.prod(shape)} coefficients")
+    _check_outputs([args.output], [args.extend])
     t0 = time.perf_counter()
     data = training_data(materials, args.transform, shape, basis=args.basis)
     x = data.x
+    if args.dicts > len(x):
+        raise UsageError(f"--dicts {args.dicts}: more dictionaries than the {len(x)} "
+                         "training tensors")
     load_s = time.perf_counter() - t0
     meta = {
         "data": [f"{m.corpus}/{m.name}" for m in materials],
@@ -120,7 +198,8 @@ def cmd_train(args: argparse.Namespace) -> int:
                          checkpoint_dir=args.checkpoint_dir, meta=meta,
                          reassign_every=args.reassign_every, masked=args.masked,
                          missing=data.missing, init=args.init, tol=args.tol,
-                         max_moved=args.max_moved)
+                         max_moved=args.max_moved, workers=args.workers,
+                         scheduler=args.scheduler)
     if args.extend:
         ens = Ensemble.load(args.extend).union(ens)
     ens.save(args.output)
@@ -135,10 +214,25 @@ def _ensemble(path: str | None):
 
 def cmd_encode(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
-    model = encode(load_brdf(args.source), _ensemble(args.ensemble), args.coeffs,
-                   args.max_error, args.transform, fill_iters=args.fill_iters,
-                   selector=args.selector, fill=args.fill, basis=args.basis,
-                   budget=args.budget)
+    options = {"selector": args.selector, "fill": args.fill, "basis": args.basis}
+    if args.paper:
+        options.update(PAPER_OPTIONS)
+    if is_batch(args.source):
+        if args.bytes is not None:
+            raise UsageError("--bytes: byte budgets encode one material at a time (not a "
+                             "batch yet); give --coeffs for a batch")
+        return _encode_batch(args, options)
+    _check_outputs([args.output], [args.source, args.ensemble])
+    ens = _ensemble(args.ensemble)
+    _check_coeffs(args.coeffs, ens)
+    if args.bytes is not None:
+        model = encode_to_bytes(load_brdf(args.source), ens, args.bytes,
+                                max_error=args.max_error, transform=args.transform,
+                                fill_iters=args.fill_iters, budget=args.budget, **options)
+    else:
+        model = encode(load_brdf(args.source), ens, args.coeffs,
+                       args.max_error, args.transform, fill_iters=args.fill_iters,
+                       budget=args.budget, **options)
     seconds = time.perf_counter() - t0
     path = save_sbrdf(args.output, model)
     info = {"output": str(path), "bytes": path.stat().st_size, "seconds": seconds,
@@ -154,14 +248,59 @@ def cmd_encode(args: argparse.Namespace) -> int:
     return 0
 
 
+def _encode_batch(args: argparse.Namespace, options: dict) -> int:
+    """``encode DIR_OR_GLOB -o OUT_DIR``: exit status 1 if any material failed."""
+    options = {"n_coeffs": args.coeffs, "max_error": args.max_error,
+               "transform": args.transform, "fill_iters": args.fill_iters,
+               "budget": args.budget, **options}
+    ens = _ensemble(args.ensemble)
+    _check_coeffs(args.coeffs, ens)
+    with executor(args.workers, args.scheduler) as ex:
+        summary = encode_batch(args.source, args.output, ens, options, ex)
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        print(f"{args.output}: {summary['encoded']} encoded, {summary['skipped']} skipped "
+              f"(done before), {summary['failed']} failed of {summary['materials']} "
+              f"in {summary['seconds']:.1f} s; wrote summary.csv, summary.json")
+        for r in summary["rows"]:
+            if r["status"] == "failed":
+                print(f"  failed: {r['source']}: {r['error']}", file=sys.stderr)
+    return 1 if summary["failed"] else 0
+
+
+def _add_where(p: argparse.ArgumentParser, what: str) -> None:
+    """``--workers N`` / ``--scheduler ADDRESS``: where ``what`` runs (``parallel.py``)."""
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--workers", type=int, metavar="N",
+                   help=f"run {what} on a local Dask cluster of N processes (default: in "
+                        "this process, no cluster)")
+    g.add_argument("--scheduler", metavar="ADDRESS",
+                   help=f"run {what} on an existing Dask cluster (e.g. tcp://host:8786)")
+
+
+def _check_coeffs(n: int | None, ens: Ensemble) -> None:
+    """Refuse ``--coeffs`` beyond the entries of the ensemble's grid."""
+    if n is not None and n > math.prod(ens.shape):
+        raise UsageError(f"--coeffs {n}: a channel of the {'x'.join(map(str, ens.shape))} "
+                         f"grid holds at most {math.prod(ens.shape)} coefficients")
+
+
 def cmd_decode(args: argparse.Namespace) -> int:
-    write_merl(args.output, decode_file(args.source, _ensemble(args.ensemble)))
+    _check_outputs([args.output], [args.source, args.ensemble])
+    try:
+        brdf = decode_file(args.source, args.ensemble)
+    except InvalidBRDFError as exc:  # e.g. coefficients so large that the values overflow
+        raise BRDFFileError(f"{args.source}: decodes to unusable values: {exc}") from exc
+    write_merl(args.output, brdf)
     print(f"wrote {args.output}")
     return 0
 
 
 def cmd_blend(args: argparse.Namespace) -> int:
-    ens = _ensemble(args.ensemble)
+    _check_outputs([args.output], [args.a, args.b, args.ensemble])
+    ens = resolve_ensemble(args.ensemble, for_id=load_sbrdf(args.a).ensemble_id)
+    _check_coeffs(args.coeffs, ens)
     a, b = load_sbrdf(args.a, ens), load_sbrdf(args.b, ens)
     out = save_sbrdf(args.output, interpolate(a, b, args.alpha, ens, args.coeffs))
     print(f"wrote {out}")
@@ -173,7 +312,9 @@ def cmd_render(args: argparse.Namespace) -> int:
     if args.ensemble:
         opts["ensemble"] = args.ensemble
     t0 = time.perf_counter()
-    img = render_scene(find_scene(args.scene), parse_overrides(args.material), spp=args.spp,
+    scene, materials = find_scene(args.scene), parse_overrides(args.material)
+    _check_outputs([args.output, args.mask], [scene, *materials.values(), args.ensemble])
+    img = render_scene(scene, materials, spp=args.spp,
                        seed=args.seed, res=args.res, sparse_options=opts,
                        tabulated_options={"sampling": args.sampling})
     seconds = time.perf_counter() - t0
@@ -186,24 +327,40 @@ def cmd_render(args: argparse.Namespace) -> int:
     return 0
 
 
+def _read_image(path: str, like: tuple[str, object] | None = None):
+    """An EXR image that is finite, and (``like``: (path, image)) of that image's size."""
+    img = read_exr(path)
+    bad = int(np.size(img) - np.count_nonzero(np.isfinite(img)))
+    if bad:
+        raise ImageFileError(f"{path}: the image holds {bad} NaN or inf pixel values")
+    if like is not None and img.shape != like[1].shape:
+        raise ImageFileError(f"{path}: {img.shape[1]}x{img.shape[0]}, but {like[0]} is "
+                             f"{like[1].shape[1]}x{like[1].shape[0]}")
+    return img
+
+
 def cmd_snr(args: argparse.Namespace) -> int:
-    ref, img = read_exr(args.reference), read_exr(args.image)
+    if not (args.mask or args.scene):
+        raise UsageError("snr: the object-only SNR needs the object's pixels: give --scene "
+                         "SCENE (traced from the scene) or --mask FILE")
+    ref = _read_image(args.reference)
+    img = _read_image(args.image, (args.reference, ref))
+    ref2 = _read_image(args.reference2, (args.reference, ref)) if args.reference2 else None
     if args.mask:
         mask = read_mask(args.mask)
-    elif args.scene:
+    else:
         if ref.shape[0] != ref.shape[1]:
-            raise ValueError(f"{args.reference}: --scene needs a square image (the shipped "
+            raise UsageError(f"{args.reference}: --scene needs a square image (the shipped "
                              f"scenes render res x res), got {ref.shape[1]}x{ref.shape[0]}: "
                              "give --mask instead")
         mask = object_mask(find_scene(args.scene), res=ref.shape[0])
-    else:
-        raise ValueError("snr: the object-only SNR needs the object's pixels: give --scene "
-                         "SCENE (traced from the scene) or --mask FILE")
     if mask.shape != ref.shape[:2]:
-        raise ValueError(f"{args.mask or args.scene}: mask is {mask.shape[1]}x{mask.shape[0]}, "
-                         f"the images {ref.shape[1]}x{ref.shape[0]}")
+        raise ImageFileError(f"{args.mask or args.scene}: mask is {mask.shape[1]}x"
+                             f"{mask.shape[0]}, the images {ref.shape[1]}x{ref.shape[0]}")
+    if not mask.any():
+        raise ImageFileError(f"{args.mask or args.scene}: the mask selects no pixel")
     snr = snr_forms(ref, img, mask)
-    floor = noise_floor_snr(ref, read_exr(args.reference2), mask) if args.reference2 else None
+    floor = noise_floor_snr(ref, ref2, mask) if ref2 is not None else None
     if args.json:
         out = {"snr_whole_db": snr.whole, "snr_object_db": snr.object,
                "object_pixels": int(mask.sum()), "pixels": int(mask.size)}
@@ -218,7 +375,7 @@ def cmd_snr(args: argparse.Namespace) -> int:
 def cmd_fit_scene(args: argparse.Namespace) -> int:
     rep = fit_scene(find_scene(args.scene), args.target_snr, parse_overrides(args.material),
                     args.output, ensemble_path=args.ensemble, spp=args.spp, res=args.res,
-                    seed=args.seed)
+                    seed=args.seed, max_bytes=args.bytes)
     print(f"scene SNR with every material sparse: object-only "
           f"{rep['scene_snr_all_sparse']:.1f} dB, whole-image "
           f"{rep['scene_snr_all_sparse_whole']:.1f} dB; "
@@ -232,17 +389,29 @@ def cmd_bench(args: argparse.Namespace) -> int:
         cfg.out = args.out
     if args.no_render:
         cfg.render = False
-    Bench(cfg).run()
+    with executor(args.workers, args.scheduler) as ex:
+        Bench(cfg).run(ex)
     print(f"wrote {cfg.out}/report.md, results.csv, results.json")
     return 0
 
 
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose usage errors are one line on stderr (exit status 2); its
+    subparsers are of the same class."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {one_line(message)} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = _Parser(
         prog="sparse-brdf",
         description="Measured BRDFs as sparse coefficients over a learned dictionary "
                     "ensemble: convert, inspect, train, encode, decode and render.",
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--debug", action="store_true",
+                   help="on an error, print the traceback too (anywhere on the line; or set "
+                        "SPARSE_BRDF_DEBUG=1)")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for add in (_add_data_commands, _add_train, _add_codec_commands, _add_render, _add_snr,
                 _add_fit_scene, _add_blend_and_bench):  # in the order of the help
@@ -280,17 +449,18 @@ def _add_train(sub) -> None:
     t.add_argument("--transform", nargs="+", default=list(TRANSFORMS), choices=TRANSFORMS)
     t.add_argument("--basis", default="rgb", choices=COLOUR_BASES,
                    help="colour basis of the training channels (the encoder's coded channels)")
-    t.add_argument("--taus", nargs="+", type=int, default=[32, 64, 128, 256],
+    t.add_argument("--taus", nargs="+", type=_int_option(1, MAX_COEFFS),
+                   default=[32, 64, 128, 256],
                    help="training sparsities; one set of dictionaries per value")
-    t.add_argument("--dicts", type=int, default=8, help="dictionaries per sparsity")
-    t.add_argument("--iterations", type=int, default=DEFAULT_N_ITER,
+    t.add_argument("--dicts", type=_int_option(1), default=8, help="dictionaries per sparsity")
+    t.add_argument("--iterations", type=_int_option(0), default=DEFAULT_N_ITER,
                    help="at most this many iterations per sparsity")
-    t.add_argument("--reassign-every", type=int, default=DEFAULT_REASSIGN_EVERY,
+    t.add_argument("--reassign-every", type=_int_option(1), default=DEFAULT_REASSIGN_EVERY,
                    help="cluster against every dictionary at every N-th iteration")
-    t.add_argument("--tol", type=float, default=DEFAULT_TOL,
+    t.add_argument("--tol", type=_float_option(0), default=DEFAULT_TOL,
                    help="stop once an iteration lowers the objective by less than this "
                         "(relative) and the latest clustering moved at most --max-moved")
-    t.add_argument("--max-moved", type=float, default=DEFAULT_MAX_MOVED,
+    t.add_argument("--max-moved", type=_float_option(0, 1), default=DEFAULT_MAX_MOVED,
                    help="fraction of tensors a clustering may move for training to stop")
     t.add_argument("--masked", action=argparse.BooleanOptionalAction, default=True,
                    help="fit valid bins only (bins below the horizon and unmeasured bins "
@@ -298,12 +468,13 @@ def _add_train(sub) -> None:
     t.add_argument("--init", default=DEFAULT_INIT, choices=INITS,
                    help="initial clusters: seeded (k-means++ in the training error) or "
                         "random balanced")
-    t.add_argument("--seed", type=int, default=0)
-    t.add_argument("--grid", nargs=3, type=int, default=[90, 90, 180],
+    t.add_argument("--seed", type=_int_option(0, MAX_SEED), default=0)
+    t.add_argument("--grid", nargs=3, type=_int_option(2, 0xFFFF), default=[90, 90, 180],
                    metavar=("N_H", "N_D", "N_P"))
     t.add_argument("--checkpoint-dir", help="checkpoint every iteration here and resume")
     t.add_argument("--extend", help="unite the new dictionaries with this ensemble")
     t.add_argument("-o", "--output", required=True, help="output ensemble .npz")
+    _add_where(t, "the per-tensor work of each iteration")
     t.set_defaults(func=cmd_train)
 
 
@@ -311,38 +482,51 @@ def _add_codec_commands(sub) -> None:
     """``encode`` and ``decode``."""
     e = sub.add_parser("encode", help="encode a BRDF as sparse coefficients (.sbrdf)",
                        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    e.add_argument("source", help="BRDF source (see below)")
-    e.add_argument("-o", "--output", required=True, help="output .sbrdf path")
-    e.add_argument("--coeffs", type=int, default=DEFAULT_N_COEFFS,
-                   help="max coefficients per channel")
-    e.add_argument("--max-error", type=float, default=None,
+    e.add_argument("source", help="BRDF source (see below), or a folder or quoted glob "
+                                  "of materials to encode them all (batch)")
+    e.add_argument("-o", "--output", required=True,
+                   help="output .sbrdf path; batch: output folder (<stem>.sbrdf per material, "
+                        "summary.csv, summary.json; finished outputs are kept; exit status "
+                        "1 if any material failed)")
+    size = e.add_mutually_exclusive_group()
+    size.add_argument("--coeffs", type=_int_option(1, MAX_COEFFS), default=DEFAULT_N_COEFFS,
+                      help="max coefficients per channel")
+    size.add_argument("--bytes", type=_int_option(1), default=None, metavar="N",
+                      help="byte budget instead: the .sbrdf file holds at most N bytes "
+                           "(header included), the coefficients kept the largest over the "
+                           "channels (docs/file-format.md, Byte budgets)")
+    e.add_argument("--max-error", type=_float_option(0, 1, below_hi=True), default=None,
                    help="stop adding coefficients once the relative squared residual in the "
                         "transformed domain is below this (e.g. 1e-4)")
     e.add_argument("--transform", default="auto", choices=["auto", *TRANSFORMS],
                    help="auto: the one --selector prefers")
-    e.add_argument("--selector", default=SELECTORS[0], choices=SELECTORS,
-                   help="how auto picks the transform: the smaller gamma-mapped MSE, or "
-                        "the smaller render-proxy error")
-    e.add_argument("--fill", default=FILLS[0], choices=FILLS,
-                   help="bins filled from the model instead of fitted as zeros: unmeasured "
-                        "bins above the horizon, or every invalid bin")
-    e.add_argument("--fill-iters", type=int, default=None,
+    e.add_argument("--selector", default=ENCODE_OPTIONS["selector"], choices=SELECTORS,
+                   help="how auto picks the transform: the smaller render-proxy error, or "
+                        "the smaller gamma-mapped MSE (the paper's)")
+    e.add_argument("--fill", default=ENCODE_OPTIONS["fill"], choices=FILLS,
+                   help="bins filled from the model instead of fitted as zeros: every "
+                        "invalid bin, or only unmeasured bins above the horizon")
+    e.add_argument("--fill-iters", type=_int_option(0, 1000), default=None,
                    help="fill rounds (0: no fill; default per --fill: "
                         + ", ".join(f"{k} {v}" for k, v in DEFAULT_FILL_ITERS.items()) + ")")
-    e.add_argument("--basis", default=COLOUR_BASES[0], choices=COLOUR_BASES,
-                   help="colour basis of the coded channels")
+    e.add_argument("--basis", default=ENCODE_OPTIONS["basis"], choices=COLOUR_BASES,
+                   help="colour basis of the coded channels (opponent: luminance and two "
+                        "colour differences)")
+    e.add_argument("--paper", action="store_true",
+                   help="the paper's encoder: --selector gamma-mse --fill missing --basis rgb")
     e.add_argument("--budget", default=None, choices=BUDGETS,
                    help="--coeffs per channel, or 3 x --coeffs over the channels "
                         "(default: joint for --basis opponent, else channel)")
-    e.add_argument("--ensemble", help="ensemble .npz (default: the shipped one)")
+    e.add_argument("--ensemble", help="ensemble .npz (default: the shipped default)")
     e.add_argument("--json", action="store_true", help="print the encoding statistics as JSON")
+    _add_where(e, "a batch")
     _add_source_help(e)
     e.set_defaults(func=cmd_encode)
 
     d = sub.add_parser("decode", help="decode a .sbrdf file to a MERL .binary file")
     d.add_argument("source", help=".sbrdf file")
     d.add_argument("-o", "--output", required=True, help="output .binary path")
-    d.add_argument("--ensemble", help="ensemble .npz (default: the shipped one)")
+    d.add_argument("--ensemble", help="ensemble .npz (default: the shipped one the file names)")
     d.set_defaults(func=cmd_decode)
 
 
@@ -357,13 +541,15 @@ def _add_render(sub) -> None:
     r.add_argument("--material", action="append", default=[], metavar="ID=FILE",
                    help="replace BSDF ID: a .sbrdf selects sparse_brdf, any other BRDF "
                         "source tabulated_brdf (repeatable)")
-    r.add_argument("--spp", type=int, default=64)
-    r.add_argument("--seed", type=int, default=0)
-    r.add_argument("--res", type=int, default=None, help="square resolution (scene default)")
+    r.add_argument("--spp", type=_int_option(1, MAX_SPP), default=64)
+    r.add_argument("--seed", type=_int_option(0, MAX_SEED), default=0)
+    r.add_argument("--res", type=_int_option(1, MAX_RES), default=None,
+                   help="square resolution (scene default)")
     r.add_argument("--sampling", default="cosine", choices=SAMPLING,
                    help="cosine: shared sample paths (for SNR); lobe: lower variance")
     r.add_argument("--decoder", default="auto", choices=DECODERS)
-    r.add_argument("--ensemble", help="ensemble .npz (default: the shipped one)")
+    r.add_argument("--ensemble", help="ensemble .npz for .sbrdf materials "
+                   "(default: the shipped one each file names)")
     r.add_argument("--mask", metavar="MASK.exr",
                    help="also write the object mask (1 where camera rays hit the geometry), "
                         "for `sparse-brdf snr --mask`")
@@ -400,14 +586,19 @@ def _add_fit_scene(sub) -> None:
                         help="give each material of a scene the fewest coefficients that "
                              "reach a target rendering SNR in that scene")
     fs.add_argument("scene", help="scene XML (a path, or a name in the shipped scenes/)")
-    fs.add_argument("--target-snr", type=float, required=True, metavar="DB")
+    fs.add_argument("--target-snr", type=_float_option(), required=True, metavar="DB")
     fs.add_argument("--material", action="append", default=[], metavar="ID=FILE",
                     help="measured material of BSDF ID (repeatable); tabulated_brdf BSDFs "
                          "with a filename in the XML are found by themselves")
     fs.add_argument("-o", "--output", default="fit_scene_out", help="output folder")
-    fs.add_argument("--spp", type=int, default=8, help="spp of the verification renders")
-    fs.add_argument("--res", type=int, default=64, help="resolution of verification renders")
-    fs.add_argument("--seed", type=int, default=0)
+    fs.add_argument("--spp", type=_int_option(1, MAX_SPP), default=8,
+                    help="spp of the verification renders")
+    fs.add_argument("--res", type=_int_option(1, MAX_RES), default=64,
+                    help="resolution of verification renders")
+    fs.add_argument("--seed", type=_int_option(0, MAX_SEED), default=0)
+    fs.add_argument("--bytes", type=_int_option(1), default=None, metavar="N",
+                    help="per material: no .sbrdf file holds more than N bytes (the ladder "
+                         "of budgets ends at the largest coefficients that fit)")
     fs.add_argument("--ensemble", help="ensemble .npz (default: the shipped one)")
     fs.set_defaults(func=cmd_fit_scene)
 
@@ -417,9 +608,11 @@ def _add_blend_and_bench(sub) -> None:
     bl = sub.add_parser("blend", help="interpolate two .sbrdf materials in coefficient space")
     bl.add_argument("a", help="first .sbrdf (its dictionaries and transform are used)")
     bl.add_argument("b", help="second .sbrdf (same ensemble and transform)")
-    bl.add_argument("--alpha", type=float, required=True, help="0 gives A, 1 gives B")
-    bl.add_argument("--coeffs", type=int, help="coefficients per channel of the result")
-    bl.add_argument("--ensemble", help="ensemble .npz (default: the shipped one)")
+    bl.add_argument("--alpha", type=_float_option(0, 1), required=True,
+                    help="0 gives A, 1 gives B")
+    bl.add_argument("--coeffs", type=_int_option(1, MAX_COEFFS),
+                    help="coefficients per channel of the result")
+    bl.add_argument("--ensemble", help="ensemble .npz (default: the shipped one the files name)")
     bl.add_argument("-o", "--output", required=True, help="output .sbrdf")
     bl.set_defaults(func=cmd_blend)
 
@@ -429,17 +622,56 @@ def _add_blend_and_bench(sub) -> None:
     b.add_argument("config", nargs="?", help="TOML config (default: built-in small suite)")
     b.add_argument("--out", help="output folder (overrides the config's)")
     b.add_argument("--no-render", action="store_true", help="BRDF-space metrics only")
+    _add_where(b, "the cells (material x model)")
     b.set_defaults(func=cmd_bench)
 
 
+#: Exit status of an internal error (a bug), as sysexits.h's EX_SOFTWARE.
+EXIT_BUG = 70
+
+
+def _describe(exc: BaseException) -> str:
+    """The message of an expected error; an OSError names its file."""
+    if isinstance(exc, OSError) and not isinstance(exc, SparseBRDFError) and exc.filename:
+        names = f"{exc.filename}" + (f" -> {exc.filename2}" if exc.filename2 else "")
+        return f"{names}: {exc.strerror or exc}"
+    return str(exc) or type(exc).__name__
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    try:
-        return int(args.func(args) or 0)
-    except (SparseBRDFError, FileNotFoundError, KeyError, ValueError) as exc:
-        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
-        print(f"sparse-brdf: error: {msg}", file=sys.stderr)
-        return 2
+    """Run one command. Exit status: 0 done; 2 a bad input, option or output (one line on
+    stderr naming it); 70 an internal error (a bug); 128 + N killed by signal N (SIGINT,
+    SIGTERM, SIGHUP), no partial output left. ``--debug`` (anywhere) or
+    ``SPARSE_BRDF_DEBUG=1`` adds the traceback and numpy's warnings."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in argv or os.environ.get("SPARSE_BRDF_DEBUG", "") not in ("", "0")
+    args = build_parser().parse_args([a for a in argv if a != "--debug"])
+    with warnings.catch_warnings(), cleanup_on_signals():
+        if not debug:  # overflow etc. in numpy: the results are checked instead
+            warnings.simplefilter("ignore", RuntimeWarning)
+        try:
+            return int(args.func(args) or 0)
+        except KeyboardInterrupt as exc:  # SIGINT, or SIGTERM/SIGHUP (errors.Interrupted)
+            remove_temporaries()
+            signum = int(getattr(exc, "signum", signal.SIGINT))
+            _report(debug, f"interrupted by {signal.Signals(signum).name}; no partial "
+                           "output was left")
+            return 128 + signum
+        except (SparseBRDFError, OSError) as exc:
+            _report(debug, f"error: {_describe(exc)}")
+            return 2
+        except Exception as exc:  # noqa: BLE001 - anything else is a bug, said so
+            _report(debug, f"internal error (a bug, please report it): "
+                           f"{type(exc).__name__}: {exc}; run with --debug or "
+                           "SPARSE_BRDF_DEBUG=1 for the traceback")
+            return EXIT_BUG
+
+
+def _report(debug: bool, message: str) -> None:
+    """Print ``message`` as one line on stderr, after the traceback with ``debug``."""
+    if debug:
+        traceback.print_exc()
+    print(f"sparse-brdf: {one_line(message)}", file=sys.stderr)
 
 
 if __name__ == "__main__":

@@ -32,6 +32,7 @@ import numpy as np
 
 from .evaluation.bench import Bench, BenchConfig
 from .evaluation.report import noise_floor_means, scenes_of, summary_table
+from .fileio import atomic_path, atomic_write
 from .metrics import OBJECT_ONLY, WHOLE_IMAGE, cosine_weighted_snr, rae
 from .model.encode import DEFAULT_N_COEFFS, encode
 from .model.ensemble import Ensemble
@@ -72,7 +73,8 @@ def _figure(rows, examples, path: Path) -> None:
         im = a.imshow(err, origin="lower", vmin=0, vmax=0.5, aspect="auto", cmap="jet")
         a.set_title("relative error", fontsize=8)
         fig.colorbar(im, ax=a)
-    fig.savefig(path, dpi=90)
+    with atomic_path(path, suffix=Path(path).suffix) as tmp:
+        fig.savefig(tmp, dpi=90)
     plt.close(fig)
 
 
@@ -214,8 +216,10 @@ def main(argv: list[str] | None = None) -> int:
                "the model's use case (docs/results.md, \"Analytic materials\").", "",
                *table2, "",
                "Report: [bench_analytic/report.md](bench_analytic/report.md).", ""]
-    (out / "measured.json").write_text(json.dumps(measured, indent=2))
-    (out / "report.md").write_text("\n".join(md))
+    with atomic_write(out / "measured.json", "w") as f:
+        f.write(json.dumps(measured, indent=2))
+    with atomic_write(out / "report.md", "w") as f:
+        f.write("\n".join(md))
     print(f"demo finished in {time.perf_counter() - t0:.0f} s; open {out}/report.md")
     return 0
 

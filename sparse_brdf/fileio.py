@@ -1,13 +1,28 @@
-"""Atomic file writes: write to a temporary name in the target folder, then rename."""
+"""Atomic file writes: write to a temporary name in the target folder, then rename.
+
+Every temporary file is registered while it exists; :func:`cleanup_on_signals` (used by
+the command line) removes the registered ones when SIGTERM or SIGHUP arrives, and an
+interrupt (SIGINT) unwinds through :func:`atomic_path`, which removes its own. So an
+interrupted command leaves neither a partial output nor a temporary file.
+"""
 
 from __future__ import annotations
 
 import contextlib
 import os
-import tempfile
-from collections.abc import Iterator
+import secrets
+import signal
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import IO
+
+from .errors import InputFileError, Interrupted, OutputError, SparseBRDFError
+
+#: Temporary files of :func:`atomic_path` that exist right now (str paths). Sets' add and
+#: discard are atomic under the GIL, so a signal handler may read it without a lock.
+_TEMPORARIES: set[str] = set()
+#: Signals whose arrival removes the temporaries (SIGINT unwinds as KeyboardInterrupt).
+_SIGNALS = tuple(getattr(signal, n) for n in ("SIGTERM", "SIGHUP") if hasattr(signal, n))
 
 
 def _umask() -> int:
@@ -35,17 +50,25 @@ def atomic_path(path: str | os.PathLike, suffix: str = ".tmp") -> Iterator[Path]
     of the same path).
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
-    os.close(fd)
+    _check_replaceable(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = _create_temporary(path, suffix)
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot write: {exc.strerror or exc}") from exc
     try:
         yield Path(tmp)
         os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
+    except BaseException as exc:
+        with contextlib.suppress(OSError):
             os.unlink(tmp)
+        if (isinstance(exc, OSError) and not isinstance(exc, SparseBRDFError)
+                and exc.filename in (None, tmp, str(path))):  # not an input's error
+            raise OutputError(f"{path}: cannot write: {exc.strerror or exc}") from exc
         raise
+    finally:
+        _TEMPORARIES.discard(tmp)
 
 
 @contextlib.contextmanager
@@ -59,8 +82,102 @@ def atomic_write(path: str | os.PathLike, mode: str = "wb") -> Iterator[IO]:
 
 
 def require_file(path: str | os.PathLike, what: str = "file") -> Path:
-    """Return ``path`` as a Path, raising FileNotFoundError naming it when it is absent."""
+    """Return ``path`` as a Path, raising FileNotFoundError naming it when it is absent and
+    :class:`~sparse_brdf.errors.InputFileError` when it is a folder, pipe or device (reading
+    a FIFO would hang)."""
     path = Path(path)
     if not path.is_file():
+        if path.exists():
+            raise InputFileError(f"{path}: not a regular file (a folder, pipe or device), "
+                                 f"expected a {what}")
         raise FileNotFoundError(f"{path}: no such {what}")
     return path
+
+
+def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
+    """Whether ``a`` and ``b`` name the same file (links followed; for paths that do not
+    exist yet, the same resolved path)."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return os.path.realpath(a) == os.path.realpath(b)
+
+
+def check_output(path: str | os.PathLike, inputs: Iterable[str | os.PathLike | None] = (),
+                 what: str = "output") -> Path:
+    """``path`` as a Path, or :class:`~sparse_brdf.errors.OutputError` when it is an
+    existing folder or the same file as one of ``inputs`` (None and ``mitsuba:`` names
+    are skipped): a command never overwrites its own input."""
+    path = Path(path)
+    _check_replaceable(path, what)
+    for src in inputs:
+        if src is None or str(src).startswith("mitsuba:") or str(src) == "":
+            continue
+        if same_file(path, src):
+            raise OutputError(f"{path}: the {what} is also an input of this command "
+                              f"({src}); refusing to overwrite it: choose another {what}")
+    return path
+
+
+def _check_replaceable(path: Path, what: str = "output") -> None:
+    """Refuse to replace a folder, a device or a pipe (renaming onto /dev/null would
+    replace the device itself)."""
+    if path.is_dir():
+        raise OutputError(f"{path}: is a folder, not an {what} file")
+    if path.exists() and not path.is_file():
+        raise OutputError(f"{path}: is a device, pipe or socket, not a regular file: "
+                          f"refusing to replace it with the {what}")
+
+
+def remove_temporaries() -> None:
+    """Remove every temporary file :func:`atomic_path` has registered (signal-safe)."""
+    while True:
+        try:
+            pending = tuple(_TEMPORARIES)
+            break
+        except RuntimeError:  # another thread changed the set during the copy
+            continue
+    for tmp in pending:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        _TEMPORARIES.discard(tmp)
+
+
+def _on_signal(signum: int, frame) -> None:
+    remove_temporaries()
+    raise Interrupted(signum, signal.Signals(signum).name)
+
+
+@contextlib.contextmanager
+def cleanup_on_signals() -> Iterator[None]:
+    """While active (main thread only), SIGTERM and SIGHUP remove the registered temporary
+    files and raise :class:`~sparse_brdf.errors.Interrupted` (a KeyboardInterrupt), so the
+    program unwinds as on Ctrl-C; the previous handlers are restored afterwards."""
+    saved = {}
+    try:
+        for sig in _SIGNALS:
+            saved[sig] = signal.signal(sig, _on_signal)
+    except ValueError:  # not the main thread: signals cannot be handled here
+        pass
+    try:
+        yield
+    finally:
+        for sig, handler in saved.items():
+            signal.signal(sig, handler)
+
+
+def _create_temporary(path: Path, suffix: str) -> str:
+    """Create an empty hidden file beside ``path`` (mode 0600, as ``mkstemp``) and return
+    its name, registered *before* it is created: a signal handler that runs at any moment
+    finds every temporary that exists."""
+    for _ in range(100):
+        tmp = str(path.parent / f".{path.name}.{secrets.token_hex(4)}{suffix}")
+        _TEMPORARIES.add(tmp)
+        try:
+            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
+            return tmp
+        except BaseException as exc:
+            _TEMPORARIES.discard(tmp)
+            if not isinstance(exc, FileExistsError):
+                raise
+    raise FileExistsError(f"{path}: no free temporary name beside it")

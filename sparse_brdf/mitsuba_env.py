@@ -9,13 +9,11 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Iterator
 
+from .errors import MitsubaSetupError
+
 #: The CPU vectorised variant the project renders with.
 DEFAULT_VARIANT = "llvm_ad_rgb"
 _MIN_LLVM = 16
-
-
-class MitsubaSetupError(RuntimeError):
-    """Mitsuba or its LLVM back-end is missing or unusable."""
 
 
 def check_llvm() -> tuple[int, ...]:

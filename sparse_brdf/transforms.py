@@ -61,8 +61,15 @@ def inverse_at_bins(
     return _inverse(np.asarray(t), w[bins] if isinstance(w, np.ndarray) else w)
 
 
+#: Largest linear value an inverse gives: float32's largest. A model's overshoot beyond
+#: it (an extreme but finite material) is clamped there instead of becoming inf.
+RHO_MAX = float(np.finfo(np.float32).max)
+
+
 def _inverse(t: np.ndarray, weight: np.ndarray | float) -> np.ndarray:
-    return np.maximum(np.expm1(t) / weight, 0.0).astype(np.float32)
+    with np.errstate(over="ignore"):  # clamped on the next line
+        rho = np.expm1(t) / weight
+    return np.clip(rho, 0.0, RHO_MAX).astype(np.float32)
 
 
 #: Bases in which the three transformed colour channels can be coded: ``rgb`` codes R, G, B

@@ -13,6 +13,8 @@ from pathlib import Path
 
 import pytest
 
+from sparse_brdf.model.ensemble import shipped_ids
+
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("sparse_brdf", "mitsuba_plugin")
 # Modules of sparse_brdf allowed to import the Mitsuba plugin: the render helpers.
@@ -184,10 +186,11 @@ def test_no_pointer_to_files_outside_the_repository():
 
 
 def test_import_stays_light():
-    """`import sparse_brdf` (and the CLI module) must not pull in Mitsuba or matplotlib."""
+    """`import sparse_brdf` (and the CLI module) must not pull in Mitsuba, matplotlib or
+    Dask (an optional dependency, loaded only when a cluster is asked for)."""
     code = ("import sys, sparse_brdf, sparse_brdf.cli; "
-            "print(sorted(m for m in ('mitsuba', 'drjit', 'matplotlib', 'mitsuba_plugin') "
-            "if m in sys.modules))")
+            "print(sorted(m for m in ('mitsuba', 'drjit', 'matplotlib', 'mitsuba_plugin', "
+            "'dask', 'distributed') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True, cwd=ROOT).stdout.strip()
     assert out == "[]"
@@ -214,7 +217,8 @@ def test_wheel_ships_scenes_and_configs(tmp_path):
     names = set(zipfile.ZipFile(wheel).namelist())
     for need in ("sparse_brdf/scenes/sphere.xml", "sparse_brdf/scenes/paper_sphere.xml",
                  "sparse_brdf/scenes/envmaps/studio.exr", "sparse_brdf/data/configs/ci.toml",
-                 "sparse_brdf/data/default_ensemble.npz", "mitsuba_plugin/__init__.py"):
+                 "mitsuba_plugin/__init__.py",
+                 *(f"sparse_brdf/data/ensembles/{i}.npz" for i in shipped_ids())):
         assert need in names, need
     site = tmp_path / "site"
     subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--target",

@@ -16,6 +16,7 @@ from sparse_brdf.model.baselines import (
     TuckerModel,
     bin_solid_angle,
 )
+from sparse_brdf.model.sbrdf import file_size, to_bytes
 from sparse_brdf.sources.corpora import get_corpus
 from sparse_brdf.sources.load import load_brdf
 
@@ -148,6 +149,8 @@ def test_pca_needs_training_and_caps_components(brdf):
 
 
 def test_sparse_model_counts_file_bytes(brdf, small_ensemble):
-    c = SparseModel(small_ensemble, 16).fit(brdf)
-    assert c.nbytes == 8 * 48
+    c = SparseModel(small_ensemble, 16).fit(brdf)  # version 2: its file, header included
+    assert c.nbytes == len(to_bytes(c.info["model"])) < file_size(48, len(brdf.name))
     assert rae(brdf.values, c.reconstruct(), brdf.valid) < 1
+    v1 = SparseModel(small_ensemble, 16, version=1).fit(brdf)
+    assert v1.nbytes == file_size(48, len(brdf.name)) and v1.model == "sparse-16-version=1"

@@ -147,4 +147,5 @@ def test_results_of_another_ensemble_or_encoder_are_not_reused(tmp_path, small_e
     again = Bench(cfg, progress=False)
     assert again.results["cells"] == {} and not b.work.exists()
     assert again.results["provenance"] == {"ensemble": small_ensemble.id,
-                                           "encoder_defaults": dict(ENCODE_OPTIONS)}
+                                           "encoder_defaults": dict(ENCODE_OPTIONS),
+                                           "sbrdf_version": 2}

@@ -68,7 +68,14 @@ def test_train_encode_decode_round_trip(tmp_path, capsys):
     assert main(["encode", str(src), "-o", str(sb), "--coeffs", "30", "--ensemble", str(ens),
                  "--json"]) == 0
     info = json.loads(capsys.readouterr().out)
-    assert info["coefficients"] == [30, 30, 30] and info["bytes"] == sb.stat().st_size
+    # the default encoder: one budget of 3 x 30 over the opponent channels
+    assert sum(info["coefficients"]) == 90 and info["bytes"] == sb.stat().st_size
+    assert info["options"]["basis"] == "opponent"
+    paper = tmp_path / "p.sbrdf"
+    assert main(["encode", str(src), "-o", str(paper), "--coeffs", "30", "--ensemble",
+                 str(ens), "--paper", "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["coefficients"] == [30, 30, 30] and info["options"]["basis"] == "rgb"
     out = tmp_path / "d.binary"
     assert main(["decode", str(sb), "-o", str(out), "--ensemble", str(ens)]) == 0
     assert read_merl(out).shape == (18, 18, 36)

@@ -134,12 +134,12 @@ def _tiny_model(ensemble_id: str):
 def test_files_find_the_shipped_ensemble_they_name(ensemble_id, tmp_path):
     """A file encoded with any shipped ensemble (older defaults included) decodes without
     ``--ensemble``, with exactly that ensemble."""
-    from sparse_brdf.model.sbrdf import decode_file, save_sbrdf
+    from sparse_brdf.model.sbrdf import decode_file, load_sbrdf, save_sbrdf
 
     model = _tiny_model(ensemble_id)
     path = save_sbrdf(tmp_path / "m.sbrdf", model)
     got = decode_file(path)
-    want = model.decode(Ensemble.shipped(ensemble_id))
+    want = load_sbrdf(path).decode(Ensemble.shipped(ensemble_id))  # the file's values
     np.testing.assert_array_equal(got.values, want.values)
     assert Ensemble.shipped(ensemble_id).id == ensemble_id
 

@@ -1,14 +1,21 @@
+"""Blending encoded materials; the inputs come from the paper's encoder (RGB channels,
+per-channel budgets), opponent inputs are built from them."""
+
 import dataclasses
+import functools
 
 import numpy as np
 import pytest
 
 from conftest import SMALL
 from sparse_brdf.cli import main
-from sparse_brdf.model.encode import encode
+from sparse_brdf.model.encode import PAPER_OPTIONS
+from sparse_brdf.model.encode import encode as _encode
 from sparse_brdf.model.interpolate import interpolate
 from sparse_brdf.model.sbrdf import load_sbrdf, save_sbrdf
 from sparse_brdf.sources.load import load_brdf
+
+encode = functools.partial(_encode, **PAPER_OPTIONS)
 
 
 @pytest.fixture(scope="module")

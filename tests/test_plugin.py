@@ -19,7 +19,7 @@ from sparse_brdf.coords import (
     geometric_valid,
 )
 from sparse_brdf.mitsuba_env import set_variant
-from sparse_brdf.model.encode import encode
+from sparse_brdf.model.encode import PAPER_OPTIONS, encode
 from sparse_brdf.model.ensemble import Ensemble
 from sparse_brdf.model.layouts import (
     UNION_ATOMS,
@@ -93,9 +93,10 @@ def make_exact_material(folder, name: str = "plastic-red-ggx-0.3", n_coeffs: int
             g = mode_grams(y[c])
             grams = g if grams is None else tuple(a + b for a, b in zip(grams, g, strict=True))
     ens = Ensemble(*(f[None] for f in hosvd_factors(grams)), taus=np.zeros(1))
-    model = encode(brdf, ens, n_coeffs)
-    paths = {"ensemble": str(ens.save(folder / "ens.npz")),
-             "sbrdf": str(save_sbrdf(folder / f"{name}.sbrdf", model)),
+    model = encode(brdf, ens, n_coeffs, **PAPER_OPTIONS)  # n_coeffs in each R, G, B channel
+    sbrdf = save_sbrdf(folder / f"{name}.sbrdf", model)
+    model = load_sbrdf(sbrdf, ens)  # the values as the file holds them (quantised)
+    paths = {"ensemble": str(ens.save(folder / "ens.npz")), "sbrdf": str(sbrdf),
              "binary": str(write_merl(folder / f"{name}-decoded.binary", model.decode(ens))),
              "original": str(write_merl(folder / f"{name}.binary", brdf))}
     return paths
@@ -331,8 +332,9 @@ def test_opponent_eval_matches_numpy_decoder(full_random, variant, transform, tm
     """An opponent-basis material with unequal counts (one channel empty): both decoders
     and layouts, scalar and LLVM, against SparseBRDF.eval (which mixes in numpy)."""
     ens = full_random["ens"]
-    model = as_opponent(load_sbrdf(full_random[transform], ens), (61, 23, 0))
-    path = str(save_sbrdf(tmp_path / "opponent.sbrdf", model))
+    path = str(save_sbrdf(tmp_path / "opponent.sbrdf",
+                          as_opponent(load_sbrdf(full_random[transform], ens), (61, 23, 0))))
+    model = load_sbrdf(path, ens)  # as the file holds it (version 2 quantises the values)
     rng = np.random.default_rng(12)
     n = 150 if variant.startswith("scalar") else 4000
     wi, wo, bins = random_pairs(FULL, n, rng, min_h=1)

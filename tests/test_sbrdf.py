@@ -1,5 +1,6 @@
 """The .sbrdf file's colour-basis flag (byte 11): round trips in both bases, files with
-flags 0 unchanged, unknown flag bits refused."""
+flags 0 unchanged, unknown flag bits refused. Version-1 files (exact float32 values);
+version 2 (the default) in tests/test_sbrdf_v2.py."""
 
 from __future__ import annotations
 
@@ -47,7 +48,7 @@ def _model(ens, basis: str, counts=(50, 17, 0)) -> SparseBRDF:
 @pytest.mark.parametrize("basis", ["rgb", "opponent"])
 def test_round_trip_keeps_the_basis(ens, tmp_path, basis):
     m = _model(ens, basis)
-    p = save_sbrdf(tmp_path / "m.sbrdf", m)
+    p = save_sbrdf(tmp_path / "m.sbrdf", m, version=1)
     data = p.read_bytes()
     assert len(data) == file_size(67, len(m.name))
     assert data[FLAGS_AT] == (FLAG_OPPONENT if basis == "opponent" else 0)
@@ -62,14 +63,14 @@ def test_round_trip_keeps_the_basis(ens, tmp_path, basis):
     got = np.moveaxis(r.decode(ens).values, -1, 0)
     valid = r.decode(ens).valid
     np.testing.assert_allclose(got[:, valid], want[:, valid], rtol=1e-5, atol=1e-6)
-    assert to_bytes(r) == data
+    assert to_bytes(r, version=1) == data
 
 
 def test_rgb_files_are_unchanged(ens):
     """An rgb model's bytes do not depend on the basis field's existence: flags 0, the
     same bytes as the opponent file but for byte 11 and the checksum."""
-    rgb = to_bytes(_model(ens, "rgb"))
-    opp = to_bytes(dataclasses.replace(_model(ens, "rgb"), basis="opponent"))
+    rgb = to_bytes(_model(ens, "rgb"), version=1)
+    opp = to_bytes(dataclasses.replace(_model(ens, "rgb"), basis="opponent"), version=1)
     assert rgb[FLAGS_AT] == 0 and opp[FLAGS_AT] == FLAG_OPPONENT
     assert rgb[:FLAGS_AT] == opp[:FLAGS_AT]
     assert rgb[FLAGS_AT + 1:-4] == opp[FLAGS_AT + 1:-4]

@@ -17,8 +17,10 @@ that the bench does not evaluate; a config that leaves none is refused.
 
 from __future__ import annotations
 
+import copy
 import json
 import os
+import shutil
 import sys
 import time
 from dataclasses import asdict, dataclass, field
@@ -28,8 +30,9 @@ import numpy as np
 import tomllib
 
 from ..brdf import BRDF
-from ..errors import MissingDataError
-from ..fileio import atomic_write
+from ..coords import MERL_SHAPE
+from ..errors import ConfigError, MissingDataError
+from ..fileio import atomic_write, require_file
 from ..metrics import cosine_weighted_snr, gamma_mse, rae, snr_forms
 from ..model.baselines import (
     BRDFModel,
@@ -40,13 +43,15 @@ from ..model.baselines import (
     TabulatedModel,
     TuckerModel,
 )
-from ..model.encode import DEFAULT_N_COEFFS, error_curve
+from ..model.encode import DEFAULT_N_COEFFS, ENCODE_OPTIONS, PAPER_OPTIONS, error_curve
 from ..model.ensemble import resolve_ensemble
-from ..model.sbrdf import save_sbrdf
+from ..model.sbrdf import VERSION, save_sbrdf
+from ..parallel import Executor, InProcess
 from ..paths import CONFIGS_DIR
 from ..sources.corpora import get_corpus
 from ..sources.merl import write_merl
 from .render import (
+    RENDER_LIMITS,
     check_scene_data,
     find_scene,
     noise_floor_snr,
@@ -111,33 +116,103 @@ class BenchConfig:
         --list``); None gives the defaults."""
         if path is None:
             return cls()
-        path = find_config(path)
+        path = require_file(find_config(path), "bench config")  # a FIFO would hang
+        if path.stat().st_size > _MAX_CONFIG_BYTES:
+            raise ConfigError(f"{path}: {path.stat().st_size} bytes: too large for a bench "
+                              "config")
         try:
-            with open(path, "rb") as f:
-                data = tomllib.load(f)
-        except tomllib.TOMLDecodeError as exc:
-            raise ValueError(f"{path}: not a valid TOML file: {exc}") from exc
+            data = tomllib.loads(path.read_bytes().decode("utf-8"))
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"{path}: not a valid TOML file: {exc}") from exc
         if "scene" in data:  # the one-scene form of earlier configs
             data.setdefault("scenes", [data.pop("scene")])
         unknown = set(data) - set(cls.__dataclass_fields__)
         if unknown:
-            raise ValueError(f"{path}: unknown bench settings {sorted(unknown)}")
+            raise ConfigError(f"{path}: unknown bench settings {sorted(unknown)}")
+        for key, value in data.items():
+            _check_setting(path, key, value, cls.__dataclass_fields__[key].type)
+        for spec in data.get("models", []) + data.get("stability_models", []):
+            _check_model_spec(path, spec)
         return cls(**data)
+
+
+#: Largest bench config read (the shipped ones are under 2 kB).
+_MAX_CONFIG_BYTES = 1 << 20
+#: Allowed ranges of the numeric settings (inclusive; None: unbounded).
+_SETTING_RANGES = {
+    "spp": (1, RENDER_LIMITS["spp"]), "res": (1, RENDER_LIMITS["res"]),
+    "seed": (0, RENDER_LIMITS["seed"]), "noise_seed": (0, RENDER_LIMITS["seed"]),
+    "max_materials": (1, None), "pca_train_max": (2, None), "speed_evals": (1, 1 << 26),
+    "curve_coeffs": (1, int(np.prod(MERL_SHAPE))),
+}
+_SETTING_TYPES = {
+    "int": lambda v: isinstance(v, int) and not isinstance(v, bool),
+    "str": lambda v: isinstance(v, str),
+    "bool": lambda v: isinstance(v, bool),
+    "list[str]": lambda v: isinstance(v, list) and all(isinstance(x, str) for x in v),
+    "list[int]": lambda v: isinstance(v, list) and all(
+        isinstance(x, int) and not isinstance(x, bool) for x in v),
+}
+
+
+def _check_setting(path: Path, key: str, value, annotation) -> None:
+    """Raise :class:`ConfigError` unless ``value`` fits the field's type and range."""
+    kind = str(annotation).removesuffix(" | None")
+    if not _SETTING_TYPES.get(kind, lambda v: True)(value):
+        raise ConfigError(f"{path}: setting {key} = {value!r}: expected {kind}")
+    lo, hi = _SETTING_RANGES.get(key, (None, None))
+    for v in value if isinstance(value, list) else [value]:
+        if lo is not None and (v < lo or (hi is not None and v > hi)):
+            raise ConfigError(f"{path}: setting {key} = {v!r}: must be in [{lo}, "
+                              f"{hi if hi is not None else 'inf'}]")
+    if key == "split" and value not in ("train", "test", "all"):
+        raise ConfigError(f"{path}: setting split = {value!r}: expected train, test or all")
+
+
+def _check_model_spec(path: Path, spec: str) -> None:
+    """Raise :class:`ConfigError` unless ``spec`` names a model (see :func:`make_model`)
+    with sizes in range; nothing is trained or encoded."""
+    kind, _, arg = spec.partition(":")
+    first = arg.split(":")[0]
+    if kind == "sparse" and first.startswith("b"):  # a byte budget: sparse:bN
+        first = first[1:] or "x"
+    sizes = (first.split("x") if kind == "tucker" else [first]) if first else []
+    known = ("sparse", "naive", "cpd", "tucker", "pca", "tabulated")
+    most = (list(MERL_SHAPE) if kind == "tucker" and sizes
+            else [int(np.prod(MERL_SHAPE))] * len(sizes))
+    if (kind not in known or (kind != "sparse" and ":" in arg)
+            or len(sizes) != len(most)
+            or not all(s.isascii() and s.isdigit() and 1 <= int(s) <= n
+                       for s, n in zip(sizes, most, strict=True))):
+        raise ConfigError(f"{path}: model {spec!r}: expected sparse:N[:TRANSFORM][:OPTIONS], "
+                          "naive, cpd:L, tucker:AxBxC, pca:N or tabulated, with sizes >= 1")
+    if kind == "sparse":
+        try:
+            make_model(spec)  # the shipped ensemble, read once per process
+        except (ValueError, TypeError, KeyError) as exc:
+            raise ConfigError(f"{path}: model {spec!r}: {exc}") from exc
 
 
 def make_model(spec: str, ensemble=None) -> BRDFModel:
     """A model from its spec: sparse:N[:TRANSFORM][:OPTIONS], naive, cpd:L, tucker:AxBxC,
     pca:N, tabulated.
 
-    The sparse model's OPTIONS are ``KEY=VALUE`` pairs separated by commas, the keyword
-    options of :func:`~sparse_brdf.model.encode.encode` (``ENCODE_OPTIONS``):
-    ``selector`` (gamma-mse, render), ``fill`` (missing, invalid), ``fill_iters`` (an
-    integer), ``basis`` (rgb, opponent), ``budget`` (channel, joint); TRANSFORM is auto
-    (the default), log-plus or log-plus-cosine and may be left out before the options.
-    E.g. ``sparse:262``, ``sparse:262:log-plus``,
-    ``sparse:262:selector=render,fill=invalid,basis=opponent``,
-    ``sparse:262:auto:basis=opponent``. The model's name (the reports' label) lists the
-    options not at their defaults: ``sparse-262-selector=render-fill=invalid-basis=opponent``.
+    The sparse model's OPTIONS are ``paper`` (the paper's encoder, ``PAPER_OPTIONS``) or
+    ``KEY=VALUE`` pairs separated by commas, the keyword options of
+    :func:`~sparse_brdf.model.encode.encode` (``ENCODE_OPTIONS``): ``selector``
+    (render, gamma-mse), ``fill`` (invalid, missing), ``fill_iters`` (an integer),
+    ``basis`` (opponent, rgb), ``budget`` (joint, channel); TRANSFORM is auto (the
+    default), log-plus or log-plus-cosine and may be left out before the options.
+    E.g. ``sparse:262`` (today's encoder), ``sparse:262:paper``, ``sparse:262:log-plus``,
+    ``sparse:262:basis=rgb``, ``sparse:262:auto:fill=missing``. The model's name (the
+    reports' label) lists the options not at their defaults, or says ``paper``:
+    ``sparse-262-basis=rgb``, ``sparse-262-paper``.
+
+    Byte budgets: N may be ``bN``, at most N bytes per material file (header included;
+    :func:`~sparse_brdf.model.budget.encode_to_bytes`), e.g. ``sparse:b1600``,
+    ``sparse:b1600:basis=rgb``. The option ``version=1`` (or 2, the default) sets the
+    ``.sbrdf`` version counted and rendered, so that versions compare at equal bytes:
+    ``sparse:b1600:version=1`` (name ``sparse-b1600-version=1``).
     """
     kind, _, arg = spec.partition(":")
     if kind == "sparse":
@@ -161,6 +236,9 @@ def _sparse_model(spec: str, arg: str, ensemble) -> SparseModel:
     n, *rest = arg.split(":") if arg else [""]
     transform, options = "auto", {}
     for part in rest:
+        if part == "paper" and not options:  # the paper's encoder
+            options = dict(PAPER_OPTIONS)
+            continue
         if "=" not in part and not options and transform == "auto":
             transform = part or "auto"
             continue
@@ -175,7 +253,17 @@ def _sparse_model(spec: str, arg: str, ensemble) -> SparseModel:
                                      f"got {value!r}")
                 value = int(value)
             options[key] = value
-    return SparseModel(ensemble, int(n or DEFAULT_N_COEFFS), transform, **options)
+    n_bytes = None
+    if n.startswith("b"):
+        if not n[1:].isdigit() or int(n[1:]) < 1:
+            raise ValueError(f"model {spec!r}: a byte budget is bN with N >= 1 bytes per "
+                             f"file, got {n!r}")
+        n_bytes, n = int(n[1:]), ""
+    version = options.pop("version", str(VERSION))
+    if version not in ("1", "2"):
+        raise ValueError(f"model {spec!r}: version must be 1 or 2, got {version!r}")
+    return SparseModel(ensemble, int(n or DEFAULT_N_COEFFS), transform, n_bytes=n_bytes,
+                       version=int(version), **options)
 
 
 def _key(m) -> str:
@@ -197,16 +285,30 @@ class Bench:
         self.results = self._load_results()
         self.scenes: dict[str, Path] = {}  # scene name -> path, the scenes that can run
         self._masks: dict[str, np.ndarray] = {}
+        self.cell_speed = True  # measure each model's speed in its first cell
+        self._loaded: tuple = (None, None)  # the last material loaded (key, BRDF)
 
     # ------------------------------------------------------------------ bookkeeping
+    def _provenance(self) -> dict:
+        """What the results depend on beyond the config: the ensemble the sparse models use,
+        the encoder's defaults and the .sbrdf version written (all changed between
+        versions)."""
+        return {"ensemble": resolve_ensemble(self.cfg.ensemble).id,
+                "encoder_defaults": dict(ENCODE_OPTIONS), "sbrdf_version": VERSION}
+
     def _load_results(self) -> dict:
+        """Earlier results of this config (a resumed run), else a fresh record; results of
+        another config, ensemble or encoder are discarded with the renders they cached."""
         p = self.out / "results.json"
+        fresh = {"config": asdict(self.cfg), "provenance": self._provenance(), "cells": {},
+                 "curves": {}, "noise_floor": {}, "speed": {}, "skipped_scenes": {}}
         if p.is_file():
             data = json.loads(p.read_text())
-            if data.get("config") == asdict(self.cfg):
+            if all(data.get(k) == fresh[k] for k in ("config", "provenance")):
                 return data
-        return {"config": asdict(self.cfg), "cells": {}, "curves": {}, "noise_floor": {},
-                "speed": {}, "skipped_scenes": {}}
+            if self.work.is_dir():  # cached renders and files of the old results
+                shutil.rmtree(self.work)
+        return fresh
 
     def _save(self) -> None:
         with atomic_write(self.out / "results.json", "w") as f:
@@ -240,9 +342,10 @@ class Bench:
             self.scenes[path.stem] = path
 
     # ------------------------------------------------------------------ running
-    def run(self) -> dict:
-        from tqdm.auto import tqdm  # lazy: tqdm.auto adds ~40 ms to `sparse-brdf --help`
-
+    def run(self, ex: Executor | None = None) -> dict:
+        """Run what is not done yet; ``ex``: where the materials' reference renders and
+        the cells run (``parallel.executor``; default: here, one after another). Results
+        are saved as each arrives, and are the same wherever they ran (same seeds)."""
         self.out.mkdir(parents=True, exist_ok=True)
         self.work.mkdir(parents=True, exist_ok=True)
         if self.cfg.render:
@@ -251,28 +354,7 @@ class Bench:
         models = [make_model(s, ens) for s in self.cfg.models]
         mats = self.materials()
         self._train(models, mats)
-        todo = [(m, mod) for m in mats for mod in models
-                if f"{_key(m)}|{mod.name}" not in self.results["cells"]]
-        bar = tqdm(total=len(todo) + len(mats), desc="bench", disable=not self.progress)
-        for m in mats:
-            key = _key(m)
-            brdf = None
-            if key not in self.results["curves"] or any(
-                    key not in self.results["noise_floor"].get(s, {}) for s in self.scenes):
-                brdf = m.load()
-                self.results["curves"][key] = self._curve(brdf, ens)
-                self._references(key, brdf)
-                self._save()
-            bar.update(1)
-            for mod in models:
-                cell = f"{key}|{mod.name}"
-                if cell in self.results["cells"]:
-                    continue
-                brdf = brdf or m.load()
-                self.results["cells"][cell] = self._cell(key, brdf, mod)
-                self._save()
-                bar.update(1)
-        bar.close()
+        self._run_cells(ex or InProcess(), ens, models, mats)
         missing = [mod for mod in models if mod.name not in self.results["speed"]]
         if self.cfg.speed and missing and mats:  # e.g. measurements deleted to redo them
             brdf = mats[0].load()
@@ -288,6 +370,52 @@ class Bench:
             self._save()
         write_report(self.results, self.out)
         return self.results
+
+    def _run_cells(self, ex: Executor, ens, models, mats) -> None:
+        """Each material's error curve and reference renders, then every cell, on ``ex``;
+        each result is saved as it arrives (so an interrupted bench resumes)."""
+        from tqdm.auto import tqdm  # lazy: tqdm.auto adds ~40 ms to `sparse-brdf --help`
+
+        todo_mats = [m for m in mats if _key(m) not in self.results["curves"] or any(
+            _key(m) not in self.results["noise_floor"].get(s, {}) for s in self.scenes)]
+        todo = [(m, mod) for m in mats for mod in models
+                if f"{_key(m)}|{mod.name}" not in self.results["cells"]]
+        bar = tqdm(total=len(todo) + len(todo_mats), desc="bench", disable=not self.progress)
+        bench = ex.scatter(self._for_workers(ex))
+        for i, (curve, floors) in ex.as_completed(_material_task, todo_mats, bench,
+                                                  ex.scatter(ens)):
+            key = _key(todo_mats[i])
+            self.results["curves"][key] = curve
+            for scene, floor in floors.items():
+                self.results["noise_floor"].setdefault(scene, {})[key] = floor
+            self._save()
+            bar.update(1)
+        shipped = {name: ex.scatter(mod) for name, mod in {m.name: m for _, m in todo}.items()}
+        for i, row in ex.as_completed(_cell_task, [(m, shipped[mod.name]) for m, mod in todo],
+                                      bench):
+            m, mod = todo[i]
+            self.results["cells"][f"{_key(m)}|{mod.name}"] = row
+            self._save()
+            bar.update(1)
+        bar.close()
+
+    def _for_workers(self, ex: Executor) -> Bench:
+        """This bench as a worker needs it: itself in-process; otherwise a copy without the
+        results (they stay here) that leaves the speed measurements to this process (the
+        ``missing`` pass of :meth:`run`), its scenes' object masks computed beforehand."""
+        if not ex.distributed:
+            return self
+        for scene in self.scenes:
+            self._mask(scene)
+        lite = copy.copy(self)
+        lite.results, lite.progress, lite.cell_speed = {"speed": {}}, False, False
+        return lite
+
+    def _load(self, m) -> BRDF:
+        """Material ``m``'s BRDF, loaded once for consecutive cells of one material."""
+        if self._loaded[0] != _key(m):
+            self._loaded = (_key(m), m.load())
+        return self._loaded[1]
 
     def _train(self, models, evaluated) -> None:
         needs = [m for m in models if isinstance(m, PCAModel)]
@@ -332,9 +460,11 @@ class Bench:
             meta = json.loads(exr.with_suffix(".json").read_text())
             return read_exr(exr), meta["seconds"]
         t0 = time.perf_counter()
-        # coefficient files decode with the bench's ensemble, not the shipped default
+        # coefficient files decode with the bench's ensemble file (a shipped one given by
+        # id is found from the file itself)
         ens = ({"ensemble": str(Path(self.cfg.ensemble).resolve())}
-               if self.cfg.ensemble and filename.endswith(".sbrdf") else None)
+               if self.cfg.ensemble and filename.endswith(".sbrdf")
+               and Path(self.cfg.ensemble).exists() else None)
         img = render_scene(self.scenes[scene], {"material": filename}, spp=self.cfg.spp,
                            seed=seed, res=self.cfg.res, sparse_options=ens)
         seconds = time.perf_counter() - t0
@@ -349,16 +479,17 @@ class Bench:
             write_merl(ref_file, brdf)
         return str(ref_file)
 
-    def _references(self, key: str, brdf) -> None:
-        """Reference renders of every scene, and the noise floor (both SNR forms)."""
+    def _references(self, key: str, brdf) -> dict:
+        """Reference renders of every scene; the noise floor of each (both SNR forms)."""
+        floors: dict = {}
         if not self.cfg.render:
-            return
+            return floors
         ref_file = self._reference_file(key, brdf)
         for scene in self.scenes:
             ref, _ = self._render(scene, key, ref_file, self.cfg.seed, "reference")
             alt, _ = self._render(scene, key, ref_file, self.cfg.noise_seed, "reference-seed2")
-            self.results["noise_floor"].setdefault(scene, {})[key] = noise_floor_snr(
-                ref, alt, self._mask(scene)).as_dict()
+            floors[scene] = noise_floor_snr(ref, alt, self._mask(scene)).as_dict()
+        return floors
 
     def _speed(self, model: BRDFModel, compact) -> None:
         """Evaluations per second of ``model``'s own evaluator, measured once per model."""
@@ -384,7 +515,8 @@ class Bench:
             if self.cfg.render and self.scenes:
                 base = self.work / f"{_stem(key)}__{model.name}"
                 if compact.info and "model" in compact.info:
-                    path = str(save_sbrdf(base.with_suffix(".sbrdf"), compact.info["model"]))
+                    path = str(save_sbrdf(base.with_suffix(".sbrdf"), compact.info["model"],
+                                          compact.info.get("version", VERSION)))
                 else:
                     path = str(write_merl(base.with_suffix(".binary"),
                                           BRDF(rec, brdf.valid, brdf.name)))
@@ -395,10 +527,23 @@ class Bench:
                     img, secs = self._render(scene, key, path, self.cfg.seed, model.name)
                     row["renders"][scene] = {**snr_forms(ref, img, self._mask(scene)).as_dict(),
                                              "render_s": secs}
-            self._speed(model, compact)
+            if self.cell_speed:
+                self._speed(model, compact)
             row["status"] = "finished"
         except Exception as exc:  # noqa: BLE001 - one model's failure never stops the run
             row["status"] = "failed"
             row["error"] = f"{type(exc).__name__}: {exc}"
         return row
 
+
+
+def _material_task(m, bench: Bench, ens) -> tuple[dict, dict]:
+    """A material's error curve and noise floors (reference renders), for any executor."""
+    brdf = bench._load(m)
+    return bench._curve(brdf, ens), bench._references(_key(m), brdf)
+
+
+def _cell_task(item: tuple, bench: Bench) -> dict:
+    """One cell (material, model), for any executor."""
+    m, model = item
+    return bench._cell(_key(m), bench._load(m), model)

@@ -2,7 +2,8 @@
 
 For every measured material of a scene, :func:`fit_scene`
 
-1. *predicts* the fewest coefficients per channel (from a ladder 16, 32, ..., 4096) whose
+1. *predicts* the fewest coefficients per channel (from a ladder 16, 32, ..., 4096; the
+   default encoder, so 3 x that many per material over the opponent channels) whose
    BRDF-space proxy reaches the target: predicted rendering SNR = cosine-weighted SNR +
    ``offset``, the offset calibrated on bench results (``benchmarks/calibrate.py``
    writes ``sparse_brdf/data/snr_calibration.json``; 0 dB without it);
@@ -22,9 +23,9 @@ It writes one ``.sbrdf`` per material and ``fit-scene.md`` / ``fit-scene.json``.
 from __future__ import annotations
 
 import json
+import math
 import os
 import time
-import xml.etree.ElementTree as ET
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,17 +33,18 @@ from pathlib import Path
 import numpy as np
 
 from ..brdf import BRDF
-from ..fileio import atomic_write
+from ..errors import OutputError, UsageError
+from ..fileio import atomic_write, check_output
 from ..metrics import OBJECT_ONLY, WHOLE_IMAGE, SNRForms, cosine_weighted_snr, snr_forms
-from ..model.encode import DEFAULT_N_COEFFS, choose_transform, project_all, select
+from ..model.budget import encode_to_bytes
+from ..model.encode import DEFAULT_N_COEFFS, encode
 from ..model.ensemble import Ensemble, resolve_ensemble
 from ..model.layouts import channel_terms, grouped_bytes, strict_channel
-from ..model.sbrdf import file_size, save_sbrdf
+from ..model.sbrdf import save_sbrdf, to_bytes
 from ..model.sparse import SparseBRDF
 from ..paths import CALIBRATION_PATH
 from ..sources.load import load_brdf
-from ..transforms import TRANSFORMS
-from .render import object_mask, render_scene
+from .render import object_mask, parse_scene, render_scene
 
 LADDER: tuple[int, ...] = (16, 32, 64, 128, 262, 512, 1024, 2048, 4096)
 
@@ -57,7 +59,7 @@ def calibration_offset() -> float:
 def scene_materials(scene: str | os.PathLike, overrides: Mapping[str, str]) -> dict[str, str]:
     """Measured materials of a scene: ``tabulated_brdf``/``sparse_brdf`` BSDFs with a
     ``filename`` in the XML (by id), then ``overrides`` (id -> source) on top."""
-    root = ET.parse(scene).getroot()
+    root = parse_scene(scene).getroot()
     found = {}
     for el in root.iter("bsdf"):
         if el.get("type") in ("tabulated_brdf", "sparse_brdf") and el.get("id"):
@@ -69,22 +71,55 @@ def scene_materials(scene: str | os.PathLike, overrides: Mapping[str, str]) -> d
                     found[el.get("id")] = str(path)
     found.update(overrides)
     if not found:
-        raise ValueError(f"{scene}: no measured materials: give them with --material ID=FILE")
+        raise UsageError(f"{scene}: no measured materials: give them with --material ID=FILE")
     return found
 
 
-def _predict(brdf, ens, ladder, target, offset):
-    """Models and predicted SNRs along the ladder; index of the first predicted >= target."""
-    proj = {t: project_all(brdf, ens, t, max(ladder)) for t in TRANSFORMS}
-    cands, preds = [], []
-    for n in ladder:
-        m = choose_transform(brdf, {t: select(proj[t], n, name=brdf.name) for t in TRANSFORMS},
-                             ens)
-        rec = m.decode(ens, valid=brdf.valid).values
-        cands.append(m)
-        preds.append(cosine_weighted_snr(brdf.values, rec, brdf.valid) + offset)
-    hit = [i for i, p in enumerate(preds) if p >= target]
-    return cands, preds, (hit[0] if hit else len(ladder) - 1)
+class _Ladder:
+    """One material's candidate models along the ladder of budgets (coefficients per
+    channel), encoded with the default encoder on first use, and their predicted SNRs
+    (cosine-weighted SNR + the calibration offset). Most rungs are never encoded: the
+    starting rung is found by bisection (the prediction rises with the budget) and the
+    refinement visits its neighbours. With ``max_bytes`` the ladder ends at the largest
+    encoding whose file fits (:func:`~sparse_brdf.model.budget.encode_to_bytes`)."""
+
+    def __init__(self, brdf: BRDF, ens: Ensemble, counts: Sequence[int], offset: float,
+                 max_bytes: int | None = None):
+        self.brdf, self.ens, self.offset = brdf, ens, offset
+        self.counts: list[int | None] = list(counts)
+        self._models: dict[int, SparseBRDF] = {}
+        self._pred: dict[int, float] = {}
+        if max_bytes is not None:
+            top = encode_to_bytes(brdf, ens, max_bytes)
+            n_top = -(-int(top.n_coeffs.sum()) // 3)  # per channel, as the ladder counts
+            self.counts = [n for n in self.counts if n < n_top] + [None]
+            self._add(len(self.counts) - 1, top)
+
+    def __len__(self) -> int:
+        return len(self.counts)
+
+    def __getitem__(self, k: int) -> SparseBRDF:
+        if k not in self._models:
+            self._add(k, encode(self.brdf, self.ens, self.counts[k]))
+        return self._models[k]
+
+    def _add(self, k: int, model: SparseBRDF) -> None:
+        rec = model.decode(self.ens, valid=self.brdf.valid).values
+        self._models[k] = model
+        self._pred[k] = cosine_weighted_snr(self.brdf.values, rec, self.brdf.valid) + self.offset
+
+    def predicted(self, k: int) -> float:
+        """Predicted object-only rendering SNR (dB) of rung ``k``."""
+        self[k]
+        return self._pred[k]
+
+    def first_reaching(self, target: float) -> int:
+        """The lowest rung predicted to reach ``target`` dB (the top one if none does)."""
+        lo, hi = 0, len(self) - 1
+        while lo < hi:
+            mid = (lo + hi) // 2
+            lo, hi = (lo, mid) if self.predicted(mid) >= target else (mid + 1, hi)
+        return lo
 
 
 @dataclass
@@ -93,10 +128,10 @@ class _Fit:
     the SNRs verified so far and the ladder index currently chosen."""
 
     brdf: BRDF
-    candidates: list[SparseBRDF]
-    predicted: list[float]  # dB, one per candidate
+    candidates: _Ladder
     chosen: int
     verified: dict[int, SNRForms] = field(default_factory=dict)  # ladder index -> SNRs
+    bytes_default: int = 0  # its file at DEFAULT_N_COEFFS per channel
 
     @property
     def at_top(self) -> bool:
@@ -140,12 +175,16 @@ def fit_scene(
     seed: int = 0,
     ladder: Sequence[int] = LADDER,
     progress: bool = True,
+    max_bytes: int | None = None,
 ) -> dict:
-    """Fit every measured material of ``scene`` to ``target_snr`` dB; see module doc."""
+    """Fit every measured material of ``scene`` to ``target_snr`` dB; see module doc.
+    ``max_bytes``: no material's file holds more (``--bytes``, per material)."""
+    if not math.isfinite(target_snr):
+        raise UsageError(f"target SNR must be a finite number of dB, got {target_snr}")
     ens = ensemble or resolve_ensemble(ensemble_path)
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     mats = scene_materials(scene, overrides or {})
+    _check_out(out, [scene, ensemble_path, *mats.values()], list(mats))
     offset = calibration_offset()
     opts = {"ensemble": ensemble_path} if ensemble_path else None
     t0 = time.perf_counter()
@@ -155,8 +194,17 @@ def fit_scene(
     fits = {}
     for mid, src in mats.items():
         brdf = load_brdf(src)
-        fits[mid] = _Fit(brdf, *_predict(brdf, ens, list(ladder), target_snr, offset))
-    rounds = _fit_rounds(fits, scn, out, target_snr, progress)
+        cands = _Ladder(brdf, ens, ladder, offset, max_bytes)
+        fixed = len(to_bytes(cands[cands.counts.index(DEFAULT_N_COEFFS)]
+                             if DEFAULT_N_COEFFS in cands.counts
+                             else encode(brdf, ens, DEFAULT_N_COEFFS)))
+        fits[mid] = _Fit(brdf, cands, cands.first_reaching(target_snr), bytes_default=fixed)
+    try:
+        rounds = _fit_rounds(fits, scn, out, target_snr, progress)
+    except BaseException:  # interrupted or failed: no candidate file is left behind
+        for mid in fits:
+            (out / f"{mid}.candidate.sbrdf").unlink(missing_ok=True)
+        raise
     rows = [_material_row(mid, fit, mats[mid], out, ens, ladder, progress)
             for mid, fit in fits.items()]
     report = {
@@ -164,9 +212,10 @@ def fit_scene(
         "res": res, "seed": seed, "materials": rows,
         "scene_snr_all_sparse": rounds[-1]["scene_snr"],
         "scene_snr_all_sparse_whole": rounds[-1]["scene_snr_whole"], "rounds": rounds,
-        "bytes_total": sum(r["bytes"] for r in rows),
-        # the key keeps its name (262 = DEFAULT_N_COEFFS) for readers of earlier reports
-        "bytes_fixed_262": sum(file_size(3 * DEFAULT_N_COEFFS, len(r["id"])) for r in rows),
+        "bytes_total": sum(r["bytes"] for r in rows), "bytes_cap": max_bytes,
+        # the key keeps its name (262 = DEFAULT_N_COEFFS) for readers of earlier reports;
+        # the same file version as the fitted files
+        "bytes_fixed_262": sum(fit.bytes_default for fit in fits.values()),
         "bytes_tabulated_merl": len(rows) * (12 + 8 * 3 * int(np.prod(ens.shape))),
         "memory_strict_total": sum(r["memory_strict"] for r in rows),
         "memory_tabulated_total": sum(r["memory_tabulated"] for r in rows),
@@ -174,6 +223,23 @@ def fit_scene(
     }
     _write(report, out)
     return report
+
+
+def _check_out(out: Path, inputs: list, ids: list[str]) -> None:
+    """Create the output folder, refusing one that is a file or whose outputs would
+    overwrite an input."""
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"{out}: exists and is not a folder: fit-scene writes a folder")
+    for i in ids:  # ids name files in the folder: none may point elsewhere
+        if not i or "/" in i or "\\" in i or i in (".", ".."):
+            raise UsageError(f"material id {i!r}: not usable as a file name in {out}")
+    for name in ["fit-scene.json", "fit-scene.md"] + [f"{i}{s}" for i in ids
+                                                        for s in (".sbrdf", ".candidate.sbrdf")]:
+        check_output(out / name, inputs)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"{out}: cannot create the output folder: {exc.strerror}") from exc
 
 
 def _verify(mid: str, fit: _Fit, k: int, scn: _Scene, out: Path) -> float:
@@ -223,9 +289,12 @@ def _material_row(mid: str, fit: _Fit, source: str, out: Path, ens: Ensemble,
     final = out / f"{mid}.sbrdf"
     strict = sum(strict_channel(*channel_terms(model, ens, c)).nbytes for c in range(3))
     row = {
-        "id": mid, "source": str(source), "coefficients": int(ladder[i]),
+        "id": mid, "source": str(source),
+        # the rung's budget per channel (the byte-capped top rung: its total / 3)
+        "coefficients": int(fit.candidates.counts[i] or -(-int(model.n_coeffs.sum()) // 3)),
+        "coefficients_total": int(model.n_coeffs.sum()),
         "transform": model.transform, "file": str(final),
-        "bytes": final.stat().st_size, "predicted_snr": fit.predicted[i],
+        "bytes": final.stat().st_size, "predicted_snr": fit.candidates.predicted(i),
         "verified_snr": fit.verified[i].object, "verified_snr_whole": fit.verified[i].whole,
         "renders": len(fit.verified), "memory_strict": int(strict),
         "memory_grouped": grouped_bytes(model, ens),
@@ -266,7 +335,9 @@ def _write(rep: dict, out: Path) -> None:
             f"{rep['scene_snr_all_sparse']:.1f} dB, {WHOLE_IMAGE} "
             f"{rep['scene_snr_all_sparse_whole']:.1f} dB.",
         f"Files: {rep['bytes_total']} bytes, against {rep['bytes_fixed_262']} at a fixed "
-        f"{DEFAULT_N_COEFFS} coefficients and {rep['bytes_tabulated_merl']} as MERL files.",
+        f"{DEFAULT_N_COEFFS} coefficients and {rep['bytes_tabulated_merl']} as MERL files"
+        + (f"; at most {rep['bytes_cap']} bytes per file (--bytes)." if rep.get("bytes_cap")
+           else "."),
         f"Memory (strict decoder, atoms used only): {rep['memory_strict_total']} bytes, "
         f"{100 * mem:.2f} % of the tabulated materials' {rep['memory_tabulated_total']}.",
         f"Took {rep['seconds']:.0f} s."]

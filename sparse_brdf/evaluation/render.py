@@ -16,6 +16,9 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
+import sys
+import tempfile
 import xml.etree.ElementTree as ET
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
@@ -23,13 +26,23 @@ from pathlib import Path
 import numpy as np
 import OpenEXR
 
-from ..errors import MissingDataError, SparseBRDFError
-from ..fileio import atomic_path, atomic_write
+from ..errors import (
+    ImageFileError,
+    MissingDataError,
+    RenderError,
+    SceneError,
+    SparseBRDFError,
+    UnknownNameError,
+    UsageError,
+)
+from ..fileio import atomic_path, atomic_write, require_file
 from ..metrics import SNRForms, snr_forms
 from ..mitsuba_env import DEFAULT_VARIANT, set_variant
 from ..paths import SCENES_DIR, shared_envmaps_dir
 
 SPARSE_SUFFIX = ".sbrdf"
+#: Largest spp, seed and res a render accepts (Mitsuba's seed is 32-bit; 0 spp crashes it).
+RENDER_LIMITS = {"spp": 1 << 16, "seed": (1 << 32) - 1, "res": 1 << 13}
 #: The shipped scenes: ``sphere.xml`` (CC0 studio map), ``spheres.xml`` (three materials),
 #: ``paper_sphere.xml`` (the paper's scene; needs the shared Grace Cathedral map).
 
@@ -48,10 +61,6 @@ def find_scene(name: str | os.PathLike) -> Path:
                             f"(shipped: {shipped})")
 
 
-class RenderError(SparseBRDFError, RuntimeError):
-    """A scene failed to load or render; the message holds the underlying cause."""
-
-
 def parse_overrides(items: Iterable[str]) -> dict[str, str]:
     """``["id=FILE", ...]`` -> ``{"id": "FILE"}`` (a bare FILE means id "material")."""
     out: dict[str, str] = {}
@@ -61,7 +70,7 @@ def parse_overrides(items: Iterable[str]) -> dict[str, str]:
             key, value = "material", item
         key, value = key.strip(), value.strip()
         if not key or not value:
-            raise ValueError(f"material override {item!r}: expected ID=FILE")
+            raise UsageError(f"material override {item!r}: expected ID=FILE")
         out[key] = value
     return out
 
@@ -72,18 +81,48 @@ def plugin_for(source: str) -> str:
 
 
 def _cause_message(exc: BaseException) -> str:
-    """The messages of ``exc`` and its causes, innermost last, without repetitions."""
-    parts: list[str] = []
-    seen: set[int] = set()
+    """The message of the innermost of our own errors in the ``__cause__`` chain of
+    ``exc`` (e.g. a plugin's "cannot load FILE: ..."), which says all; else the messages
+    of ``exc`` and its causes, innermost first, without repetitions."""
+    chain: list[BaseException] = []
     e: BaseException | None = exc
-    while e is not None and id(e) not in seen:
-        seen.add(id(e))
-        msg = str(e).strip()
+    while e is not None and all(e is not c for c in chain):
+        chain.append(e)
+        e = e.__cause__ or e.__context__
+    ours = [c for c in chain if isinstance(c, SparseBRDFError)]
+    if ours:
+        return str(ours[-1]).strip()
+    parts: list[str] = []
+    for c in chain:
+        msg = _without_traceback(str(c))
         if msg and msg not in parts:
             parts.append(msg)
-        e = e.__cause__ or e.__context__
     return " <- ".join(reversed(parts)) if len(parts) > 1 else (parts[0] if parts else
                                                                 type(exc).__name__)
+
+
+def _without_traceback(msg: str) -> str:
+    """A Mitsuba message without the Python traceback it may embed (a plugin's error
+    raised during scene loading: only the exception's own message is kept) and without
+    Mitsuba's source position and position in the generated XML string."""
+    head, sep, tb = msg.partition("Traceback (most recent call last):")
+    if sep:
+        last = [ln.strip() for ln in tb.splitlines() if ln.strip()]
+        tail = last[-1] if last else ""
+        name, colon, rest = tail.partition(": ")
+        head = head.rstrip() + " " + (rest if colon and name.isidentifier() else tail)
+    head = re.sub(r"^\[[\w.]+:\d+\]\s*", "", head.strip())
+    return re.sub(r"^At string \(line \d+, col \d+\):\s*", "", head).strip()
+
+
+def parse_scene(scene_path: str | os.PathLike) -> ET.ElementTree:
+    """A scene's XML tree; :class:`SceneError` naming the file if it is malformed."""
+    try:
+        return ET.parse(scene_path)
+    except ET.ParseError as exc:
+        raise SceneError(f"{scene_path}: not a valid scene XML file: {exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise SceneError(f"{scene_path}: not a valid scene XML file ({exc.reason})") from exc
 
 
 def _abs_source(value: str, base: Path) -> str:
@@ -106,12 +145,12 @@ def scene_xml(
     ``<boolean>``). Relative material paths are taken from the current directory.
     """
     scene_path = Path(scene_path)
-    tree = ET.parse(scene_path)
+    tree = parse_scene(scene_path)
     root = tree.getroot()
     for mid, source in (materials or {}).items():
         parent, elem = _find_by_id(root, mid)
         if elem is None:
-            raise KeyError(f"{scene_path}: no element with id {mid!r} to override "
+            raise UnknownNameError(f"{scene_path}: no element with id {mid!r} to override "
                            f"(ids: {', '.join(sorted(_ids(root))) or 'none'})")
         plugin = plugin_for(source)
         new = ET.Element("bsdf", {"type": plugin, "id": mid})
@@ -167,7 +206,7 @@ def check_scene_data(scene_path: str | os.PathLike,
     is on none of :func:`data_search_path`'s folders (e.g. ``paper_sphere.xml`` without
     ``../shared/data/envmaps/grace_latlong.exr``)."""
     scene_path = Path(scene_path)
-    root = ET.parse(scene_path).getroot()
+    root = parse_scene(scene_path).getroot()
     values = _defaults(root, params)
     for em in root.iter("emitter"):
         for el in em.iter("string"):
@@ -223,8 +262,10 @@ def load_scene(
     if not scene_path.is_file():
         raise FileNotFoundError(f"{scene_path}: no such scene file")
     kwargs = {k: str(v) for k, v in (params or {}).items()}
-    for key, val in (("spp", spp), ("seed", seed), ("res", res)):
+    for key, val, lo in (("spp", spp, 1), ("seed", seed, 0), ("res", res, 1)):
         if val is not None:
+            if int(val) < lo or int(val) > RENDER_LIMITS[key]:  # 0 spp: SIGFPE inside Mitsuba
+                raise UsageError(f"{key} must be in [{lo}, {RENDER_LIMITS[key]}], got {val}")
             kwargs[key] = str(int(val))
     check_scene_data(scene_path, kwargs)
     set_variant(variant)
@@ -270,7 +311,13 @@ def render_scene(
         raise RenderError(f"{scene_path}: rendering failed: {_cause_message(exc)}") from exc
     if out.ndim != 3 or out.shape[2] < 3:
         raise RenderError(f"{scene_path}: expected an RGB image, got shape {out.shape}")
-    return np.ascontiguousarray(out[..., :3])
+    out = np.ascontiguousarray(out[..., :3])
+    bad = int(out.size - np.count_nonzero(np.isfinite(out)))
+    if bad:  # e.g. a material whose values overflow float32 where the camera sees it
+        names = ", ".join(f"{k}={v}" for k, v in (materials or {}).items()) or "none"
+        raise RenderError(f"{scene_path}: the render holds {bad} NaN/inf pixel values: a "
+                          f"material's values overflow (overridden materials: {names})")
+    return out
 
 
 def object_mask(
@@ -352,22 +399,64 @@ def write_exr(path: str | os.PathLike, img: np.ndarray) -> Path:
 
 
 def read_exr(path: str | os.PathLike) -> np.ndarray:
-    """Read an RGB EXR file as float32 (H, W, 3)."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such EXR file")
+    """Read the RGB channels of an EXR file (RGB or RGBA, as Mitsuba writes) as float32
+    (H, W, 3); :class:`ImageFileError` naming the file if it is not such an image."""
+    path = require_file(path, "EXR file")
+    printed: list[str] = []  # OpenEXR's own words about this file (see _c_output_to)
     try:
-        with OpenEXR.File(str(path)) as f:
+        with _c_output_to(printed, (str(path), "EXR_ERR", "pixel data")), \
+                OpenEXR.File(str(path)) as f:
             ch = f.channels()
-            if "RGB" in ch:
-                arr = np.asarray(ch["RGB"].pixels)
+            key = next((k for k in ("RGB", "RGBA") if k in ch), None)
+            if key is not None:
+                arr = np.asarray(ch[key].pixels)[..., :3]
             elif all(c in ch for c in "RGB"):
                 arr = np.stack([np.asarray(ch[c].pixels) for c in "RGB"], -1)
             else:
-                raise ValueError(f"no RGB channels (has {', '.join(ch)})")
+                raise ImageFileError(f"no R, G, B channels (has {', '.join(ch) or 'none'})")
     except Exception as exc:  # noqa: BLE001 - OpenEXR raises plain exceptions
-        raise ValueError(f"{path}: cannot read EXR: {exc}") from exc
+        said = printed[0].strip().splitlines() if printed and printed[0].strip() else []
+        raise ImageFileError(f"{path}: cannot read EXR: {exc}"
+                             + (f" ({said[0].removeprefix(f'{path}: ')})" if said else "")
+                             ) from exc
+    if printed and printed[0].strip():  # OpenEXR warned of damaged pixel data
+        line = printed[0].strip().splitlines()[0].removeprefix(f"{path}: ")
+        raise ImageFileError(f"{path}: cannot read EXR: {line}")
+    if arr.ndim != 3 or arr.shape[2] != 3 or arr.size == 0:
+        raise ImageFileError(f"{path}: not an RGB image (pixel array of shape {arr.shape})")
     return np.ascontiguousarray(arr, dtype=np.float32)
+
+
+@contextlib.contextmanager
+def _c_output_to(printed: list[str], marks: tuple[str, ...]) -> Iterator[None]:
+    """Collect the lines that C/C++ libraries print on file descriptors 1 and 2 and that
+    hold one of ``marks`` (OpenEXR's warnings about a damaged file, on both) into
+    ``printed`` (one string) instead of the terminal; other lines (another thread's) go
+    to stderr afterwards. An unnamed temporary file holds them, so an interrupt leaves
+    nothing behind."""
+    try:
+        saved = [os.dup(1), os.dup(2)]
+    except OSError:  # no stdout or stderr: nothing to protect
+        yield
+        return
+    with tempfile.TemporaryFile() as tmp:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        for fd in (1, 2):
+            os.dup2(tmp.fileno(), fd)
+        try:
+            yield
+        finally:
+            for fd, old in zip((1, 2), saved, strict=True):
+                os.dup2(old, fd)
+                os.close(old)
+            tmp.seek(0)
+            lines = tmp.read().decode("utf-8", errors="replace").splitlines(keepends=True)
+            ours = [ln for ln in lines if any(m in ln for m in marks)]
+            others = "".join(ln for ln in lines if ln not in ours)
+            if others:
+                sys.stderr.write(others)
+            printed.append("".join(ours))
 
 
 def write_mask(path: str | os.PathLike, mask: np.ndarray) -> Path:
@@ -385,18 +474,17 @@ def write_mask(path: str | os.PathLike, mask: np.ndarray) -> Path:
 def read_mask(path: str | os.PathLike) -> np.ndarray:
     """An object mask, bool (H, W), from an EXR (nonzero in any channel = object) or a
     ``.npy`` file of booleans."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such mask file")
+    path = require_file(path, "mask file")
     if path.suffix.lower() == ".npy":
         try:
             mask = np.load(path, allow_pickle=False)
         except Exception as exc:  # noqa: BLE001 - numpy raises several kinds
-            raise ValueError(f"{path}: cannot read mask: {exc}") from exc
-        if mask.ndim != 2:
-            raise ValueError(f"{path}: a mask must be 2-D (H, W), got shape {mask.shape}")
+            raise ImageFileError(f"{path}: cannot read mask: {exc}") from exc
+        if mask.ndim != 2 or mask.dtype.kind not in "biuf":
+            raise ImageFileError(f"{path}: a mask must be a 2-D (H, W) array of booleans, "
+                                 f"got {mask.dtype} of shape {mask.shape}")
         return mask.astype(bool)
     img = read_exr(path)
     if not np.all(np.isfinite(img)):
-        raise ValueError(f"{path}: mask holds NaN/inf values")
+        raise ImageFileError(f"{path}: mask holds NaN/inf values")
     return np.any(img != 0, axis=-1)

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..fileio import atomic_write
+from ..fileio import atomic_path, atomic_write
 from ..metrics import OBJECT_ONLY, WHOLE_IMAGE
 from ..model.encode import DEFAULT_N_COEFFS, pick_transform
 from ..transforms import TRANSFORMS
@@ -176,7 +176,8 @@ def speed_accuracy_chart(rows: list[dict], path: Path, title: str = "") -> bool:
             ax.set_ylabel(f"mean rendering SNR, {label} (dB)")
             ax.legend(fontsize=8)
     fig.suptitle(f"Speed and size against accuracy{title} (stars: Pareto-optimal; red: sparse)")
-    fig.savefig(path, dpi=100)
+    with atomic_path(path, suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=100)
     plt.close(fig)
     return True
 
@@ -198,7 +199,8 @@ def curve_figure(results: dict, path: Path) -> None:
             ax.set_ylabel(f"{lab} (mean of {len(curves)} materials)")
     axes[0].set_yscale("log")
     axes[0].legend()
-    fig.savefig(path, dpi=100)
+    with atomic_path(path, suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=100)
     plt.close(fig)
 
 
@@ -238,7 +240,8 @@ def difference_figure(results: dict, out: Path, scene: str,
             a.set_yticks([])
         fig.suptitle(f"{key} in {scene}", fontsize=9)
         p = out / f"renders-{scene}-{stem}.png"
-        fig.savefig(p, dpi=90)
+        with atomic_path(p, suffix=".png") as tmp:
+            fig.savefig(tmp, dpi=90)
         plt.close(fig)
         paths.append(p)
     return paths

@@ -26,6 +26,7 @@ import numpy as np
 from ..brdf import BRDF
 from ..coords import grid_angles
 from ..errors import SparseBRDFError
+from ..fileio import atomic_write
 from ..metrics import cosine_weighted_snr
 from ..model.baselines import BRDFModel
 from ..sources.merl import MERL_SCALE, read_merl
@@ -105,7 +106,8 @@ def _write_raw(path: Path, values: np.ndarray, valid: np.ndarray) -> Path:
     """A MERL file with arbitrary (possibly non-finite) values; invalid bins as -1."""
     stored = np.moveaxis(values.astype(np.float64), -1, 0) / MERL_SCALE[:, None, None, None]
     stored = np.where(valid[None], stored, -1.0)
-    path.write_bytes(np.asarray(valid.shape, "<i4").tobytes() + stored.astype("<f8").tobytes())
+    with atomic_write(path) as f:
+        f.write(np.asarray(valid.shape, "<i4").tobytes() + stored.astype("<f8").tobytes())
     return path
 
 

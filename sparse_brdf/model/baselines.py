@@ -8,7 +8,8 @@ bases such as a PCA basis or an ensemble are not counted, as in the paper) and `
 direction pairs without a dense reconstruction). Models that learn from a training set
 (PCA) have ``train(brdfs)``; using them untrained raises.
 
-- :class:`SparseModel`   the paper's model over an ensemble (8 bytes per coefficient)
+- :class:`SparseModel`   the paper's model over an ensemble (``nbytes``: its ``.sbrdf``
+  file, header included; version 2 by default, about 2 bytes per coefficient)
 - :class:`NaiveModel`    Bagher et al. 2016: kd + ks a(theta_h) b(theta_d) c(phi_d) per
   channel (362 numbers), non-negative alternating weighted least squares
   (:func:`fit_separable`) with solid-angle and cosine weights
@@ -31,9 +32,10 @@ import numpy as np
 from ..brdf import BRDF
 from ..coords import bin_solid_angle, cosine_product
 from ..transforms import check_transform, cosine_weight, forward, inverse
+from .budget import encode_to_bytes
 from .encode import DEFAULT_N_COEFFS, ENCODE_OPTIONS, PAPER_OPTIONS, check_options, encode
 from .ensemble import resolve_ensemble
-from .sbrdf import RECORD_BYTES
+from .sbrdf import VERSION, VERSIONS, as_stored, to_bytes
 
 _F32 = 4
 
@@ -132,12 +134,24 @@ class SparseModel(BRDFModel):
     passed on). ``name``: ``sparse-N``, then ``-TRANSFORM`` unless "auto", then
     ``-KEY=VALUE`` for each option not at its default, in the order above (so that
     every option set has its own name, e.g. ``sparse-262-fill=missing``), or ``-paper``
-    for the paper's encoder (``PAPER_OPTIONS``)."""
+    for the paper's encoder (``PAPER_OPTIONS``).
+
+    ``n_bytes``: a byte budget per material instead of ``n_coeffs`` (each file holds at
+    most that many bytes, :func:`~sparse_brdf.model.budget.encode_to_bytes`; the name
+    starts ``sparse-bN``). ``version``: the ``.sbrdf`` version whose bytes are counted
+    and which is rendered (name suffix ``-version=1`` unless the default, 2). The model
+    scored is the file's (values quantised for version 2); ``nbytes`` is the file's size."""
 
     def __init__(self, ensemble=None, n_coeffs: int = DEFAULT_N_COEFFS,
-                 transform: str = "auto", **options):
+                 transform: str = "auto", n_bytes: int | None = None,
+                 version: int = VERSION, **options):
+        if version not in VERSIONS:
+            raise ValueError(f"unknown .sbrdf version {version!r}: expected one of "
+                             f"{', '.join(map(str, VERSIONS))}")
+        if n_bytes is not None and n_bytes < 1:
+            raise ValueError(f"byte budget must be >= 1, got {n_bytes}")
         self.ensemble = resolve_ensemble(ensemble)
-        self.n_coeffs = n_coeffs
+        self.n_coeffs, self.n_bytes, self.version = n_coeffs, n_bytes, version
         self.transform = transform if transform == "auto" else check_transform(transform)
         full = check_options(**options)
         implied = check_options(basis=full["basis"], fill=full["fill"])
@@ -146,15 +160,21 @@ class SparseModel(BRDFModel):
                                        else ENCODE_OPTIONS)[k]}
         suffix = ("-paper" if self.options == PAPER_OPTIONS
                   else "".join(f"-{k}={v}" for k, v in self.options.items()))
-        self.name = (f"sparse-{n_coeffs}" + ("" if transform == "auto" else f"-{transform}")
-                     + suffix)
+        size = f"b{n_bytes}" if n_bytes is not None else str(n_coeffs)
+        self.name = (f"sparse-{size}" + ("" if transform == "auto" else f"-{transform}")
+                     + suffix + ("" if version == VERSION else f"-version={version}"))
 
     def fit(self, brdf: BRDF) -> Compact:
-        m = encode(brdf, self.ensemble, self.n_coeffs, transform=self.transform,
-                   **self.options)
-        return Compact(self.name, RECORD_BYTES * int(m.n_coeffs.sum()),
+        if self.n_bytes is None:
+            m = encode(brdf, self.ensemble, self.n_coeffs, transform=self.transform,
+                       **self.options)
+        else:
+            m = encode_to_bytes(brdf, self.ensemble, self.n_bytes, self.version,
+                                transform=self.transform, **self.options)
+        m = as_stored(m, self.version)  # what the file holds, and so what renders
+        return Compact(self.name, len(to_bytes(m, self.version)),
                        lambda: m.decode(self.ensemble, valid=brdf.valid).values,
-                       {"transform": m.transform, "model": m})
+                       {"transform": m.transform, "model": m, "version": self.version})
 
 
 def _axis_sums(t: np.ndarray, x: np.ndarray, y: np.ndarray, axis: int) -> np.ndarray:

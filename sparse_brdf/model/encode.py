@@ -25,6 +25,7 @@ import numpy as np
 
 from ..brdf import BRDF
 from ..coords import geometric_valid
+from ..errors import EnsembleMismatchError, UsageError
 from ..metrics import (
     cosine_weighted_snr,
     gamma_mse,
@@ -439,12 +440,12 @@ def encode(
     """
     ens = resolve_ensemble(ensemble)
     if brdf.shape != ens.shape:
-        raise ValueError(f"{brdf.name}: BRDF grid {brdf.shape} does not match the "
+        raise EnsembleMismatchError(f"{brdf.name}: BRDF grid {brdf.shape} does not match the "
                          f"ensemble's {ens.shape}")
     if n_coeffs < 1:
-        raise ValueError(f"n_coeffs must be >= 1, got {n_coeffs}")
+        raise UsageError(f"n_coeffs must be >= 1, got {n_coeffs}")
     if max_error is not None and not (0 <= max_error < 1):
-        raise ValueError(f"max_error must be in [0, 1), got {max_error}")
+        raise UsageError(f"max_error must be in [0, 1), got {max_error}")
     kw = check_options(selector=selector, fill=fill, fill_iters=fill_iters, basis=basis,
                        budget=budget)
     opts = _Options(n_coeffs, max_error, kw["fill"], kw["fill_iters"], kw["basis"],
@@ -465,7 +466,7 @@ def check_options(**options) -> dict:
     values raise ValueError."""
     unknown = sorted(set(options) - set(ENCODE_OPTIONS))
     if unknown:
-        raise ValueError(f"unknown encoding option(s) {', '.join(unknown)}: expected "
+        raise UsageError(f"unknown encoding option(s) {', '.join(unknown)}: expected "
                          f"{', '.join(ENCODE_OPTIONS)}")
     o = {**ENCODE_OPTIONS, **options}
     check_choice("selector", o["selector"], SELECTORS)
@@ -476,7 +477,7 @@ def check_options(**options) -> dict:
     if o["fill_iters"] is None:
         o["fill_iters"] = DEFAULT_FILL_ITERS[o["fill"]]
     elif int(o["fill_iters"]) != o["fill_iters"] or o["fill_iters"] < 0:
-        raise ValueError(f"fill_iters must be an integer >= 0, got {o['fill_iters']!r}")
+        raise UsageError(f"fill_iters must be an integer >= 0, got {o['fill_iters']!r}")
     o["fill_iters"] = int(o["fill_iters"])
     return o
 
@@ -484,7 +485,7 @@ def check_options(**options) -> dict:
 def check_choice(what: str, value: str, choices: tuple[str, ...]) -> str:
     """``value`` if it is one of ``choices``, else a ValueError naming them."""
     if value not in choices:
-        raise ValueError(f"unknown {what} {value!r}: expected one of {', '.join(choices)}")
+        raise UsageError(f"unknown {what} {value!r}: expected one of {', '.join(choices)}")
     return value
 
 

@@ -14,7 +14,6 @@ import functools
 import hashlib
 import json
 import os
-import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -92,7 +91,8 @@ class Ensemble:
     def union(self, other: Ensemble) -> Ensemble:
         """This ensemble's dictionaries followed by ``other``'s (same grid shape)."""
         if other.shape != self.shape:
-            raise ValueError(f"cannot unite ensembles of grids {self.shape} and {other.shape}")
+            raise EnsembleMismatchError(f"cannot unite ensembles of grids {self.shape} and "
+                                        f"{other.shape}")
         meta = {"parts": [self.meta, other.meta]}
         return Ensemble(
             np.concatenate([self.u1, other.u1]), np.concatenate([self.u2, other.u2]),
@@ -115,8 +115,9 @@ class Ensemble:
             with np.load(path, allow_pickle=False) as z:
                 ens = cls(z["u1"], z["u2"], z["u3"], z["taus"], json.loads(str(z["meta"])))
                 stored_id = str(z["id"])
-        except (OSError, KeyError, ValueError, zipfile.BadZipFile) as exc:
-            raise BRDFFileError(f"{path}: not a sparse-brdf ensemble file ({exc})") from exc
+        except Exception as exc:  # noqa: BLE001 - numpy and zipfile raise many kinds
+            raise BRDFFileError(f"{path}: not a sparse-brdf ensemble file "
+                                f"({type(exc).__name__}: {exc})") from exc
         if stored_id != ens.id:
             raise BRDFFileError(f"{path}: ensemble content does not match its hash (corrupt)")
         return ens

@@ -20,6 +20,7 @@ import functools
 
 import numpy as np
 
+from ..errors import UsageError
 from ..transforms import colour_matrix
 from .ensemble import Ensemble, resolve_ensemble
 from .sparse import SparseBRDF
@@ -46,10 +47,13 @@ def interpolate(
     a.check_ensemble(ens)
     b.check_ensemble(ens)
     if a.transform != b.transform:
-        raise ValueError(f"cannot blend {a.name} ({a.transform}) with {b.name} "
+        raise UsageError(f"cannot blend {a.name} ({a.transform}) with {b.name} "
                          f"({b.transform}): encode both with the same --transform")
     if not 0.0 <= alpha <= 1.0:
-        raise ValueError(f"alpha must be in [0, 1], got {alpha}")
+        raise UsageError(f"alpha must be in [0, 1], got {alpha}")
+    if n_coeffs is not None and not 1 <= n_coeffs <= int(np.prod(a.shape)):
+        raise UsageError(f"n_coeffs must be in [1, {int(np.prod(a.shape))}] (the grid's "
+                         f"entries), got {n_coeffs}")
     same = a.basis == b.basis
     # B's coded channels -> A's: R = M_A M_B^T (the identity, exactly, for one basis)
     mix = np.eye(3) if same else colour_matrix(a.basis) @ colour_matrix(b.basis).T
@@ -64,7 +68,8 @@ def interpolate(
         else:
             sb = sum(float(mix[c, d]) * b_in(d, ka) for d in range(3) if abs(mix[c, d]) > 1e-12)
         blends.append(((1.0 - alpha) * sa + alpha * sb).ravel())
-        budgets.append(int(n_coeffs or max(int(a.n_coeffs[c]), b_count[c])))
+        budgets.append(int(n_coeffs if n_coeffs is not None
+                           else max(int(a.n_coeffs[c]), b_count[c])))
     if a.basis == "opponent":
         locs, vals = _joint_top(blends, sum(budgets))
     else:

@@ -8,10 +8,16 @@ import numpy as np
 
 from ..brdf import BRDF
 from ..coords import dirs_to_bins, geometric_valid
-from ..errors import EnsembleMismatchError
+from ..errors import EnsembleMismatchError, InvalidBRDFError
 from ..transforms import check_basis, check_transform, from_basis, inverse, inverse_at_bins
 from .ensemble import Ensemble
 from .tensor import parallel_map, reconstruct_sparse
+
+#: The largest transformed value of a float32 BRDF, ln(1 + float32 max) (both transforms;
+#: cos_i cos_o <= 1). The coded channels are orthonormal maps of the transformed R, G, B
+#: (dictionaries and colour basis), so a channel's sum of s^2 is at most 3 n T_MAX^2 on
+#: a grid of n bins: larger coefficients are refused as corrupt.
+T_MAX = float(np.log1p(np.float64(np.finfo(np.float32).max)))
 
 
 @dataclass
@@ -56,13 +62,17 @@ class SparseBRDF:
         size = int(np.prod(self.shape))
         for c, (a, v) in enumerate(zip(self.locations, self.values, strict=True)):
             if a.shape != v.shape:
-                raise ValueError(f"{self.name}: channel {c} has {a.size} locations and "
-                                 f"{v.size} values")
+                raise InvalidBRDFError(f"{self.name}: channel {c} has {a.size} locations "
+                                       f"and {v.size} values")
             if a.size and (a.min() < 0 or a.max() >= size):
-                raise ValueError(f"{self.name}: channel {c} has coefficient locations outside "
-                                 f"the {self.shape} grid")
+                raise InvalidBRDFError(f"{self.name}: channel {c} has coefficient locations "
+                                       f"outside the {self.shape} grid")
             if not np.all(np.isfinite(v)):
-                raise ValueError(f"{self.name}: channel {c} has NaN/inf coefficients")
+                raise InvalidBRDFError(f"{self.name}: channel {c} has NaN/inf coefficients")
+            if float(np.sum(np.square(v, dtype=np.float64))) > 3.0 * size * T_MAX**2:
+                raise InvalidBRDFError(
+                    f"{self.name}: channel {c}'s coefficients (largest |s| "
+                    f"{float(np.abs(v).max()):.3g}) are larger than any finite BRDF's")
 
     @property
     def n_coeffs(self) -> np.ndarray:
@@ -80,8 +90,12 @@ class SparseBRDF:
                 f"{self.name}: encoded with ensemble {self.ensemble_id}, "
                 f"but ensemble {ensemble.id} was given"
             )
-        if int(self.dict_index.max()) >= ensemble.n_dicts:
+        if int(self.dict_index.max()) >= ensemble.n_dicts or int(self.dict_index.min()) < 0:
             raise EnsembleMismatchError(f"{self.name}: dictionary index out of range")
+        if tuple(ensemble.shape) != tuple(self.shape):
+            raise EnsembleMismatchError(
+                f"{self.name}: grid {'x'.join(map(str, self.shape))}, but its ensemble's is "
+                f"{'x'.join(map(str, ensemble.shape))}")
 
     def coded(self, ensemble: Ensemble) -> np.ndarray:
         """The coded channels (in :attr:`basis`), shape (3, n1, n2, n3), float32."""

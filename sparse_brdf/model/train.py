@@ -16,6 +16,11 @@ Masked training (``masked=True``, the default): only valid bins count. Bins belo
 horizon (shared by every tensor) and a material's unmeasured bins are free values: after
 each tensor is coded they are set to its reconstruction (expectation-maximisation), so
 the norm above runs over valid bins only and still cannot increase.
+
+Where it runs: the per-tensor work of each step (sparse coding, clustering, the partial
+Procrustes sums) runs on shards of the tensors (:class:`_Shards`) through an executor
+(``parallel.py``): in this process by default, or on Dask workers, with the same results
+bit for bit (``docs/scale-out.md``).
 """
 
 from __future__ import annotations
@@ -23,15 +28,20 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from ..coords import geometric_valid
+from ..errors import BRDFFileError, UsageError
 from ..fileio import atomic_write
+from ..parallel import Executor, InProcess
+from ..parallel import executor as open_executor
 from .ensemble import Ensemble
 from .tensor import (
     hosvd_factors,
@@ -103,6 +113,8 @@ class _Tensors:
     def __init__(self, x: np.ndarray, masked: bool, missing: dict | None = None):
         self.x, self.masked = x, masked
         self.shape = tuple(int(n) for n in x.shape[1:])
+        self.grams: list | None = None  # mode Gram matrices, during the initialisation
+        self.cache: dict[int, np.ndarray] = {}  # mode-3 products (_shard_partials)
         self.raw_norms = _sq_norms(x)  # of x as given (the checkpoint fingerprint)
         self.extra: dict[int, np.ndarray] = {}
         if not masked:
@@ -325,97 +337,279 @@ def _assign_all(data: _Tensors, state_u, tau, progress, known=None) -> tuple[np.
     return labels, idx_all, val_all, errors, all_err
 
 
-def _code_own(data: _Tensors, state: TrainState, tau, progress) -> None:
-    """Sparse-code each tensor in its own cluster's dictionary (in place); masked, then
-    refill its free bins from the new code."""
+# ------------------------------------------------------------ shards (docs/scale-out.md)
+#: Tensors per shard (:class:`_Shards`). Fixed, not derived from the number of workers,
+#: so that every sum over tensors is summed per shard and then over the shards in the
+#: same order wherever the shards run: results are the same bit for bit in-process and
+#: on any cluster.
+SHARD_TENSORS = 32
+#: Bytes of mode-3 partial products the dictionary update may keep, in one process,
+#: between its first two passes (:func:`_shard_partials`); beyond this they are
+#: recomputed instead (same results).
+MAX_CACHE_BYTES = 3 * 1024**3
+_cache_lock = threading.Lock()
+_cache_used = [0]  # bytes of partial products cached in this process
+
+
+def _shard_info(sh: _Tensors) -> tuple:
+    return sh.raw_norms, sh.energy, sh.extra
+
+
+def _shard_assign(sh: _Tensors, known, tau, u1, u2, u3) -> tuple:
+    """Cluster the shard's tensors (:func:`_assign_all`), without the error matrix."""
+    return _assign_all(sh, (u1, u2, u3), tau, False, known)[:4]
+
+
+def _shard_code(sh: _Tensors, labels, tau, u1, u2, u3) -> tuple:
+    """Sparse-code each tensor of the shard in its own cluster's dictionary; masked, then
+    refill its free bins from the new code. Returns the codes and errors."""
 
     def one(i):
-        j = state.labels[i]
-        u = (state.u1[j], state.u2[j], state.u3[j])
-        return _code_tensor(data, i, project(data[i], *u), tau, u)
+        j = labels[i]
+        u = (u1[j], u2[j], u3[j])
+        return _code_tensor(sh, i, project(sh[i], *u), tau, u)
 
-    for i, (idx, val, err, fill) in enumerate(
-        _progress(parallel_map(one, range(len(data))), len(data), progress, "code")
-    ):
-        state.codes_idx[i], state.codes_val[i] = idx, val
-        state.errors[i] = err
+    n = len(sh)
+    idx, val, err = np.zeros((n, tau), np.int32), np.zeros((n, tau), np.float32), np.zeros(n)
+    for i, (a, v, e, fill) in enumerate(parallel_map(one, range(n))):
+        idx[i], val[i], err[i] = a, v, e
         if fill is not None:
-            data.set_fill(i, fill)
+            sh.set_fill(i, fill)
+    return idx, val, err
 
 
-def _refill_all(data: _Tensors, state: TrainState) -> None:
-    """Masked: set every tensor's free bins from its code in ``state`` (on resuming, to
-    restore the filled tensors the checkpointed iteration ended with)."""
-    if not data.masked:
+def _shard_refill(sh: _Tensors, labels, idx, val, u1, u2, u3) -> None:
+    """Masked: set every tensor's free bins from its code (on resuming, to restore the
+    filled tensors the checkpointed iteration ended with)."""
+    if not sh.masked:
         return
 
     def one(i):
-        j = state.labels[i]
-        return data.reconstruct_free(i, state.codes_idx[i], state.codes_val[i],
-                                     (state.u1[j], state.u2[j], state.u3[j]))[0]
+        j = labels[i]
+        return sh.reconstruct_free(i, idx[i], val[i], (u1[j], u2[j], u3[j]))[0]
 
-    for i, fill in enumerate(parallel_map(one, range(len(data)))):
-        data.set_fill(i, fill)
-
-
-#: Bytes of mode-3 partial products the dictionary update may keep between its first two
-#: passes; above this (a very large cluster) they are recomputed instead.
-MAX_CACHE_BYTES = 3 * 1024**3
+    for i, fill in enumerate(parallel_map(one, range(len(sh)))):
+        sh.set_fill(i, fill)
 
 
-def _update_dictionary(x: _Tensors, members, state: TrainState, j, progress) -> None:
-    """Gauss-Seidel Procrustes update of the three modes of dictionary j.
+def _drop_cache(sh: _Tensors) -> None:
+    with _cache_lock:
+        _cache_used[0] -= sum(a.nbytes for a in sh.cache.values())
+    sh.cache = {}
+
+
+def _shard_partials(sh: _Tensors, labels, codes_idx, codes_val, mode, n_dicts,
+                    u1, u2, u3) -> list:
+    """The shard's part of each cluster's Procrustes product Z for ``mode`` (0, 1, 2):
+    a float64 (n, n) sum over the cluster's tensors in the shard, None for none.
 
     The passes for U1 and U2 both start from A = X x3 U3^T with the same U3, so A is
-    computed once per tensor and kept for the second pass (when the cluster's products fit
-    in ``MAX_CACHE_BYTES``); the results are the same as recomputing it.
+    kept from the first pass for the second (up to ``MAX_CACHE_BYTES`` per process);
+    the results are the same as recomputing it.
     """
-    n1, n2, n3 = shape = x.shape
-    cache: dict[int, np.ndarray] | None = (
-        {} if len(members) * n1 * n2 * n3 * 4 <= MAX_CACHE_BYTES else None)
+    n1, n2, n3 = shape = sh.shape
 
     def onehot(pos, val, n):
         m = np.zeros((len(pos), n), np.float32)
         np.add.at(m, (np.arange(len(pos)), pos), val)
         return m
 
-    def mode3_product(i, u3):
+    def mode3_product(i, u3j):
         """A = X_i x3 U3^T as an (n1 n2, n3) matrix, from the cache when there."""
-        if cache is not None and i in cache:
-            return cache.pop(i)
-        a = x[i].reshape(n1 * n2, n3) @ u3
-        if cache is not None:
-            cache[i] = a
+        if i in sh.cache:
+            a = sh.cache.pop(i)
+            with _cache_lock:
+                _cache_used[0] -= a.nbytes
+            return a
+        a = sh[i].reshape(n1 * n2, n3) @ u3j
+        if mode == 0:
+            with _cache_lock:
+                keep = _cache_used[0] + a.nbytes <= MAX_CACHE_BYTES
+                _cache_used[0] += a.nbytes if keep else 0
+            if keep:
+                sh.cache[i] = a
         return a
 
+    def contrib(i):
+        j = labels[i]
+        a, b, c = np.unravel_index(codes_idx[i], shape)
+        s = codes_val[i]
+        if mode == 0:  # W1 = X x2 U2^T x3 U3^T, Z1[:, a_t] += s_t W1[:, b_t, c_t]
+            w = np.matmul(u2[j].T, mode3_product(i, u3[j]).reshape(n1, n2, n3))
+            return w[:, b, c] @ onehot(a, s, n1)
+        if mode == 1:  # W2 = X x1 U1^T x3 U3^T, Z2[:, b_t] += s_t W2[a_t, :, c_t]
+            w = (u1[j].T @ mode3_product(i, u3[j]).reshape(n1, n2 * n3)).reshape(n1, n2, n3)
+            return w[a, :, c].T @ onehot(b, s, n2)
+        # W3 = X x1 U1^T x2 U2^T, Z3[:, c_t] += s_t W3[a_t, b_t, :]
+        w = np.matmul(u2[j].T, (u1[j].T @ sh[i].reshape(n1, n2 * n3)).reshape(n1, n2, n3))
+        return w[a, b, :].T @ onehot(c, s, n3)
+
+    if mode == 0:
+        _drop_cache(sh)
+    z: list = [None] * n_dicts
+    order = np.argsort(labels, kind="stable")  # by cluster, then by tensor
+    for i, part in zip(order, parallel_map(contrib, order), strict=True):
+        j = labels[i]  # each cluster's sum in the order of its members, wherever it runs
+        z[j] = part.astype(np.float64) if z[j] is None else z[j] + part
+    if mode > 0:
+        _drop_cache(sh)
+    return z
+
+
+def _shard_grams(sh: _Tensors) -> None:
+    """Keep the mode Gram matrices of the shard's tensors (for the initialisation)."""
+    sh.grams = list(parallel_map(lambda i: mode_grams(sh[i]), range(len(sh))))
+
+
+def _shard_gram(sh: _Tensors, i: int) -> tuple:
+    return sh.grams[i]
+
+
+def _shard_gram_sums(sh: _Tensors, labels, n_dicts) -> list:
+    """Per cluster, the sums of the Gram matrices of its tensors in the shard (float64);
+    then forget the Gram matrices."""
+    n1, n2, n3 = sh.shape
+    sums = [[np.zeros((m, m)) for m in (n1, n2, n3)] for _ in range(n_dicts)]
+    for i, g in enumerate(sh.grams):
+        for m in range(3):
+            sums[labels[i]][m] += g[m]
+    sh.grams = None
+    return sums
+
+
+def _shard_seed_errors(sh: _Tensors, err, tau, upto, f1, f2, f3) -> np.ndarray:
+    """Each tensor's error under a seed dictionary (f1, f2, f3), or inf when it cannot
+    beat ``err`` (:func:`_seed_labels`)."""
+    d = _Dicts.of(f1[None], f2[None], f3[None])
+
+    def seed_error(i):
+        found = _search_codes(sh[i], sh.norms[i], [0], d, tau, err[i], sh.grams[i][2],
+                              upto=upto)
+        return found[0][2] if found else np.inf
+
+    return np.array(list(parallel_map(seed_error, range(len(sh)))), np.float64)
+
+
+def _shard_reseed(sh: _Tensors, i: int, tau) -> tuple:
+    """Tensor i's own HOSVD dictionary and its code there (for an empty cluster)."""
+    with threadpool_limits(limits=1, user_api="blas"):  # the same bits in any process
+        xi = sh[i]
+        f = hosvd_factors(mode_grams(xi))
+        return f, *_code_tensor(sh, i, project(xi, *f), tau, f)
+
+
+def _shard_set_fill(sh: _Tensors, i: int, fill) -> None:
+    sh.set_fill(i, fill)
+
+
+class _Shards:
+    """The training tensors as shards of ``SHARD_TENSORS`` consecutive tensors, each a
+    :class:`_Tensors` kept where the executor runs it (``parallel.py``: here, or on one
+    worker for the whole run, so the tensors and their free-bin values travel once).
+
+    Each step of an iteration runs a shard function on every shard, with the shard's
+    slice of the labels and codes and the dictionaries it needs (scattered once per
+    step to each worker, not sent per tensor or per shard), and returns the per-tensor
+    results in order; sums over tensors come back as one partial sum per shard, added
+    here in shard order.
+    """
+
+    def __init__(self, x: np.ndarray, masked: bool, missing: dict | None, ex,
+                 progress: bool):
+        self.ex, self.masked, self.progress = ex, masked, progress
+        self.shape = tuple(int(n) for n in x.shape[1:])
+        self.n = n = len(x)
+        self.bounds = [(lo, min(lo + SHARD_TENSORS, n)) for lo in range(0, n, SHARD_TENSORS)]
+        args = []
+        for lo, hi in self.bounds:
+            part = np.ascontiguousarray(x[lo:hi]) if ex.distributed else x[lo:hi]
+            local = {int(i) - lo: m for i, m in (missing or {}).items() if lo <= int(i) < hi}
+            args.append((part, masked, local))
+        self.handles = ex.place(_Tensors, args)
+        info = self.run(_shard_info, None)
+        self.raw_norms = np.concatenate([r[0] for r in info])
+        self.energy = np.concatenate([r[1] for r in info])
+        self.extra = {lo + i: e for (lo, _), r in zip(self.bounds, info, strict=True)
+                      for i, e in r[2].items()}
+
+    def __len__(self) -> int:
+        return self.n
+
+    def slices(self, *arrays) -> list[tuple]:
+        """Each shard's slice of per-tensor ``arrays``."""
+        return [tuple(a[lo:hi] for a in arrays) for lo, hi in self.bounds]
+
+    def run(self, fn, arg_lists, *shared, desc: str | None = None) -> list:
+        """``fn(shard, *args, *shared)`` on every shard (:meth:`InProcess.run_on`)."""
+        bar = _bar(self.n, bool(self.progress and desc), desc, unit="tensor", leave=False)
+        out = self.ex.run_on(self.handles, fn, arg_lists, *shared,
+                             tick=lambda k: bar.update(self.bounds[k][1] - self.bounds[k][0]))
+        bar.close()
+        return out
+
+    def run_one(self, i: int, fn, *args):
+        """``fn(shard, local index of tensor i, *args)`` on the shard holding tensor i."""
+        k = i // SHARD_TENSORS
+        return self.ex.run_on([self.handles[k]], fn, [(i - self.bounds[k][0], *args)])[0]
+
+    def scatter(self, *arrays) -> list:
+        return [self.ex.scatter(a) for a in arrays]
+
+    def release(self, handles) -> None:
+        self.ex.release([h for h in handles if h is not None])
+
+    def __enter__(self) -> _Shards:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.ex.release(self.handles)
+
+
+def _cat(parts: list, k: int) -> np.ndarray:
+    return np.concatenate([p[k] for p in parts])
+
+
+def _code_own(data: _Shards, state: TrainState, tau, hs) -> None:
+    """Sparse-code each tensor in its own cluster's dictionary (``hs``: the scattered
+    mode matrices); masked, its free bins are then refilled from the new code."""
+    out = data.run(_shard_code, data.slices(state.labels), tau, *hs, desc="code")
+    state.codes_idx, state.codes_val, state.errors = (_cat(out, k) for k in range(3))
+
+
+def _refill_all(data: _Shards, state: TrainState) -> None:
+    """Masked: set every tensor's free bins from its code in ``state`` (on resuming)."""
+    if data.masked:
+        hs = data.scatter(state.u1, state.u2, state.u3)
+        data.run(_shard_refill, data.slices(state.labels, state.codes_idx, state.codes_val),
+                 *hs)
+        data.release(hs)
+
+
+def _update_dictionaries(data: _Shards, state: TrainState, hs: list, n_dicts) -> list:
+    """Gauss-Seidel Procrustes update of the three modes of every dictionary with members.
+
+    Each mode's product Z of every cluster is summed over the shards (a map-reduce); its
+    Procrustes solution replaces the mode matrix, which is scattered again for the next
+    mode. Returns the handles of the new mode matrices.
+    """
+    stacks = (state.u1, state.u2, state.u3)
     for mode in range(3):
-        u1, u2, u3 = state.u1[j], state.u2[j], state.u3[j]
-
-        def contrib(i, mode=mode, u1=u1, u2=u2, u3=u3):
-            a, b, c = np.unravel_index(state.codes_idx[i], shape)
-            s = state.codes_val[i]
-            if mode == 0:  # W1 = X x2 U2^T x3 U3^T, Z1[:, a_t] += s_t W1[:, b_t, c_t]
-                w = np.matmul(u2.T, mode3_product(i, u3).reshape(n1, n2, n3))
-                return w[:, b, c] @ onehot(a, s, n1)
-            if mode == 1:  # W2 = X x1 U1^T x3 U3^T, Z2[:, b_t] += s_t W2[a_t, :, c_t]
-                w = (u1.T @ mode3_product(i, u3).reshape(n1, n2 * n3))
-                w = w.reshape(n1, n2, n3)
-                return w[a, :, c].T @ onehot(b, s, n2)
-            # W3 = X x1 U1^T x2 U2^T, Z3[:, c_t] += s_t W3[a_t, b_t, :]
-            w = np.matmul(u2.T, (u1.T @ x[i].reshape(n1, n2 * n3)).reshape(n1, n2, n3))
-            return w[a, b, :].T @ onehot(c, s, n3)
-
-        z = None
-        for part in _progress(parallel_map(contrib, members), len(members), progress,
-                              f"dict {j} mode {mode + 1}"):
-            z = part.astype(np.float64) if z is None else z + part
-        if z is None:
-            continue
-        u_new = procrustes(z)
-        (state.u1, state.u2, state.u3)[mode][j] = u_new
+        parts = data.run(_shard_partials,
+                         data.slices(state.labels, state.codes_idx, state.codes_val),
+                         mode, n_dicts, *hs, desc=f"update mode {mode + 1}")
+        for j in range(n_dicts):
+            z = None
+            for p in parts:  # shard order
+                if p[j] is not None:
+                    z = p[j] if z is None else z + p[j]
+            if z is not None:
+                stacks[mode][j] = procrustes(z)
+        data.release([hs[mode]])
+        hs[mode] = data.ex.scatter(stacks[mode])
+    return hs
 
 
-def _reseed_empty(data: _Tensors, state: TrainState, tau) -> int:
+def _reseed_empty(data: _Shards, state: TrainState, tau) -> int:
     """Give every empty cluster the worst-represented tensor of a cluster with >= 2 members."""
     k = state.u1.shape[0]
     reseeded = 0
@@ -426,39 +620,36 @@ def _reseed_empty(data: _Tensors, state: TrainState, tau) -> int:
         donors = np.flatnonzero(counts[state.labels] >= 2)
         if donors.size == 0:
             break
-        i = donors[np.argmax(state.errors[donors])]
-        xi = data[i]
-        f1, f2, f3 = hosvd_factors(mode_grams(xi))
+        i = int(donors[np.argmax(state.errors[donors])])
+        (f1, f2, f3), idx, val, err, fill = data.run_one(i, _shard_reseed, tau)
         state.u1[j], state.u2[j], state.u3[j] = f1, f2, f3
-        idx, val, err, fill = _code_tensor(data, i, project(xi, f1, f2, f3), tau, (f1, f2, f3))
         if err <= state.errors[i]:
             state.labels[i] = j
             state.codes_idx[i], state.codes_val[i] = idx, val
             state.errors[i] = err
             if fill is not None:
-                data.set_fill(i, fill)
+                data.run_one(i, _shard_set_fill, fill)
         reseeded += 1
     return reseeded
 
 
-def _init_state(data: _Tensors, tau, n_dicts, rng, progress, init: str = "random"
-                ) -> TrainState:
+def _init_state(data: _Shards, tau, n_dicts, rng, init: str = "random") -> TrainState:
     """The first clusters, each initialised with its HOSVD: random balanced clusters
     (``random``) or :func:`_seed_labels` (``seeded``)."""
     n = len(data)
     n1, n2, n3 = data.shape
-    grams = list(_progress(parallel_map(lambda i: mode_grams(data[i]), range(n)), n,
-                           progress, "init"))
+    data.run(_shard_grams, None, desc="init")
     if init == "random":
         labels = rng.permutation(np.arange(n) % n_dicts)
     elif init == "seeded":
-        labels = _seed_labels(data, grams, tau, n_dicts, rng, progress)
+        labels = _seed_labels(data, tau, n_dicts, rng)
     else:
-        raise ValueError(f"unknown init {init!r}: expected one of {', '.join(INITS)}")
+        raise UsageError(f"unknown init {init!r}: expected one of {', '.join(INITS)}")
     sums = [[np.zeros((m, m)) for m in (n1, n2, n3)] for _ in range(n_dicts)]
-    for i, g in enumerate(grams):
-        for m in range(3):
-            sums[labels[i]][m] += g[m]
+    for part in data.run(_shard_gram_sums, data.slices(labels), n_dicts):  # shard order
+        for j in range(n_dicts):
+            for m in range(3):
+                sums[j][m] += part[j][m]
     factors = [hosvd_factors(tuple(g)) if np.any(labels == j) else
                [np.eye(m, dtype=np.float32) for m in (n1, n2, n3)]
                for j, g in enumerate(sums)]
@@ -476,7 +667,7 @@ def _init_state(data: _Tensors, tau, n_dicts, rng, progress, init: str = "random
 SEED_FRACTION: float | None = 0.2
 
 
-def _seed_labels(data: _Tensors, grams, tau, n_dicts, rng, progress) -> np.ndarray:
+def _seed_labels(data: _Shards, tau, n_dicts, rng) -> np.ndarray:
     """k-means++ seeding in the training error itself.
 
     The first seed is drawn with probability proportional to tensor energy, each further
@@ -491,19 +682,14 @@ def _seed_labels(data: _Tensors, grams, tau, n_dicts, rng, progress) -> np.ndarr
     n = len(data)
     err = np.full(n, np.inf)
     labels = np.zeros(n, np.int64)
-    weights = np.asarray(data.norms, np.float64)
+    weights = np.asarray(data.energy, np.float64)  # ||X~_i||^2 before any fill
     for j in range(n_dicts):
         p = weights / weights.sum() if weights.sum() > 0 else None
         s = int(rng.choice(n, p=p))
-        d = _Dicts.of(*(f[None] for f in hosvd_factors(grams[s])))
-
-        def seed_error(i, d=d):
-            found = _search_codes(data[i], data.norms[i], [0], d, tau, err[i], grams[i][2],
-                                  upto=upto)
-            return found[0][2] if found else np.inf
-
-        e = np.array(list(_progress(parallel_map(seed_error, range(n)), n, progress,
-                                    f"seed {j + 1}")))
+        hs = data.scatter(*hosvd_factors(data.run_one(s, _shard_gram)))
+        e = np.concatenate(data.run(_shard_seed_errors, data.slices(err), tau, upto, *hs,
+                                    desc=f"seed {j + 1}"))
+        data.release(hs)
         e[s] = -1.0  # a seed stays with its own dictionary
         better = e < err
         labels[better], err[better] = j, e[better]
@@ -516,58 +702,70 @@ def _check_training_args(x, tau: int, n_dicts: int, init: str = DEFAULT_INIT,
     """``x`` as an array (a memory map stays one); raise on unusable arguments."""
     x = np.asarray(x) if not isinstance(x, np.memmap) else x
     if x.ndim != 4:
-        raise ValueError(f"training tensors must have shape (N, n1, n2, n3), got {x.shape}")
+        raise UsageError(f"training tensors must have shape (N, n1, n2, n3), got {x.shape}")
     if tau < 1 or tau > np.prod(x.shape[1:]):
-        raise ValueError(f"tau must be in [1, {np.prod(x.shape[1:])}], got {tau}")
+        raise UsageError(f"tau must be in [1, {np.prod(x.shape[1:])}], got {tau}")
     if n_dicts < 1 or n_dicts > len(x):
-        raise ValueError(f"n_dicts must be in [1, {len(x)}] (one tensor per cluster at least), "
+        raise UsageError(f"n_dicts must be in [1, {len(x)}] (one tensor per cluster at least), "
                          f"got {n_dicts}")
     if init not in INITS:
-        raise ValueError(f"unknown init {init!r}: expected one of {', '.join(INITS)}")
+        raise UsageError(f"unknown init {init!r}: expected one of {', '.join(INITS)}")
     if reassign_every < 1:
-        raise ValueError(f"reassign_every must be >= 1, got {reassign_every}")
+        raise UsageError(f"reassign_every must be >= 1, got {reassign_every}")
     return x
 
 
-def _recluster(data: _Tensors, state: TrainState, tau, progress) -> int:
+def _recluster(data: _Shards, state: TrainState, tau, hs) -> int:
     """Cluster every tensor against every dictionary (in place); return how many moved."""
     old = state.labels.copy()
     # after the first iteration the state's codes belong to the current dictionaries
-    known = ((state.labels, state.codes_idx, state.codes_val, state.errors)
-             if state.iteration > 0 else None)
-    (state.labels, state.codes_idx, state.codes_val, state.errors,
-     _) = _assign_all(data, (state.u1, state.u2, state.u3), tau, progress, known)
+    known = (data.slices(state.labels, state.codes_idx, state.codes_val, state.errors)
+             if state.iteration > 0 else [None] * len(data.bounds))
+    out = data.run(_shard_assign, [(k,) for k in known], tau, *hs, desc="assign")
+    state.labels, state.codes_idx, state.codes_val, state.errors = (
+        _cat(out, k) for k in range(4))
     return int(np.sum(old != state.labels))
 
 
-def _iterate(data: _Tensors, total: float, state: TrainState, tau, n_dicts, reassign_every,
-             progress) -> dict:
+def _iterate(data: _Shards, total: float, state: TrainState, tau, n_dicts,
+             reassign_every) -> dict:
     """One training iteration (clustering or not, reseeding, dictionary updates, re-coding)
-    on ``state`` in place; returns its history record."""
+    on ``state`` in place; returns its history record. The dictionaries are scattered to
+    the workers once at the start, and each updated mode matrix once after its update."""
     t0 = time.perf_counter()
+    stats0 = dict(data.ex.stats)
     it = state.iteration
     do_assign = it % reassign_every == 0
+    hs = data.scatter(state.u1, state.u2, state.u3)
     # without clustering, the codes in the state are those of the current dictionaries
     # (re-coded at the end of the previous iteration, or read from its checkpoint)
-    moved = _recluster(data, state, tau, progress) if do_assign else 0
+    moved = _recluster(data, state, tau, hs) if do_assign else 0
     reseeded = _reseed_empty(data, state, tau)
+    if reseeded:
+        data.release(hs)
+        hs = data.scatter(state.u1, state.u2, state.u3)
     obj_before_update = float(state.errors.sum())
     t1 = time.perf_counter()
-    for j in range(n_dicts):
-        members = np.flatnonzero(state.labels == j)
-        if members.size:
-            _update_dictionary(data, members, state, j, progress)
+    hs = _update_dictionaries(data, state, hs, n_dicts)
     t2 = time.perf_counter()
-    _code_own(data, state, tau, progress)
+    _code_own(data, state, tau, hs)
+    data.release(hs)
     obj = float(state.errors.sum())
     t3 = time.perf_counter()
-    return {
+    record = {
         "iteration": it, "objective": obj, "relative_objective": obj / total,
         "objective_before_update": obj_before_update, "assigned": bool(do_assign),
         "moved": moved, "moved_fraction": moved / len(data), "reseeded": reseeded,
         "seconds": t3 - t0, "seconds_cluster": t1 - t0, "seconds_update": t2 - t1,
         "seconds_code": t3 - t2,
     }
+    if data.ex.distributed:  # what this iteration moved between this process and workers
+        moved_bytes = {k: data.ex.stats[k] - stats0[k] for k in stats0}
+        record.update(bytes_to_workers=moved_bytes["bytes_scattered"]
+                      + moved_bytes["bytes_sent"],
+                      bytes_from_workers=moved_bytes["bytes_received"],
+                      tasks=moved_bytes["tasks"])
+    return record
 
 
 def _converged(history: list, tol: float, max_moved: float, n: int) -> bool:
@@ -598,6 +796,7 @@ def train_dictionaries(
     missing: dict[int, np.ndarray] | None = None,
     init: str = DEFAULT_INIT,
     max_moved: float = DEFAULT_MAX_MOVED,
+    executor: Executor | None = None,
 ) -> TrainState:
     """Train ``n_dicts`` dictionaries under sparsity ``tau`` on tensors ``x``.
 
@@ -629,36 +828,38 @@ def train_dictionaries(
         Unmeasured bins of the tensors that have any (``sources.dataset.training_data``);
         the channels of one material may share one array. Used only when masked.
     init : ``"seeded"`` or ``"random"`` (:func:`_init_state`).
+    executor : where the per-tensor work runs (``parallel.executor``; default: here).
 
     Returns the final :class:`TrainState`; ``state.history`` has one dict per iteration
     (objective -- squared error over valid bins when masked --, relative objective,
     tensors moved and their fraction, seconds).
     """
     x = _check_training_args(x, tau, n_dicts, init, reassign_every)
-    data = _Tensors(x, masked, missing)
-    total = float(data.energy.sum())
-    fingerprint = _fingerprint(x, data.raw_norms, tau, n_dicts, seed,
-                               _run_options(data, masked, init))
-    state = _load_checkpoint(checkpoint, fingerprint) if checkpoint else None
-    if state is None:
-        t0 = time.perf_counter()
-        state = _init_state(data, tau, n_dicts, np.random.default_rng(seed), progress, init)
-        state.init_seconds = time.perf_counter() - t0
-    else:
-        _refill_all(data, state)
-    bar = _bar(n_iter, progress, f"tau={tau}")
-    bar.update(state.iteration)
-    while state.iteration < n_iter and not _converged(state.history, tol, max_moved, len(x)):
-        record = _iterate(data, total, state, tau, n_dicts, reassign_every, progress)
-        state.history.append(record)
-        state.iteration += 1
-        if checkpoint:
-            _save_checkpoint(checkpoint, state, fingerprint)
-        bar.set_postfix(rel_err=f"{record['objective'] / total:.3e}", moved=record["moved"])
-        bar.update(1)
-        if callback is not None and callback(state):
-            break
-    bar.close()
+    with _Shards(x, masked, missing, executor or InProcess(), progress) as data:
+        total = float(data.energy.sum())
+        fingerprint = _fingerprint(x, data.raw_norms, tau, n_dicts, seed,
+                                   _run_options(data, masked, init))
+        state = _load_checkpoint(checkpoint, fingerprint) if checkpoint else None
+        if state is None:
+            t0 = time.perf_counter()
+            state = _init_state(data, tau, n_dicts, np.random.default_rng(seed), init)
+            state.init_seconds = time.perf_counter() - t0
+        else:
+            _refill_all(data, state)
+        bar = _bar(n_iter, progress, f"tau={tau}")
+        bar.update(state.iteration)
+        while state.iteration < n_iter and not _converged(state.history, tol, max_moved,
+                                                          len(x)):
+            record = _iterate(data, total, state, tau, n_dicts, reassign_every)
+            state.history.append(record)
+            state.iteration += 1
+            if checkpoint:
+                _save_checkpoint(checkpoint, state, fingerprint)
+            bar.set_postfix(rel_err=f"{record['objective'] / total:.3e}", moved=record["moved"])
+            bar.update(1)
+            if callback is not None and callback(state):
+                break
+        bar.close()
     return state
 
 
@@ -671,6 +872,8 @@ def train_ensemble(
     checkpoint_dir: str | os.PathLike | None = None,
     progress: bool = True,
     meta: dict | None = None,
+    workers: int | None = None,
+    scheduler: str | None = None,
     **kwargs,
 ) -> Ensemble:
     """Train ``n_dicts`` dictionaries per sparsity in ``taus`` and unite them.
@@ -679,18 +882,21 @@ def train_ensemble(
     ``seed``; with ``checkpoint_dir`` each writes ``tau-<tau>.npz`` there and resumes.
     ``kwargs`` go to :func:`train_dictionaries` (``masked``, ``missing``, ``init``,
     ``reassign_every``, ``tol``, ``max_moved``). ``meta`` is stored in the ensemble with
-    the training options, history and time taken.
+    the training options, history and time taken. ``workers``/``scheduler``: where the
+    per-tensor work runs (``parallel.executor``; default: in this process).
     """
     seeds = np.random.SeedSequence(seed).generate_state(len(taus))
     parts, histories, init_seconds = [], {}, {}
     t0 = time.perf_counter()
-    for tau, s in zip(taus, seeds, strict=True):
-        ckpt = Path(checkpoint_dir) / f"tau-{tau}.npz" if checkpoint_dir else None
-        st = train_dictionaries(x, int(tau), n_dicts, n_iter, seed=int(s), checkpoint=ckpt,
-                                progress=progress, **kwargs)
-        parts.append(Ensemble(st.u1, st.u2, st.u3, np.full(n_dicts, tau)))
-        histories[str(tau)] = st.history
-        init_seconds[str(tau)] = st.init_seconds
+    with open_executor(workers, scheduler) as ex:
+        where = ex.describe()
+        for tau, s in zip(taus, seeds, strict=True):
+            ckpt = Path(checkpoint_dir) / f"tau-{tau}.npz" if checkpoint_dir else None
+            st = train_dictionaries(x, int(tau), n_dicts, n_iter, seed=int(s),
+                                    checkpoint=ckpt, progress=progress, executor=ex, **kwargs)
+            parts.append(Ensemble(st.u1, st.u2, st.u3, np.full(n_dicts, tau)))
+            histories[str(tau)] = st.history
+            init_seconds[str(tau)] = st.init_seconds
     ens = parts[0]
     for p in parts[1:]:
         ens = ens.union(p)
@@ -703,7 +909,7 @@ def train_ensemble(
     ens.meta = {**(meta or {}), "taus": list(map(int, taus)), "n_dicts_per_tau": n_dicts,
                 "n_iter": n_iter, "seed": seed, "n_tensors": int(len(x)), **options,
                 "seconds": time.perf_counter() - t0, "init_seconds": init_seconds,
-                "history": histories}
+                "where": where, "history": histories}
     return ens
 
 
@@ -755,15 +961,22 @@ def _load_checkpoint(path, fingerprint: str) -> TrainState | None:
     path = Path(path)
     if not path.is_file():
         return None
-    with np.load(path, allow_pickle=False) as z:
-        if str(z["fingerprint"]) != fingerprint:
-            raise ValueError(f"{path}: checkpoint belongs to another training run "
-                             "(different data, tau, K, seed, masking or initialisation); "
-                             "delete it or use another folder")
-        return TrainState(z["u1"], z["u2"], z["u3"], z["labels"], z["codes_idx"],
-                          z["codes_val"], z["errors"], int(z["iteration"]),
-                          json.loads(str(z["history"])),
-                          float(z["init_seconds"]) if "init_seconds" in z else 0.0)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            stored = str(z["fingerprint"])
+            state = None if stored != fingerprint else TrainState(
+                z["u1"], z["u2"], z["u3"], z["labels"], z["codes_idx"], z["codes_val"],
+                z["errors"], int(z["iteration"]), json.loads(str(z["history"])),
+                float(z["init_seconds"]) if "init_seconds" in z else 0.0)
+    except Exception as exc:  # noqa: BLE001 - numpy and zipfile raise many kinds
+        raise BRDFFileError(f"{path}: not a readable training checkpoint "
+                            f"({type(exc).__name__}: {exc}); delete it to redo its "
+                            "sparsity") from exc
+    if state is None:
+        raise UsageError(f"{path}: checkpoint belongs to another training run "
+                         "(different data, tau, K, seed, masking or initialisation); "
+                         "delete it or use another folder")
+    return state
 
 
 class _NoBar:
@@ -777,12 +990,12 @@ class _NoBar:
         pass
 
 
-def _bar(total, enabled, desc):
+def _bar(total, enabled, desc, unit="it", leave=True):
     if not enabled:
         return _NoBar()
     from tqdm.auto import tqdm  # lazy: tqdm.auto adds ~40 ms to `import sparse_brdf`
 
-    return tqdm(total=total, desc=desc, unit="it")
+    return tqdm(total=total, desc=desc, unit=unit, leave=leave)
 
 
 def _progress(it, total, enabled, desc):

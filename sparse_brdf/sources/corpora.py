@@ -20,6 +20,7 @@ from pathlib import Path
 
 from ..brdf import BRDF
 from ..coords import MERL_SHAPE
+from ..errors import MissingDataError, UsageError
 from ..paths import DEMO_MATERIALS_DIR, shared_data_dir
 from .catalog import mitsuba_catalog
 from .load import load_brdf
@@ -53,7 +54,7 @@ class Corpus:
         if which == "all":
             return list(self.materials)
         if which not in ("train", "test"):
-            raise ValueError(f"split must be 'train', 'test' or 'all', got {which!r}")
+            raise UsageError(f"split must be 'train', 'test' or 'all', got {which!r}")
         if self.test_only:
             return list(self.materials) if which == "test" else []
         test = set(test_names(self.name, [m.name for m in self.materials]))
@@ -108,7 +109,7 @@ def get_corpus(name: str) -> Corpus:
     if name in ("merl", "rgl"):
         data = shared_data_dir()
         if data is None or not (data / "nbrdf" / name).is_dir():
-            raise FileNotFoundError(
+            raise MissingDataError(
                 f"corpus {name!r} needs ../shared/data/nbrdf/{name} (or SPARSE_BRDF_DATA); "
                 "it is not on this machine"
             )
@@ -119,4 +120,4 @@ def get_corpus(name: str) -> Corpus:
         if not c.materials:
             raise FileNotFoundError(f"{folder}: no .binary or .h5 files in this folder")
         return c
-    raise ValueError(f"unknown corpus {name!r}: use mitsuba, merl, rgl or a folder path")
+    raise UsageError(f"unknown corpus {name!r}: use mitsuba, merl, rgl or a folder path")

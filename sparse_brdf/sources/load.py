@@ -7,7 +7,7 @@ from pathlib import Path
 
 from ..brdf import BRDF
 from ..coords import MERL_SHAPE
-from ..errors import BRDFFileError
+from ..errors import BRDFFileError, InvalidBRDFError, UnknownNameError
 from ..fileio import require_file
 from ..model.sbrdf import decode_file
 from .analytic import tabulate_mitsuba
@@ -39,8 +39,8 @@ def load_brdf(
         name = s.split(":", 1)[1]
         catalog = mitsuba_catalog()
         if name not in catalog:
-            raise KeyError(f"{s}: no built-in material of that name (see `sparse-brdf corpus "
-                           "list mitsuba`)")
+            raise UnknownNameError(f"{s}: no built-in material of that name (see "
+                                   "`sparse-brdf corpus list mitsuba`)")
         key = content_key("mitsuba", catalog[name], list(shape), _mitsuba_version())
         return cached_brdf(key, lambda: tabulate_mitsuba(catalog[name], name, shape), cache)
     path = Path(s)
@@ -52,7 +52,10 @@ def load_brdf(
         key = content_key("nbrdf", data, list(shape))
         return cached_brdf(key, lambda: tabulate_nbrdf(path, shape), cache)
     if suffix == ".sbrdf":
-        return decode_file(path)
+        try:
+            return decode_file(path)
+        except InvalidBRDFError as exc:  # e.g. coefficients so large the values overflow
+            raise BRDFFileError(f"{path}: decodes to unusable values: {exc}") from exc
     require_file(path)
     raise BRDFFileError(f"{path}: unknown BRDF format (expected one of {', '.join(SUFFIXES)})")
 

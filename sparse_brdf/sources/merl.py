@@ -8,6 +8,7 @@ times the channel scale is the BRDF; negative stored values mark unmeasured bins
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 
@@ -15,13 +16,14 @@ import numpy as np
 
 from ..brdf import BRDF
 from ..coords import MERL_SHAPE, geometric_valid
-from ..errors import BRDFFileError
+from ..errors import BRDFFileError, InvalidBRDFError
 from ..fileio import atomic_write, require_file
 
 #: Stored value x scale = linear BRDF, per channel (R, G, B).
 MERL_SCALE = np.array([1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0])
 _HEADER = 12
 _MAX_BINS = 10_000_000
+_MAX_VALUE = float(np.finfo(np.float32).max)
 
 
 def read_merl(path: str | os.PathLike, name: str | None = None) -> BRDF:
@@ -35,7 +37,7 @@ def read_merl(path: str | os.PathLike, name: str | None = None) -> BRDF:
     if len(raw) < _HEADER:
         raise BRDFFileError(f"{path}: too short for a MERL header ({len(raw)} bytes)")
     dims = tuple(int(x) for x in np.frombuffer(raw[:_HEADER], dtype="<i4"))
-    n = int(np.prod(dims, dtype=np.int64))
+    n = math.prod(dims)  # Python integers: a hostile header cannot overflow the product
     if any(d <= 0 for d in dims) or n > _MAX_BINS or dims[2] % 2:
         raise BRDFFileError(f"{path}: not a MERL BRDF header (dimensions {dims})")
     expected = _HEADER + 3 * n * 8
@@ -50,13 +52,16 @@ def read_merl(path: str | os.PathLike, name: str | None = None) -> BRDF:
         raise BRDFFileError(f"{path}: {bad} values are NaN or inf")
     measured = np.all(stored >= 0, axis=0)
     valid = measured & geometric_valid(dims)
-    values = np.moveaxis(stored, 0, -1) * MERL_SCALE
-    return BRDF(
-        values=values.astype(np.float32),
-        valid=valid,
-        name=name or path.name.removesuffix(".binary"),
-        source=str(path),
-    )
+    values = np.where(valid[..., None], np.moveaxis(stored, 0, -1) * MERL_SCALE, 0.0)
+    big = int(np.count_nonzero(np.abs(values) > _MAX_VALUE))
+    if big:
+        raise BRDFFileError(f"{path}: {big} values exceed {_MAX_VALUE:.3g}, the largest "
+                            "a float32 BRDF holds")
+    try:
+        return BRDF(values=values.astype(np.float32), valid=valid,
+                    name=name or path.name.removesuffix(".binary"), source=str(path))
+    except InvalidBRDFError as exc:  # e.g. no valid bin: name the file
+        raise BRDFFileError(f"{path}: {exc}") from exc
 
 
 def write_merl(path: str | os.PathLike, brdf: BRDF) -> Path:

@@ -13,10 +13,12 @@ import numpy as np
 
 from ..brdf import BRDF
 from ..coords import MERL_SHAPE, geometric_valid, grid_angles, half_diff_vectors
-from ..errors import BRDFFileError
+from ..errors import BRDFFileError, InvalidBRDFError
 from ..fileio import require_file
 
 _LAYERS = ("dense_1", "dense_2", "dense_3")
+#: Largest weight array read (the real networks hold 21 x 21); more is not a Neural-BRDF.
+_MAX_WEIGHTS = 1 << 16
 
 
 def read_nbrdf_weights(path: str | os.PathLike) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -29,14 +31,25 @@ def read_nbrdf_weights(path: str | os.PathLike) -> list[tuple[np.ndarray, np.nda
             layers = []
             for name in _LAYERS:
                 g = f[name][name]
-                layers.append((np.asarray(g["kernel:0"], np.float32),
-                               np.asarray(g["bias:0"], np.float32)))
-    except (OSError, KeyError) as exc:
-        raise BRDFFileError(f"{path}: not a Neural-BRDF Keras HDF5 file ({exc})") from exc
+                kernel, bias = g["kernel:0"], g["bias:0"]
+                for d in (kernel, bias):  # refuse huge or non-numeric datasets before reading
+                    if (not isinstance(d, h5py.Dataset) or d.size > _MAX_WEIGHTS
+                            or d.dtype.kind not in "fiu"):
+                        raise BRDFFileError(f"{path}: layer {name} is not a small numeric "
+                                            "array")
+                layers.append((np.asarray(kernel, np.float32), np.asarray(bias, np.float32)))
+    except BRDFFileError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - h5py raises many kinds on damaged files
+        raise BRDFFileError(f"{path}: not a Neural-BRDF Keras HDF5 file "
+                            f"({type(exc).__name__}: {exc})") from exc
     shapes = [(k.shape, b.shape) for k, b in layers]
-    if (layers[0][0].shape[0] != 6 or layers[-1][0].shape[1] != 3
+    widths = [6] + [k.shape[1] if k.ndim == 2 else -1 for k, _ in layers]
+    if (any(k.ndim != 2 or b.ndim != 1 for k, b in layers) or widths[-1] != 3
+            or any(k.shape[0] != w for (k, _), w in zip(layers, widths, strict=False))
             or any(k.shape[1] != b.shape[0] for k, b in layers)):
-        raise BRDFFileError(f"{path}: unexpected Neural-BRDF layer shapes {shapes}")
+        raise BRDFFileError(f"{path}: unexpected Neural-BRDF layer shapes {shapes} (expected "
+                            "6 -> n -> m -> 3 dense layers)")
     for k, b in layers:
         if not (np.all(np.isfinite(k)) and np.all(np.isfinite(b))):
             raise BRDFFileError(f"{path}: network weights contain NaN or inf")
@@ -54,7 +67,8 @@ def eval_nbrdf(
             h = h @ k + b
             if i < len(layers) - 1:
                 np.maximum(h, 0.0, out=h)
-        out[s : s + chunk] = np.maximum(np.expm1(h), 0.0)
+        with np.errstate(over="ignore"):  # inf: refused by tabulate_nbrdf, naming the file
+            out[s : s + chunk] = np.maximum(np.expm1(h), 0.0)
     return out
 
 
@@ -68,4 +82,7 @@ def tabulate_nbrdf(path: str | os.PathLike, shape: tuple[int, int, int] = MERL_S
     values = np.zeros((*shape, 3), np.float32)
     values[valid] = vals
     name = os.path.basename(os.fspath(path)).removesuffix(".h5")
-    return BRDF(values=values, valid=valid, name=name, source=os.fspath(path))
+    try:
+        return BRDF(values=values, valid=valid, name=name, source=os.fspath(path))
+    except InvalidBRDFError as exc:  # e.g. weights whose output overflows: name the file
+        raise BRDFFileError(f"{path}: the network's values are unusable: {exc}") from exc

@@ -1,0 +1,168 @@
+"""Encoding to a byte budget: the largest encoding whose ``.sbrdf`` file fits N bytes.
+
+Users pay in bytes, not in coefficients. :func:`encode_to_bytes` encodes a BRDF so that
+its file holds at most ``n_bytes`` (header, name and checksum included), spending the
+bytes where they gain most: every coefficient costs about the same bytes and, the
+dictionaries being orthonormal, removes s^2 of squared error in the coded domain, so the
+coefficients kept are the largest |s| over the three channels (:func:`fit_bytes`).
+
+How (``docs/file-format.md``, "Byte budgets"): a first encoding at a coefficient count
+estimated from the budget (generous, so that it overshoots), then the largest |s| over
+the channels that fit (a binary search on the exact serialised size); then the encoder
+runs again at the count that fitted, so that its own choices (dictionaries, transform,
+joint budget, least-squares fill) are made for that count, and the result is trimmed the
+same way. An encoding that fits whole while the encoder was capped is grown instead.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from ..brdf import BRDF
+from ..errors import UsageError
+from .encode import choose_transform, encode
+from .ensemble import Ensemble, resolve_ensemble
+from .sbrdf import VERSION, VERSIONS, as_stored, min_file_size, to_bytes
+from .sparse import SparseBRDF
+
+#: First guess of the bytes per coefficient beyond the fixed part, per file version: on
+#: the low side (measured 1.7-2.3 for version 2, docs/file-format.md) so that the first
+#: encoding overshoots the budget and is trimmed, rather than fitting whole.
+BYTES_GUESS = {1: 8.0, 2: 1.5}
+#: Encoder runs at most (a first guess, the count that fitted, growth if it fitted whole).
+MAX_PASSES = 4
+
+
+def truncate(model: SparseBRDF, keep: int) -> SparseBRDF:
+    """``model`` with only its ``keep`` largest |s| over the three channels (ties: lower
+    channel, then the model's order); each channel stays sorted by decreasing |s|."""
+    mags = np.concatenate([np.abs(v) for v in model.values])
+    chan = np.concatenate([np.full(v.size, c) for c, v in enumerate(model.values)])
+    pos = np.concatenate([np.arange(v.size) for v in model.values])
+    kept = np.lexsort((pos, chan, -mags))[:max(keep, 0)]
+    locs, vals = [], []
+    for c in range(3):
+        idx = np.sort(pos[kept[chan[kept] == c]])
+        locs.append(model.locations[c][idx])
+        vals.append(model.values[c][idx])
+    return dataclasses.replace(model, locations=locs, values=vals, stats=dict(model.stats))
+
+
+def fit_bytes(model: SparseBRDF, n_bytes: int, version: int = VERSION) -> SparseBRDF:
+    """The largest :func:`truncate` of ``model`` whose file of ``version`` holds at most
+    ``n_bytes``, as the file holds it (:func:`~sparse_brdf.model.sbrdf.as_stored`, so
+    ``to_bytes(result, version)`` is that file). ValueError if no coefficient fits.
+
+    A binary search on the exact serialised size, which grows with the count kept (in
+    small steps where version 2's quantisation step gets finer, ``sbrdf.step_exponent``).
+    """
+    check_budget(model.name, n_bytes, version)
+    total = int(model.n_coeffs.sum())
+
+    def fits(k: int) -> bool:
+        return len(to_bytes(truncate(model, k), version)) <= n_bytes
+
+    keep = total if fits(total) else _largest(0, total, fits)
+    return as_stored(truncate(model, keep) if keep < total else model, version)
+
+
+def _largest(lo: int, hi: int, ok) -> int:
+    """The largest k in [lo, hi) with ok(k), given ok(lo), not ok(hi) and ok falling
+    once (binary search)."""
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        lo, hi = (mid, hi) if ok(mid) else (lo, mid)
+    return lo
+
+
+def check_budget(name: str, n_bytes: int, version: int = VERSION) -> None:
+    """:class:`~sparse_brdf.errors.UsageError` (a ValueError) unless a file of ``version``
+    named ``name`` can hold a coefficient in ``n_bytes`` (the message names ``--bytes``)."""
+    if version not in VERSIONS:
+        raise UsageError(f"unknown .sbrdf version {version!r}: expected one of "
+                         f"{', '.join(map(str, VERSIONS))}")
+    floor = min_file_size(len(name.encode("utf-8")[:255]), version)
+    if not isinstance(n_bytes, (int, np.integer)) or n_bytes <= floor:
+        raise UsageError(f"--bytes {n_bytes}: a version-{version} .sbrdf file of {name!r} "
+                         f"takes {floor} bytes before its first coefficient (header, name "
+                         f"and checksum); give more than {floor}")
+
+
+def encode_to_bytes(brdf: BRDF, ensemble: Ensemble | None = None, n_bytes: int | None = None,
+                    version: int = VERSION, **encode_options) -> SparseBRDF:
+    """Encode ``brdf`` so that its ``.sbrdf`` file of ``version`` holds at most ``n_bytes``
+    (see the module doc). ``encode_options``: any keyword of
+    :func:`~sparse_brdf.model.encode.encode` but ``n_coeffs`` (``max_error``,
+    ``transform``, ``selector``, ``fill``, ``fill_iters``, ``basis``, ``budget``).
+
+    Returns the model as the file holds it (values quantised for version 2), so that
+    ``save_sbrdf(path, result, version)`` writes at most ``n_bytes``. ``stats`` are the
+    encoder's, with the chosen transform's errors recomputed for the kept coefficients and
+    ``stats["byte_budget"]``: the budget, the file's size, the counts encoded and kept, passes.
+    """
+    if "n_coeffs" in encode_options or n_bytes is None:
+        raise UsageError("encode_to_bytes: give a byte budget n_bytes (and no n_coeffs)")
+    check_budget(brdf.name, n_bytes, version)
+    ens = resolve_ensemble(ensemble)
+    floor = min_file_size(len(brdf.name.encode("utf-8")[:255]), version)
+    atoms = int(np.prod(ens.shape))
+    n = _clip(math.ceil((n_bytes - floor) / BYTES_GUESS[version] / 3), atoms)
+    passes: dict[int, tuple[SparseBRDF, SparseBRDF]] = {}  # count -> (encoded, fitted)
+    trimmed = False
+    while len(passes) < MAX_PASSES and n not in passes:
+        model = encode(brdf, ens, n, **encode_options)
+        passes[n] = (model, fit_bytes(model, n_bytes, version))
+        n, trimmed = _next_count(*passes[n], n, n_bytes, floor, version, atoms, trimmed)
+    # the pass at the count the search settled on (else the last)
+    model, fit = passes.get(n, list(passes.values())[-1])
+    return _finish(brdf, ens, model, fit, n_bytes, version, len(passes))
+
+
+def _clip(n: int, atoms: int) -> int:
+    return int(min(max(n, 1), atoms))
+
+
+def _next_count(model: SparseBRDF, fit: SparseBRDF, n: int, n_bytes: int, floor: int,
+                version: int, atoms: int, trimmed: bool) -> tuple[int, bool]:
+    """The encoder's next count and whether a pass was trimmed yet: after a trim, the
+    count that fitted (once); if a first guess fitted whole while the encoder used its
+    whole budget, a larger count; else ``n`` (done)."""
+    kept, total = fit.n_coeffs, int(model.n_coeffs.sum())
+    joint = model.stats.get("options", {}).get("budget") == "joint"
+    if int(kept.sum()) < total:  # trimmed: encode at the count that fitted
+        if trimmed:
+            return n, True
+        return _clip(math.ceil(kept.sum() / 3) if joint else int(kept.max()), atoms), True
+    capped = total >= 3 * n if joint else int(model.n_coeffs.max()) >= n
+    if trimmed or not capped or total == 0:  # done, or the encoder stopped by itself
+        return n, trimmed
+    size = len(to_bytes(model, version))
+    per = max((size - floor) / total, 0.5)
+    return _clip(math.ceil(1.2 * (n_bytes - floor) / per / 3), atoms), False
+
+
+def _finish(brdf: BRDF, ens: Ensemble, model: SparseBRDF, fit: SparseBRDF, n_bytes: int,
+            version: int, passes: int) -> SparseBRDF:
+    """``fit`` as its file holds it, checked against the budget, with its statistics."""
+    out = fit
+    while len(to_bytes(out, version)) > n_bytes:  # not expected: the search measured it
+        out = as_stored(truncate(out, int(out.n_coeffs.sum()) - 1), version)
+    stats = dict(model.stats)
+    if int(out.n_coeffs.sum()) < int(model.n_coeffs.sum()):  # errors of what is kept
+        errors = choose_transform(brdf, {out.transform: dataclasses.replace(out, stats={})},
+                                  ens, stats.get("selector", "gamma-mse"),
+                                  ).stats["transforms"][out.transform]
+        stats["transforms"] = {**stats.get("transforms", {}),
+                               out.transform: {**stats.get("transforms", {}).get(
+                                   out.transform, {}), **errors}}
+    stats["byte_budget"] = {"budget": int(n_bytes), "file": len(to_bytes(out, version)),
+                      "version": version, "encoded": model.n_coeffs.tolist(),
+                      "kept": out.n_coeffs.tolist(), "passes": passes}
+    out.stats = stats
+    return out
+
+
+__all__ = ["BYTES_GUESS", "check_budget", "encode_to_bytes", "fit_bytes", "truncate"]

@@ -1,0 +1,248 @@
+"""Where work runs: in this process (the default), or on a Dask cluster.
+
+Batch encoding, the bench and the trainer hand their independent pieces of work to an
+executor from :func:`executor`:
+
+- neither ``workers`` nor ``scheduler``: :class:`InProcess`, which runs each piece here,
+  one after another, in input order (the behaviour before clusters; each piece may still
+  use the package's own thread pool, ``model.tensor.parallel_map``);
+- ``workers=N``: a local Dask cluster of N worker processes (one thread each), started
+  here and closed on leaving the ``with`` block;
+- ``scheduler=ADDRESS``: the workers of an existing Dask cluster (``tcp://host:8786``).
+
+Both executors offer the same calls: :meth:`~InProcess.map` (results in input order),
+:meth:`~InProcess.as_completed` (``(index, result)`` pairs as pieces finish, for progress
+bars and saving as results arrive), :meth:`~InProcess.scatter` (a large object every
+piece reads -- an ensemble's dictionaries -- sent once to each worker rather than once
+per piece), and :meth:`~InProcess.place` / :meth:`~InProcess.run_on` (objects that stay
+on one worker across many calls: the trainer's shards of tensors).
+
+Dask is imported only when a cluster is asked for: ``import sparse_brdf``, the CLI's
+``--help`` and every in-process run never load it. The Dask executor counts the bytes
+it sends and receives (``stats``), measured with ``dask.sizeof``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from .errors import UsageError
+
+#: The Dask executor's byte counters (``Executor.stats``).
+STAT_KEYS = ("bytes_scattered", "bytes_sent", "bytes_received", "tasks")
+
+
+def usable_cores() -> int:
+    """Cores this process may run on."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not Linux
+        return os.cpu_count() or 1
+
+
+class InProcess:
+    """Runs every piece of work here, sequentially, in input order."""
+
+    n_workers = 1
+    distributed = False
+
+    def __init__(self) -> None:
+        self.stats = dict.fromkeys(STAT_KEYS, 0)
+
+    def describe(self) -> str:
+        return "in-process"
+
+    def scatter(self, obj: Any) -> Any:
+        """A handle to ``obj`` to pass to :meth:`map` (here: ``obj`` itself)."""
+        return obj
+
+    def map(self, fn: Callable, items: Iterable, *shared: Any) -> list:
+        """``[fn(item, *shared) for item in items]``."""
+        return [fn(item, *shared) for item in items]
+
+    def as_completed(self, fn: Callable, items: Iterable, *shared: Any) -> Iterator[tuple]:
+        """``(index, fn(item, *shared))`` for each item, as each finishes."""
+        for i, item in enumerate(items):
+            yield i, fn(item, *shared)
+
+    def place(self, fn: Callable, arg_lists: Sequence[tuple]) -> list:
+        """``fn(*args)`` for each tuple of ``arg_lists``, each result kept where it was made
+        (workers in turn) for :meth:`run_on`; returns handles to the results."""
+        return [fn(*args) for args in arg_lists]
+
+    def run_on(self, handles: Sequence, fn: Callable, arg_lists: Sequence[tuple] | None,
+               *shared: Any, tick: Callable[[int], None] | None = None) -> list:
+        """``fn(obj, *args, *shared)`` for each placed object and its tuple of
+        ``arg_lists``, where the object lives; results in order. ``tick(k)`` is called as
+        the k-th result arrives (progress bars)."""
+        out = []
+        for k, (h, a) in enumerate(zip(handles, arg_lists or [()] * len(handles),
+                                       strict=True)):
+            out.append(fn(h, *a, *shared))
+            if tick is not None:
+                tick(k)
+        return out
+
+    def release(self, handles: Sequence) -> None:
+        """Forget placed or scattered objects."""
+
+    def close(self) -> None:
+        pass
+
+
+@dataclass
+class _Placed:
+    """An object kept on one worker: its future and that worker's address."""
+
+    future: Any
+    worker: str
+
+
+class DaskExecutor:
+    """Runs pieces of work on the workers of a ``distributed.Client``."""
+
+    distributed = True
+
+    def __init__(self, client, cluster=None):
+        self.client, self.cluster = client, cluster
+        self.workers = sorted(client.scheduler_info()["workers"])
+        if not self.workers:
+            client.wait_for_workers(1, timeout=60)
+            self.workers = sorted(client.scheduler_info()["workers"])
+        self.n_workers = len(self.workers)
+        self.stats = dict.fromkeys(STAT_KEYS, 0)
+        self._turn = 0
+
+    def describe(self) -> str:
+        where = "local cluster" if self.cluster is not None else self.client.scheduler.address
+        return f"{self.n_workers} Dask workers ({where})"
+
+    def _size(self, obj: Any) -> int:
+        from dask.sizeof import sizeof  # lazy: Dask is optional (see the module doc)
+
+        return int(sizeof(obj))
+
+    def _sent(self, args: Sequence) -> None:
+        from dask.distributed import Future  # lazy: Dask is optional (see the module doc)
+
+        def size(a):  # futures are references to data already on the workers
+            if isinstance(a, Future):
+                return 0
+            if isinstance(a, (tuple, list)):
+                return sum(size(b) for b in a)
+            return self._size(a)
+
+        self.stats["bytes_sent"] += size(args)
+        self.stats["tasks"] += 1
+
+    def scatter(self, obj: Any) -> Any:
+        """A future of ``obj``, copied once to every worker (``broadcast``)."""
+        self.stats["bytes_scattered"] += self._size(obj) * self.n_workers
+        return self.client.scatter([obj], broadcast=True, hash=False)[0]
+
+    def _submit(self, fn, args, worker=None):
+        self._sent(args)
+        kw = {"workers": [worker], "allow_other_workers": False} if worker else {}
+        return self.client.submit(fn, *args, pure=False, **kw)
+
+    def _result(self, fut) -> Any:
+        out = fut.result()
+        self.stats["bytes_received"] += self._size(out)
+        return out
+
+    def map(self, fn: Callable, items: Iterable, *shared: Any) -> list:
+        futures = [self._submit(fn, (item, *shared)) for item in items]
+        return [self._result(f) for f in futures]
+
+    def as_completed(self, fn: Callable, items: Iterable, *shared: Any) -> Iterator[tuple]:
+        from dask.distributed import as_completed  # lazy: Dask is optional (see the module doc)
+
+        futures = [self._submit(fn, (item, *shared)) for item in items]
+        index = {f.key: i for i, f in enumerate(futures)}
+        for fut in as_completed(futures):
+            yield index[fut.key], self._result(fut)
+
+    def place(self, fn: Callable, arg_lists: Sequence[tuple]) -> list:
+        handles = []
+        for args in arg_lists:
+            worker = self.workers[self._turn % self.n_workers]
+            self._turn += 1
+            # the arguments go to that worker alone (scattered, not embedded in the graph)
+            self.stats["bytes_scattered"] += sum(self._size(a) for a in args)
+            sent = self.client.scatter(list(args), workers=[worker], hash=False)
+            fut = self.client.submit(fn, *sent, pure=False, workers=[worker],
+                                     allow_other_workers=False)
+            handles.append(_Placed(fut, worker))
+        return handles
+
+    def run_on(self, handles: Sequence, fn: Callable, arg_lists: Sequence[tuple] | None,
+               *shared: Any, tick: Callable[[int], None] | None = None) -> list:
+        arg_lists = arg_lists or [()] * len(handles)
+        futures = [self._submit(fn, (h.future, *a, *shared), h.worker)
+                   for h, a in zip(handles, arg_lists, strict=True)]
+        out = []
+        for k, f in enumerate(futures):
+            out.append(self._result(f))
+            if tick is not None:
+                tick(k)
+        return out
+
+    def release(self, handles: Sequence) -> None:
+        for h in handles:
+            getattr(h, "future", h).release()
+
+    def close(self) -> None:
+        self.client.close()
+        if self.cluster is not None:
+            self.cluster.close()
+
+
+Executor = InProcess | DaskExecutor
+
+
+def start_executor(workers: int | None = None, scheduler: str | None = None) -> Executor:
+    """The executor that ``workers``/``scheduler`` ask for (see the module doc); call its
+    ``close()`` when done, or use :func:`executor`."""
+    if workers is not None and scheduler is not None:
+        raise UsageError("give --workers N (a local cluster) or --scheduler ADDRESS (an "
+                         "existing one), not both")
+    if workers is None and scheduler is None:
+        return InProcess()
+    try:
+        # lazy: Dask is an optional dependency (the `cluster` extra), loaded only here
+        from dask.distributed import Client, LocalCluster
+    except ImportError as exc:
+        raise UsageError("--workers and --scheduler need Dask's distributed scheduler: "
+                         "pip install 'sparse-brdf[cluster]'") from exc
+    if scheduler is not None:
+        return DaskExecutor(Client(scheduler))
+    if workers < 1:
+        raise UsageError(f"--workers must be >= 1, got {workers}")
+    # each process gets its share of the cores for the package's own thread pool
+    threads = max(1, usable_cores() // workers)
+    # the dashboard on any free port: never clash with another cluster on this machine
+    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                           dashboard_address=":0", silence_logs=logging.ERROR,
+                           env={"SPARSE_BRDF_THREADS": str(threads)})
+    try:
+        client = Client(cluster)
+    except BaseException:
+        cluster.close()
+        raise
+    return DaskExecutor(client, cluster)
+
+
+@contextlib.contextmanager
+def executor(workers: int | None = None, scheduler: str | None = None) -> Iterator[Executor]:
+    """``with executor(workers, scheduler) as ex:`` -- see :func:`start_executor`; a
+    local cluster is shut down on leaving the block."""
+    ex = start_executor(workers, scheduler)
+    try:
+        yield ex
+    finally:
+        ex.close()

@@ -1,0 +1,307 @@
+"""Property-based fuzzing (hypothesis): the readers get random truncations, byte flips and
+header mutations, and the command line random bad arguments; only the documented error
+types come out, and the command line answers with status 0 or 2 and at most one line.
+
+Bounded: a fixed number of examples each, no deadline, no example database (nothing is
+written into the checkout). The ``.sbrdf`` reader is fuzzed with its format's own tests.
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from conftest import SMALL
+from sparse_brdf.brdf import BRDF
+from sparse_brdf.cli import main
+from sparse_brdf.coords import geometric_valid
+from sparse_brdf.errors import BRDFFileError, ConfigError, ImageFileError, InputFileError
+from sparse_brdf.evaluation.bench import BenchConfig
+from sparse_brdf.evaluation.render import read_exr, write_exr
+from sparse_brdf.sources.merl import read_merl, write_merl
+from sparse_brdf.sources.nbrdf import read_nbrdf_weights, tabulate_nbrdf
+
+ROOT = Path(__file__).resolve().parents[1]
+H5 = ROOT / "sparse_brdf" / "data" / "materials" / "violet-rubber.h5"
+
+FUZZ = settings(max_examples=40, deadline=None, database=None, derandomize=True,
+                suppress_health_check=[HealthCheck.function_scoped_fixture,
+                                       HealthCheck.too_slow, HealthCheck.data_too_large])
+
+
+@st.composite
+def mutated(draw, base: bytes, header: int) -> bytes:
+    """``base`` truncated, with bytes flipped, with its first ``header`` bytes rewritten,
+    or with bytes appended."""
+    data = bytearray(base)
+    kind = draw(st.sampled_from(["truncate", "flip", "header", "append"]))
+    if kind == "truncate":
+        return bytes(data[:draw(st.integers(0, len(data) - 1))])
+    if kind == "append":
+        return bytes(data + draw(st.binary(min_size=1, max_size=64)))
+    hi = header if kind == "header" else len(data)
+    for _ in range(draw(st.integers(1, 8))):
+        i = draw(st.integers(0, hi - 1))
+        data[i] = draw(st.integers(0, 255)) if kind == "header" else data[i] ^ draw(
+            st.integers(1, 255))
+    return bytes(data)
+
+
+@pytest.fixture(scope="module")
+def work(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("fuzz")
+
+
+# ------------------------------------------------------------------------------ MERL
+
+_MERL = None
+
+
+def merl_base(work: Path) -> bytes:
+    global _MERL
+    if _MERL is None:
+        values = np.random.default_rng(3).random((*SMALL, 3)).astype(np.float32)
+        _MERL = write_merl(work / "base.binary",
+                           BRDF(values, geometric_valid(SMALL))).read_bytes()
+    return _MERL
+
+
+def _check_merl(path: Path) -> None:
+    try:
+        brdf = read_merl(path)
+    except BRDFFileError as exc:
+        assert str(path) in str(exc)
+        return
+    assert np.all(np.isfinite(brdf.values)) and brdf.valid.any()
+
+
+@FUZZ
+@given(data=st.data())
+def test_merl_reader_mutations(work, data):
+    path = work / "fuzz.binary"
+    path.write_bytes(data.draw(mutated(merl_base(work), 12)))
+    _check_merl(path)
+
+
+@FUZZ
+@given(dims=st.tuples(*[st.integers(-2**31, 2**31 - 1)] * 3), tail=st.binary(max_size=96))
+def test_merl_reader_headers(work, dims, tail):
+    path = work / "head.binary"
+    path.write_bytes(struct.pack("<3i", *dims) + tail)
+    _check_merl(path)
+
+
+# ------------------------------------------------------------------------------- .h5
+
+
+def _check_h5(path: Path) -> None:
+    try:
+        read_nbrdf_weights(path)
+    except BRDFFileError as exc:
+        assert str(path) in str(exc)
+
+
+@FUZZ
+@given(data=st.data())
+def test_h5_reader_mutations(work, data):
+    path = work / "fuzz.h5"
+    path.write_bytes(data.draw(mutated(H5.read_bytes(), 512)))
+    _check_h5(path)
+
+
+_ARRAYS = st.one_of(
+    st.tuples(st.sampled_from(["f4", "f8", "i2", "u1"]),
+              st.lists(st.integers(0, 30), min_size=0, max_size=3)),
+    st.just(("S3", [4])))
+
+
+@FUZZ
+@given(layers=st.lists(st.tuples(_ARRAYS, _ARRAYS, st.booleans()), min_size=0, max_size=4),
+       scale=st.sampled_from([0.0, 1.0, 1e3, np.nan]))
+def test_h5_reader_structures(work, layers, scale):
+    """Well-formed HDF5 files with missing, extra, misshapen or mistyped layers."""
+    import h5py
+
+    path = work / "struct.h5"
+    with h5py.File(path, "w") as f:
+        for i, ((kd, ks), (bd, bs), as_group) in enumerate(layers, 1):
+            name = f"dense_{i}"
+            g = f.create_group(name)
+            if as_group:
+                g = g.create_group(name)
+            for key, (dtype, shape) in (("kernel:0", (kd, ks)), ("bias:0", (bd, bs))):
+                if dtype == "S3":
+                    g[key] = np.array([b"abc"] * shape[0])
+                else:
+                    with np.errstate(invalid="ignore"):  # NaN as an integer: anything
+                        g[key] = (np.ones(shape) * scale).astype(dtype)
+    try:
+        tabulate_nbrdf(path, SMALL)
+    except BRDFFileError as exc:
+        assert str(path) in str(exc)
+
+
+# ------------------------------------------------------------------------------- EXR
+
+
+@FUZZ
+@given(data=st.data())
+def test_exr_reader_mutations(work, data):
+    base = work / "base.exr"
+    if not base.exists():
+        write_exr(base, np.random.default_rng(4).random((8, 8, 3)).astype(np.float32))
+    path = work / "fuzz.exr"
+    path.write_bytes(data.draw(mutated(base.read_bytes(), 320)))
+    try:
+        img = read_exr(path)
+    except ImageFileError as exc:
+        assert str(path) in str(exc)
+        return
+    assert img.ndim == 3 and img.shape[2] == 3 and img.dtype == np.float32
+
+
+# ------------------------------------------------------------------------ bench config
+
+_FIELDS = sorted(BenchConfig.__dataclass_fields__)
+_SCALARS = st.one_of(st.integers(-2**70, 2**70), st.floats(allow_nan=True),
+                     st.booleans(), st.text(max_size=12))
+_VALUES = st.one_of(_SCALARS, st.lists(_SCALARS, max_size=4),
+                    st.lists(st.sampled_from(["sparse:262", "sparse:0", "tucker:1x2",
+                                              "pca:-1", "naive", "sparse:262:zz=1",
+                                              "cpd:3:x", "tabulated", "sparse:x"]),
+                             max_size=3))
+
+
+def _toml(value) -> str:
+    """A TOML literal (floats' nan/inf as TOML spells them)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return "nan" if value != value else ("inf" if value > 0 else "-inf") \
+            if abs(value) == float("inf") else repr(value)
+    if isinstance(value, str):
+        return '"' + "".join(c if c.isprintable() and c not in '"\\' else
+                             f"\\u{ord(c):04x}" for c in value) + '"'
+    if isinstance(value, list):
+        return "[" + ", ".join(_toml(v) for v in value) + "]"
+    return str(value)
+
+
+def _check_config(path: Path) -> None:
+    try:
+        BenchConfig.load(path)
+    except (ConfigError, InputFileError) as exc:
+        assert str(path) in str(exc)
+
+
+@FUZZ
+@given(settings_=st.dictionaries(st.one_of(st.sampled_from(_FIELDS), st.just("scene"),
+                                           st.text("abcxyz_", min_size=1, max_size=6)),
+                                 _VALUES, max_size=5))
+def test_bench_config_settings(work, settings_):
+    path = work / "settings.toml"
+    path.write_text("".join(f"{k} = {_toml(v)}\n" for k, v in settings_.items()))
+    _check_config(path)
+
+
+@FUZZ
+@given(data=st.data())
+def test_bench_config_mutations(work, data):
+    base = (ROOT / "sparse_brdf" / "data" / "configs" / "ci.toml").read_bytes()
+    path = work / "mutated.toml"
+    path.write_bytes(data.draw(mutated(base, 64)))
+    _check_config(path)
+
+
+# ---------------------------------------------------------------------- command line
+
+
+@pytest.fixture(scope="module")
+def bad_inputs(work) -> list[str]:
+    """Paths a hostile user passes: missing, empty, truncated, corrupt, of another kind,
+    a folder, a FIFO, names with control characters."""
+    d = work / "bad"
+    d.mkdir()
+    (d / "empty.binary").write_bytes(b"")
+    (d / "short.binary").write_bytes(merl_base(work)[:1000])
+    (d / "text.sbrdf").write_text("not a coefficient file\n")
+    (d / "magic.sbrdf").write_bytes(b"SBRDF\r\n\x1a" + bytes(60))
+    (d / "bad.h5").write_bytes(b"\x89HDF\r\n\x1a\n" + bytes(100))
+    (d / "bad.xml").write_text('<scene version="3.0.0"><bsdf')
+    (d / "bad.toml").write_text("spp = [")
+    (d / "bad.exr").write_bytes(b"v/1\x01" + bytes(40))
+    (d / "bad.npz").write_bytes(b"PK\x03\x04" + bytes(30))
+    (d / "a\x1b[31m.binary").write_bytes(b"\x00" * 20)
+    (d / "folder.sbrdf").mkdir()
+    os.mkfifo(d / "fifo.binary")
+    names = sorted(str(p) for p in d.iterdir())
+    return names + [str(d / "missing.binary"), "mitsuba:no-such", "", "-"]
+
+
+_COMMANDS = {
+    # command: (number of positional inputs, options taking a value)
+    "info": (1, []),
+    "convert": (1, []),
+    "encode": (1, ["--coeffs", "--max-error", "--fill-iters", "--transform", "--ensemble"]),
+    "decode": (1, ["--ensemble"]),
+    "blend": (2, ["--alpha", "--coeffs", "--ensemble"]),
+    "render": (1, ["--spp", "--res", "--seed", "--material", "--decoder", "--ensemble"]),
+    "snr": (2, ["--mask", "--scene", "--reference2"]),
+    "fit-scene": (1, ["--target-snr", "--spp", "--res", "--material", "--ensemble"]),
+    "bench": (1, ["--out"]),
+    "train": (0, ["--taus", "--dicts", "--grid", "--extend"]),
+}
+_WORDS = st.one_of(st.integers(-10**12, 10**12).map(str),
+                   st.sampled_from(["nan", "inf", "-inf", "1e308", "-0", "0", "0x10", "",
+                                    "material=", "=x", "auto", "strict"]),
+                   st.text(st.characters(codec="utf-8", exclude_characters="\x00"),
+                           max_size=8))
+
+
+@st.composite
+def bad_argv(draw, inputs: list[str]) -> list[str]:
+    cmd = draw(st.sampled_from(sorted(_COMMANDS)))
+    n_inputs, options = _COMMANDS[cmd]
+    # an empty TOML file is a valid bench config (every default): a full bench
+    usable = [p for p in inputs if cmd != "bench" or not p.endswith("empty.binary")]
+    argv = [cmd] + [draw(st.sampled_from(usable)) for _ in range(n_inputs)]
+    if cmd == "train":  # only bad corpora (never ".", say): training would take minutes
+        argv += ["--corpus", *draw(st.lists(st.sampled_from(inputs), min_size=1, max_size=2))]
+    for opt in draw(st.lists(st.sampled_from(options), max_size=3)) if options else []:
+        value = draw(st.one_of(_WORDS, st.sampled_from(inputs)))
+        argv += [opt, value] if opt != "--material" else [opt, f"material={value}"]
+    output = draw(st.sampled_from(inputs + ["out.x"]))
+    if cmd == "convert":
+        argv.insert(2, output)
+    elif cmd in ("encode", "decode", "blend", "render"):
+        argv += ["-o", output]
+    return argv
+
+
+@FUZZ
+@given(data=st.data())
+def test_cli_bad_arguments(work, bad_inputs, capsys, monkeypatch, data):
+    cwd = work / "cwd"  # empty: a relative name never finds a material by chance
+    cwd.mkdir(exist_ok=True)
+    monkeypatch.chdir(cwd)
+    argv = data.draw(bad_argv(bad_inputs))
+    before = {p: os.stat(p).st_mtime_ns for p in bad_inputs if os.path.isfile(p)}
+    try:
+        code = main(argv)
+    except SystemExit as exc:  # argparse
+        code = exc.code
+    out, err = capsys.readouterr()
+    assert code in (0, 2), (argv, err)
+    if code:
+        assert len(err.splitlines()) == 1, (argv, err)
+        assert "Traceback" not in err and "\x1b" not in err
+    for p, mtime in before.items():  # no input was rewritten
+        assert os.stat(p).st_mtime_ns == mtime, (argv, p)
+    leftovers = [p.name for p in work.rglob(".*") if p.is_file()]
+    assert leftovers == [], (argv, leftovers)

@@ -1,0 +1,618 @@
+"""Hostile input never crashes, never destroys, always explains (issue #15).
+
+Every CLI error path of the issue: the exit status, exactly one line on stderr, and the
+file or option it names; inputs are never overwritten, outputs never left partial;
+valid-but-unusual materials work. Small grids and a random orthonormal ensemble keep it
+fast; the few renders are marked ``render``.
+"""
+
+from __future__ import annotations
+
+import errno
+import hashlib
+import os
+import signal
+import struct
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import OpenEXR
+import pytest
+
+from conftest import SMALL, random_orthonormal
+from sparse_brdf.brdf import BRDF
+from sparse_brdf.cli import EXIT_BUG, main
+from sparse_brdf.coords import MERL_SHAPE, geometric_valid
+from sparse_brdf.errors import (
+    BRDFFileError,
+    ImageFileError,
+    InputFileError,
+    OutputError,
+    SparseBRDFError,
+    one_line,
+)
+from sparse_brdf.evaluation.render import read_exr, write_exr
+from sparse_brdf.fileio import atomic_write, cleanup_on_signals
+from sparse_brdf.model.ensemble import Ensemble
+from sparse_brdf.model.sbrdf import load_sbrdf, save_sbrdf
+from sparse_brdf.model.sparse import SparseBRDF
+from sparse_brdf.sources.merl import read_merl, write_merl
+from sparse_brdf.sources.nbrdf import tabulate_nbrdf
+
+ROOT = Path(__file__).resolve().parents[1]
+SPHERE = ROOT / "scenes" / "sphere.xml"
+H5 = ROOT / "sparse_brdf" / "data" / "materials" / "blue-fabric.h5"
+
+
+# ------------------------------------------------------------------------------ helpers
+
+
+def run(capsys, *argv) -> tuple[int, str, str]:
+    """``sparse-brdf ARGV`` in this process: (exit status, stdout, stderr)."""
+    try:
+        code = main([str(a) for a in argv])
+    except SystemExit as exc:  # argparse
+        code = exc.code
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def fails(capsys, *argv, names=()) -> str:
+    """Run ARGV, assert status 2 and one stderr line naming each of ``names``; the line."""
+    code, _, err = run(capsys, *argv)
+    lines = err.splitlines()
+    assert code == 2, err
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    for name in names:
+        assert str(name) in lines[0], (name, lines[0])
+    return lines[0]
+
+
+def digest(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def leftovers(folder: Path, keep=()) -> list[str]:
+    """Files in ``folder`` other than ``keep`` (hidden temporaries included)."""
+    return sorted(p.name for p in Path(folder).iterdir() if p.name not in set(keep))
+
+
+def constant_brdf(rgb, shape=SMALL, name="test") -> BRDF:
+    values = np.broadcast_to(np.asarray(rgb, np.float32), (*shape, 3)).copy()
+    return BRDF(values, geometric_valid(shape), name=name)
+
+
+@pytest.fixture(scope="module")
+def work(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("reliability")
+
+
+@pytest.fixture(scope="module")
+def ens_file(work) -> Path:
+    """A random orthonormal ensemble of two dictionaries on the small grid."""
+    rng = np.random.default_rng(7)
+    u = [np.stack([random_orthonormal(n, rng) for _ in range(2)]) for n in SMALL]
+    return Ensemble(*u, taus=np.array([16, 16])).save(work / "small.npz")
+
+
+@pytest.fixture(scope="module")
+def merl(work) -> Path:
+    return write_merl(work / "m.binary", constant_brdf((0.2, 0.1, 0.05)))
+
+
+@pytest.fixture(scope="module")
+def sbrdf(work, merl, ens_file) -> Path:
+    out = work / "m.sbrdf"
+    assert main(["encode", str(merl), "-o", str(out), "--coeffs", "20",
+                 "--ensemble", str(ens_file)]) == 0
+    return out
+
+
+def with_values(model: SparseBRDF, path: Path, **changes) -> Path:
+    """``model`` with some fields changed, saved at ``path``."""
+    fields = dict(transform=model.transform, shape=model.shape,
+                  ensemble_id=model.ensemble_id, dict_index=model.dict_index,
+                  locations=model.locations, values=model.values, name=model.name,
+                  basis=model.basis)
+    fields.update(changes)
+    return save_sbrdf(path, SparseBRDF(**fields))
+
+
+def odd_grid(model: SparseBRDF, path: Path, **changes) -> Path:
+    """``model`` on an 18 x 18 x 18 grid (its coefficients that fit), saved at ``path``."""
+    size = 18 * 18 * 18
+    keep = [loc < size for loc in model.locations]
+    return with_values(model, path, shape=(18, 18, 18),
+                       locations=[loc[k] for loc, k in zip(model.locations, keep, strict=True)],
+                       values=[v[k] for v, k in zip(model.values, keep, strict=True)],
+                       **changes)
+
+
+# ----------------------------------------------------------- 2. inputs never destroyed
+
+
+def test_encode_refuses_to_overwrite_its_input(capsys, tmp_path, merl, ens_file):
+    src = tmp_path / "c.binary"
+    src.write_bytes(merl.read_bytes())
+    before = digest(src)
+    fails(capsys, "encode", src, "-o", src, "--ensemble", ens_file, names=["c.binary"])
+    assert digest(src) == before
+    link = tmp_path / "link.binary"
+    link.symlink_to(src)
+    fails(capsys, "encode", src, "-o", link, "--ensemble", ens_file, names=["link.binary"])
+    os.link(src, tmp_path / "hard.binary")
+    fails(capsys, "encode", src, "-o", tmp_path / "hard.binary", "--ensemble", ens_file,
+          names=["hard.binary"])
+    assert digest(src) == before
+
+
+def test_decode_blend_convert_refuse_their_inputs(capsys, tmp_path, sbrdf, merl, ens_file):
+    x = tmp_path / "x.sbrdf"
+    x.write_bytes(sbrdf.read_bytes())
+    before = digest(x)
+    fails(capsys, "decode", x, "-o", x, "--ensemble", ens_file, names=["x.sbrdf"])
+    fails(capsys, "blend", x, sbrdf, "--alpha", "0.5", "-o", x, "--ensemble", ens_file,
+          names=["x.sbrdf"])
+    fails(capsys, "decode", x, "-o", ens_file, "--ensemble", ens_file, names=["small.npz"])
+    assert digest(x) == before
+    m = tmp_path / "m.binary"
+    m.write_bytes(merl.read_bytes())
+    fails(capsys, "convert", m, m, names=["m.binary"])
+
+
+def test_render_refuses_its_scene_materials_and_mask(capsys, tmp_path, merl):
+    scene = tmp_path / "s.xml"
+    scene.write_text(SPHERE.read_text())
+    before = digest(scene)
+    fails(capsys, "render", scene, "-o", scene, names=["s.xml"])
+    fails(capsys, "render", scene, "-o", merl, "--material", f"material={merl}",
+          names=["m.binary"])
+    fails(capsys, "render", scene, "-o", tmp_path / "a.exr", "--mask", tmp_path / "a.exr",
+          names=["a.exr"])
+    assert digest(scene) == before
+
+
+def test_fit_scene_refuses_a_file_as_folder_and_its_inputs(capsys, tmp_path, sbrdf):
+    out = tmp_path / "out"
+    out.write_text("not a folder")
+    fails(capsys, "fit-scene", SPHERE, "--target-snr", "20", "--material",
+          f"material={sbrdf}", "-o", out, names=["out"])
+    folder = tmp_path / "fs"
+    folder.mkdir()
+    inside = folder / "material.sbrdf"
+    inside.write_bytes(sbrdf.read_bytes())
+    fails(capsys, "fit-scene", SPHERE, "--target-snr", "20", "--material",
+          f"material={inside}", "-o", folder, names=["material.sbrdf"])
+    fails(capsys, "fit-scene", SPHERE, "--target-snr", "20", "--material",
+          f"../x={sbrdf}", "-o", folder, names=["../x"])
+
+
+# ------------------------------------------------------------- 1. OS errors, one line
+
+
+def test_output_is_a_folder_or_a_device(capsys, tmp_path, sbrdf, ens_file):
+    (tmp_path / "d.binary").mkdir()
+    fails(capsys, "decode", sbrdf, "-o", tmp_path / "d.binary", "--ensemble", ens_file,
+          names=["d.binary", "folder"])
+    os.mkfifo(tmp_path / "p.binary")
+    fails(capsys, "decode", sbrdf, "-o", tmp_path / "p.binary", "--ensemble", ens_file,
+          names=["p.binary"])
+    assert (tmp_path / "p.binary").is_fifo()
+
+
+def test_unwritable_folder(capsys, tmp_path, sbrdf, ens_file, monkeypatch):
+    import sparse_brdf.fileio as fileio
+
+    def refuse(path, suffix):  # what creating a file in a read-only folder raises
+        raise PermissionError(errno.EACCES, "Permission denied", str(path.parent))
+
+    monkeypatch.setattr(fileio, "_create_temporary", refuse)
+    line = fails(capsys, "decode", sbrdf, "-o", tmp_path / "ro" / "x.binary", "--ensemble",
+                 ens_file, names=["x.binary", "Permission denied"])
+    assert "cannot write" in line
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
+def test_read_only_folder(capsys, tmp_path, sbrdf, ens_file):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    try:
+        fails(capsys, "decode", sbrdf, "-o", ro / "x.binary", "--ensemble", ens_file,
+              names=["x.binary"])
+    finally:
+        ro.chmod(0o755)
+
+
+def test_disk_full_keeps_the_old_output(capsys, tmp_path, sbrdf, ens_file, monkeypatch):
+    out = tmp_path / "x.binary"
+    out.write_bytes(b"the previous output")
+
+    def full(fd):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(os, "fsync", full)
+    fails(capsys, "decode", sbrdf, "-o", out, "--ensemble", ens_file,
+          names=["x.binary", "No space left"])
+    assert out.read_bytes() == b"the previous output"
+    assert leftovers(tmp_path) == ["x.binary"]
+
+
+def test_scene_with_a_syntax_error(capsys, tmp_path):
+    bad = tmp_path / "bad.xml"
+    bad.write_text('<scene version="3.0.0"><bsdf')
+    fails(capsys, "render", bad, "-o", tmp_path / "x.exr", names=["bad.xml", "XML"])
+    fails(capsys, "fit-scene", bad, "--target-snr", "20", "-o", tmp_path / "o",
+          names=["bad.xml"])
+    bad.write_bytes(b"\xff\xfe<scene/>")
+    fails(capsys, "render", bad, "-o", tmp_path / "x.exr", names=["bad.xml"])
+
+
+def test_sbrdf_whose_grid_disagrees_with_its_ensemble(capsys, tmp_path, sbrdf, ens_file):
+    odd = odd_grid(load_sbrdf(sbrdf), tmp_path / "grid.sbrdf")
+    fails(capsys, "decode", odd, "-o", tmp_path / "g.binary", "--ensemble", ens_file,
+          names=["grid.sbrdf", "grid"])
+    assert leftovers(tmp_path) == ["grid.sbrdf"]
+
+
+def test_malformed_h5_layers(capsys, tmp_path):
+    import h5py
+
+    for name, layer, data in [("width.h5", "dense_2", np.zeros((21, 22), np.float32)),
+                              ("flat.h5", "dense_2", np.zeros(21, np.float32)),
+                              ("text.h5", "dense_1", np.array([b"x"] * 6))]:
+        path = tmp_path / name
+        path.write_bytes(H5.read_bytes())
+        with h5py.File(path, "r+") as f:
+            del f[layer][layer]["kernel:0"]
+            f[layer][layer]["kernel:0"] = data
+        fails(capsys, "info", path, names=[name])
+    nan = tmp_path / "nan.h5"
+    nan.write_bytes(H5.read_bytes())
+    with h5py.File(nan, "r+") as f:
+        f["dense_3"]["dense_3"]["bias:0"][0] = np.nan
+    fails(capsys, "info", nan, names=["nan.h5", "NaN"])
+    big = tmp_path / "big.h5"
+    big.write_bytes(H5.read_bytes())
+    with h5py.File(big, "r+") as f:
+        f["dense_3"]["dense_3"]["bias:0"][:] = 1e4  # exp overflows: the values are inf
+    with pytest.raises(BRDFFileError, match="big.h5"):  # on the small grid: faster
+        tabulate_nbrdf(big, SMALL)
+
+
+def test_merl_header_dimensions_that_overflow(capsys, tmp_path):
+    for name, dims in [("ovf.binary", (2**31 - 1, 2**31 - 1, 2**31 - 2)),
+                       ("neg.binary", (-90, -90, 180)), ("big.binary", (1 << 20, 1 << 10, 2))]:
+        (tmp_path / name).write_bytes(struct.pack("<3i", *dims) + bytes(64))
+        fails(capsys, "info", tmp_path / name, names=[name])
+    huge = tmp_path / "huge.binary"
+    header = struct.pack("<3i", 2, 2, 2)
+    huge.write_bytes(header + np.full(24, 1e300, "<f8").tobytes())
+    fails(capsys, "info", huge, names=["huge.binary"])
+
+
+def test_bench_config_errors_name_the_file(capsys, tmp_path):
+    bad = tmp_path / "bad.toml"
+    for body in (b"spp = [\n", b"\xff\xfe", b"spp = 0\n", b'models = ["sparse:x"]\n',
+                 b"bogus = 1\n"):
+        bad.write_bytes(body)
+        fails(capsys, "bench", bad, names=["bad.toml"])
+
+
+def test_bench_on_a_fifo_does_not_hang(capsys, tmp_path):
+    fifo = tmp_path / "cfg.toml"
+    os.mkfifo(fifo)
+    result = {}
+    t = threading.Thread(target=lambda: result.update(r=run(capsys, "bench", fifo)),
+                         daemon=True)
+    t.start()
+    t.join(20)
+    assert not t.is_alive(), "bench blocked reading a FIFO"
+    code, _, err = result["r"]
+    assert code == 2 and len(err.splitlines()) == 1 and "cfg.toml" in err
+
+
+# ------------------------------------------------------------- wrong successes, bounds
+
+
+@pytest.mark.parametrize("argv, option", [
+    (["render", "sphere.xml", "-o", "x.exr", "--spp", "0"], "--spp"),
+    (["render", "sphere.xml", "-o", "x.exr", "--res", "-1"], "--res"),
+    (["render", "sphere.xml", "-o", "x.exr", "--seed", "-1"], "--seed"),
+    (["encode", "x.binary", "-o", "x.sbrdf", "--coeffs", "99999999999"], "--coeffs"),
+    (["encode", "x.binary", "-o", "x.sbrdf", "--coeffs", "0"], "--coeffs"),
+    (["encode", "x.binary", "-o", "x.sbrdf", "--max-error", "nan"], "--max-error"),
+    (["encode", "x.binary", "-o", "x.sbrdf", "--fill-iters", "-1"], "--fill-iters"),
+    (["blend", "a.sbrdf", "b.sbrdf", "--alpha", "0.5", "--coeffs", "0", "-o", "c.sbrdf"],
+     "--coeffs"),
+    (["blend", "a.sbrdf", "b.sbrdf", "--alpha", "0.5", "--coeffs", "-5", "-o", "c.sbrdf"],
+     "--coeffs"),
+    (["blend", "a.sbrdf", "b.sbrdf", "--alpha", "inf", "-o", "c.sbrdf"], "--alpha"),
+    (["fit-scene", "sphere", "--target-snr", "nan"], "--target-snr"),
+    (["train", "-o", "e.npz", "--taus", "0"], "--taus"),
+    (["train", "-o", "e.npz", "--grid", "1000", "1000", "1000"], "--grid"),
+    (["encode"], "required"),
+    ([], "required"),
+])
+def test_bad_options_are_one_line(capsys, tmp_path, monkeypatch, argv, option):
+    monkeypatch.chdir(tmp_path)
+    fails(capsys, *argv, names=[option])
+
+
+def test_blend_coeffs_beyond_the_grid(capsys, tmp_path, sbrdf, ens_file):
+    fails(capsys, "blend", sbrdf, sbrdf, "--alpha", "0.5", "--coeffs", "20000", "-o",
+          tmp_path / "b.sbrdf", "--ensemble", ens_file, names=["--coeffs"])
+
+
+def huge_file(sbrdf: Path, path: Path, value: float, all_of_them: bool = False) -> Path:
+    """``sbrdf`` with its first coefficient (or all of channel 0's) set to ``value``,
+    written without the model's checks (as a corrupt or hostile file would hold it)."""
+    m = load_sbrdf(sbrdf)
+    m.values[0] = m.values[0].copy()
+    m.values[0][slice(None) if all_of_them else 0] = value
+    return save_sbrdf(path, m)
+
+
+def test_huge_coefficient_is_refused_at_load(capsys, tmp_path, sbrdf, ens_file):
+    huge = huge_file(sbrdf, tmp_path / "huge.sbrdf", 3e38)
+    fails(capsys, "decode", huge, "-o", tmp_path / "h.binary", "--ensemble", ens_file,
+          names=["huge.sbrdf"])
+    fails(capsys, "info", huge, names=["huge.sbrdf"])
+    assert leftovers(tmp_path) == ["huge.sbrdf"]
+
+
+# ------------------------------------------------------------ 3. unusual materials work
+
+
+@pytest.mark.parametrize("rgb", [(0.3, 0.0, 0.0), (0.0, 0.0, 0.0), (1e-30, 2e-30, 0.0),
+                                 (1e-6, 1e-6, 1e-6), (1e30, 1.0, 0.5)])
+@pytest.mark.parametrize("paper", [False, True])
+def test_unusual_materials_encode_and_decode(capsys, tmp_path, ens_file, rgb, paper):
+    src = write_merl(tmp_path / "u.binary", constant_brdf(rgb))
+    out, dec = tmp_path / "u.sbrdf", tmp_path / "d.binary"
+    code, _, err = run(capsys, "encode", src, "-o", out, "--coeffs", "16", "--ensemble",
+                       ens_file, *(["--paper"] if paper else []))
+    assert code == 0 and err == ""  # no numpy warning leaks
+    model = load_sbrdf(out)
+    if paper:  # rgb basis: a channel without signal has no coefficient
+        for c, value in enumerate(rgb):
+            if value == 0:
+                assert model.n_coeffs[c] == 0
+    code, _, err = run(capsys, "decode", out, "-o", dec, "--ensemble", ens_file)
+    assert code == 0 and err == ""
+    back = read_merl(dec)
+    assert np.all(np.isfinite(back.values))
+    for c, value in enumerate(rgb):
+        if value == 0:  # exact in the rgb basis; float32 rounding of the opponent mix
+            assert np.abs(back.values[..., c]).max() <= (0 if paper
+                                                         else 1e-5 * max(rgb) + 1e-30)
+
+
+def test_file_without_coefficients_decodes(capsys, tmp_path, sbrdf, ens_file):
+    m = load_sbrdf(sbrdf)
+    empty = with_values(m, tmp_path / "zero.sbrdf", locations=[np.zeros(0)] * 3,
+                        values=[np.zeros(0)] * 3)
+    code, _, err = run(capsys, "decode", empty, "-o", tmp_path / "z.binary", "--ensemble",
+                       ens_file)
+    assert code == 0, err
+    assert np.all(read_merl(tmp_path / "z.binary").values == 0)
+
+
+# --------------------------------------------------------------------- 4. renders
+
+
+@pytest.mark.render
+def test_render_refuses_nan_pixels_and_corrupt_materials(capsys, tmp_path, sbrdf, ens_file):
+    pytest.importorskip("mitsuba")
+    common = ["--spp", "1", "--res", "8", "--ensemble", ens_file]
+    huge = huge_file(sbrdf, tmp_path / "huge.sbrdf", 3e38)  # refused as it loads
+    line = fails(capsys, "render", SPHERE, "-o", tmp_path / "h.exr", "--material",
+                 f"material={huge}", *common, names=["huge.sbrdf"])
+    assert "File " not in line
+    # plausible coefficients whose values overflow: decoded and clamped to float32's
+    # largest value, and the render that would hold inf pixels is refused
+    big = huge_file(sbrdf, tmp_path / "big.sbrdf", 2e3, all_of_them=True)
+    assert run(capsys, "decode", big, "-o", tmp_path / "b.binary", "--ensemble",
+               ens_file)[0] == 0
+    assert np.isfinite(read_merl(tmp_path / "b.binary").values).all()
+    (tmp_path / "b.binary").unlink()
+    line = fails(capsys, "render", SPHERE, "-o", tmp_path / "h.exr", "--material",
+                 f"material={big}", *common, names=["big.sbrdf"])
+    assert "NaN" in line
+    corrupt = tmp_path / "corrupt.sbrdf"
+    data = bytearray(sbrdf.read_bytes())
+    data[60] ^= 0xFF
+    corrupt.write_bytes(bytes(data))
+    line = fails(capsys, "render", SPHERE, "-o", tmp_path / "c.exr", "--material",
+                 f"material={corrupt}", *common, names=["corrupt.sbrdf"])
+    assert "File " not in line and "line " not in line  # no Mitsuba traceback inside
+    assert leftovers(tmp_path) == ["big.sbrdf", "corrupt.sbrdf", "huge.sbrdf"]
+
+
+@pytest.mark.render
+@pytest.mark.parametrize("decoder", ["strict", "grouped"])
+def test_render_a_material_without_coefficients(capsys, tmp_path, sbrdf, ens_file, decoder):
+    pytest.importorskip("mitsuba")
+    m = load_sbrdf(sbrdf)
+    empty = with_values(m, tmp_path / "zero.sbrdf", locations=[np.zeros(0)] * 3,
+                        values=[np.zeros(0)] * 3)
+    code, _, err = run(capsys, "render", SPHERE, "-o", tmp_path / "z.exr", "--material",
+                       f"material={empty}", "--spp", "1", "--res", "8", "--ensemble",
+                       ens_file, "--decoder", decoder)
+    assert code == 0, err
+    assert np.all(np.isfinite(read_exr(tmp_path / "z.exr")))
+
+
+# ------------------------------------------------------------------------ snr images
+
+
+def _exr(path: Path, channels: dict) -> Path:
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    with OpenEXR.File(header, channels) as f:
+        f.write(str(path))
+    return path
+
+
+def test_snr_reads_rgba_and_names_nan_images(capsys, tmp_path):
+    rng = np.random.default_rng(1)
+    a = rng.random((8, 8, 4)).astype(np.float32)
+    rgba = _exr(tmp_path / "rgba.exr", {"RGBA": a})
+    rgb = write_exr(tmp_path / "rgb.exr", a[..., :3])
+    np.save(tmp_path / "mask.npy", np.ones((8, 8), bool))
+    code, out, err = run(capsys, "snr", rgba, rgb, "--mask", tmp_path / "mask.npy")
+    assert code == 0 and "inf dB" in out, err
+    split = _exr(tmp_path / "split.exr", {c: a[..., i].copy() for i, c in enumerate("RGBA")})
+    np.testing.assert_array_equal(read_exr(split), a[..., :3])
+    nan = a[..., :3].copy()
+    nan[2, 3, 1] = np.nan
+    write_exr(tmp_path / "nan.exr", nan)
+    fails(capsys, "snr", rgb, tmp_path / "nan.exr", "--mask", tmp_path / "mask.npy",
+          names=["nan.exr", "NaN"])
+    write_exr(tmp_path / "small.exr", a[:4, :4, :3])
+    fails(capsys, "snr", rgb, tmp_path / "small.exr", "--mask", tmp_path / "mask.npy",
+          names=["small.exr"])
+    np.save(tmp_path / "none.npy", np.zeros((8, 8), bool))
+    fails(capsys, "snr", rgb, rgba, "--mask", tmp_path / "none.npy", names=["none.npy"])
+    _exr(tmp_path / "y.exr", {"Y": a[..., 0].copy()})
+    fails(capsys, "snr", tmp_path / "y.exr", rgb, "--mask", tmp_path / "mask.npy",
+          names=["y.exr"])
+    with pytest.raises(ImageFileError, match="y.exr"):
+        read_exr(tmp_path / "y.exr")
+
+
+# ------------------------------------------------------------------- messages, names
+
+
+def test_control_characters_never_reach_the_terminal(capsys, tmp_path, sbrdf, ens_file):
+    m = load_sbrdf(sbrdf)
+    evil = "evil\x1b[31mRED\x07\nsecond line\u202e"
+    odd = odd_grid(m, tmp_path / "odd.sbrdf", name=evil)
+    line = fails(capsys, "decode", odd, "-o", tmp_path / "o.binary", "--ensemble", ens_file,
+                 names=["odd.sbrdf", "\\x1b", "\\x07", "\\u202e"])
+    assert "\x1b" not in line and "\x07" not in line and "\u202e" not in line
+    assert one_line("a\r\nb\tc\x9b") == "a | b c\\x9b"
+
+
+def test_info_escapes_the_stored_name(capsys, tmp_path):
+    src = write_merl(tmp_path / "n.binary", constant_brdf((0.1, 0.1, 0.1)))
+    # a MERL file's name is its file name: put the control character there
+    evil = tmp_path / "a\x1bb.binary"
+    evil.write_bytes(src.read_bytes())
+    code, out, err = run(capsys, "info", evil)
+    assert code == 0 and "\x1b" not in out and "\\x1b" in out
+
+
+def test_missing_and_non_regular_inputs(capsys, tmp_path, ens_file):
+    fails(capsys, "info", tmp_path / "missing.binary", names=["missing.binary"])
+    (tmp_path / "dir.binary").mkdir()
+    fails(capsys, "info", tmp_path / "dir.binary", names=["dir.binary", "regular"])
+    fails(capsys, "decode", tmp_path / "dir.sbrdf", "-o", tmp_path / "x.binary",
+          names=["dir.sbrdf"])
+    os.mkfifo(tmp_path / "f.sbrdf")
+    fails(capsys, "decode", tmp_path / "f.sbrdf", "-o", tmp_path / "x.binary", "--ensemble",
+          ens_file, names=["f.sbrdf"])
+    fails(capsys, "info", "mitsuba:no-such-thing", names=["mitsuba:no-such-thing"])
+    fails(capsys, "corpus", "list", "no-such-corpus", names=["no-such-corpus"])
+
+
+def test_errors_form_one_hierarchy():
+    from sparse_brdf import errors
+
+    classes = [c for c in vars(errors).values() if isinstance(c, type)
+               and issubclass(c, Exception) and c.__module__ == errors.__name__]
+    assert len(classes) >= 10
+    assert all(issubclass(c, SparseBRDFError) for c in classes)
+    assert issubclass(OutputError, OSError) and issubclass(InputFileError, OSError)
+    assert issubclass(BRDFFileError, ValueError)
+    from mitsuba_plugin import PluginError
+    from sparse_brdf.evaluation.render import RenderError
+    from sparse_brdf.mitsuba_env import MitsubaSetupError
+
+    assert {PluginError, RenderError, MitsubaSetupError} <= set(classes)
+
+
+# -------------------------------------------------------------- bugs are called bugs
+
+
+def test_an_internal_error_says_it_is_a_bug(capsys, monkeypatch, tmp_path):
+    import sparse_brdf.cli as cli
+
+    def broken(*args, **kwargs):
+        return np.zeros(3).reshape(2, 2)  # a genuine numpy error, not a user's
+
+    monkeypatch.setattr(cli, "load_brdf", broken)
+    code, _, err = run(capsys, "info", tmp_path / "x.binary")
+    assert code == EXIT_BUG and len(err.splitlines()) == 1
+    assert "internal error" in err and "bug" in err and "--debug" in err
+    assert "Traceback" not in err
+    code, _, err = run(capsys, "info", tmp_path / "x.binary", "--debug")
+    assert code == EXIT_BUG and "Traceback" in err and "reshape" in err
+    assert err.splitlines()[-1].startswith("sparse-brdf: internal error")
+    monkeypatch.setenv("SPARSE_BRDF_DEBUG", "1")
+    code, _, err = run(capsys, "info", tmp_path / "x.binary")
+    assert code == EXIT_BUG and "Traceback" in err
+
+
+def test_debug_shows_the_traceback_of_a_user_error(capsys, tmp_path):
+    code, _, err = run(capsys, "--debug", "info", tmp_path / "missing.binary")
+    assert code == 2 and "Traceback" in err and "missing.binary" in err.splitlines()[-1]
+
+
+# ------------------------------------------------------ interrupts leave nothing behind
+
+
+def test_sigterm_while_writing_leaves_no_temporary(capsys, tmp_path, sbrdf, ens_file,
+                                                   monkeypatch):
+    import sparse_brdf.cli as cli
+
+    def write_then_killed(path, brdf):
+        with atomic_write(path) as f:
+            f.write(b"x" * 4096)
+            os.kill(os.getpid(), signal.SIGTERM)
+            for _ in range(1000):  # the handler runs at the next bytecode
+                f.write(b"y")
+        raise AssertionError("not interrupted")
+
+    monkeypatch.setattr(cli, "write_merl", write_then_killed)
+    out = tmp_path / "out"
+    out.mkdir()
+    code, _, err = run(capsys, "decode", sbrdf, "-o", out / "x.binary", "--ensemble",
+                       ens_file)
+    assert code == 128 + signal.SIGTERM
+    assert len(err.splitlines()) == 1 and "SIGTERM" in err
+    assert leftovers(out) == []
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # restored
+
+
+def test_cleanup_on_signals_restores_handlers(tmp_path):
+    before = signal.getsignal(signal.SIGTERM)
+    with pytest.raises(KeyboardInterrupt), cleanup_on_signals():
+        with atomic_write(tmp_path / "a.bin") as f:
+            f.write(b"partial")
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(0.5)
+    assert leftovers(tmp_path) == []
+    assert signal.getsignal(signal.SIGTERM) == before
+
+
+def test_sigint_during_encode(tmp_path):
+    """A real process: Ctrl-C while encoding a full-size material."""
+    src = write_merl(tmp_path / "c.binary", constant_brdf((0.3, 0.2, 0.1), MERL_SHAPE))
+    out = tmp_path / "out"
+    out.mkdir()
+    p = subprocess.Popen([sys.executable, "-m", "sparse_brdf.cli", "encode", str(src), "-o",
+                          str(out / "c.sbrdf")], stderr=subprocess.PIPE, text=True,
+                         cwd=ROOT)
+    time.sleep(2.0)
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=60)
+    if p.returncode == 0:
+        pytest.skip("the encode finished before the interrupt")
+    assert p.returncode == 128 + signal.SIGINT, err
+    assert len(err.splitlines()) == 1 and "SIGINT" in err and "Traceback" not in err
+    assert leftovers(out) == []
