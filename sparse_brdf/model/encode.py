@@ -354,28 +354,33 @@ def error_curve(brdf: BRDF, ens: Ensemble, counts: list[int]) -> dict:
 def choose_transform(brdf: BRDF, models: dict[str, SparseBRDF], ens: Ensemble,
                      selector: str = "gamma-mse") -> SparseBRDF:
     """The model that ``selector`` prefers (:func:`pick_transform`); ``stats`` gets every
-    model's errors (gamma-mapped MSE, MSE, RAE, render-proxy error on valid bins)."""
+    model's value of the selector's error, and the chosen model's errors in full
+    (gamma-mapped MSE, MSE, RAE, render-proxy error on valid bins)."""
+    key = SELECTOR_KEYS[check_choice("selector", selector, SELECTORS)]
     valid = brdf.valid
     ref_full = brdf.channel_first()
     ref = ref_full[:, valid]  # (3, n_valid): mask once, then flat metrics
-    decoded = {name: model.transformed(ens) for name, model in models.items()}
     kernel = make_render_proxy(brdf.shape)
+    full: dict[str, np.ndarray] = {}
 
-    def errors(name):  # numpy only (no BLAS): the models' metrics run side by side
-        full = inverse(decoded[name], name)
-        rec = full[:, valid]
-        st = models[name].stats
-        return name, {
-            "gamma_mse": gamma_mse(ref, rec),
-            "mse": mse(ref, rec),
-            "rae": rae(ref, rec),
-            "render_proxy": render_proxy_error(ref_full, full, kernel, valid),
-            **{k: st[k] for k in _MODEL_STATS if k in st},
-        }
+    def errors(name: str, keys: tuple[str, ...]) -> dict:  # numpy only (no BLAS)
+        if name not in full:
+            full[name] = inverse(models[name].transformed(ens), name)
+        rec = full[name][:, valid] if keys != ("render_proxy",) else None
+        metric = {"gamma_mse": lambda: gamma_mse(ref, rec), "mse": lambda: mse(ref, rec),
+                  "rae": lambda: rae(ref, rec),
+                  "render_proxy": lambda: render_proxy_error(ref_full, full[name], kernel,
+                                                             valid)}
+        return {k: metric[k]() for k in keys}
 
-    with ThreadPoolExecutor(max(1, min(len(models), n_threads()))) as ex:
-        stats = dict(ex.map(errors, list(models)))
-    chosen = pick_transform(stats, selector)
+    names = list(models)
+    with ThreadPoolExecutor(max(1, min(len(names), n_threads()))) as ex:
+        sel = dict(zip(names, ex.map(lambda t: errors(t, (key,)), names), strict=True))
+    chosen = pick_transform(sel, selector)
+    rest = tuple(k for k in SELECTOR_KEYS.values() if k != key) + ("mse", "rae")
+    stats = {t: {**sel[t], **(errors(t, rest) if t == chosen else {}),
+                 **{k: models[t].stats[k] for k in _MODEL_STATS if k in models[t].stats}}
+             for t in names}
     model = models[chosen]
     model.stats = {"transforms": stats, "chosen": chosen, "selector": selector}
     return model
@@ -618,7 +623,8 @@ def _fill_invalid(brdf: BRDF, ens: Ensemble, transforms: tuple[str, ...],
     problems are independent: the fits of every transform and channel run side by side.
     """
     invalid = ~brdf.valid
-    ys = {t: _coded_channels(brdf, t, o.basis) for t in transforms}
+    ys = {t: _coded_channels(brdf, t, o.basis) for t in transforms}  # invalid bins are 0
+    valid_energies = {t: _energies(y) for t, y in ys.items()}  # before any filling
     models = {t: _search(brdf, ens, t, ys[t], o) for t in transforms}
     if not invalid.any() or o.fill_iters == 0:
         return models
@@ -644,7 +650,7 @@ def _fill_invalid(brdf: BRDF, ens: Ensemble, transforms: tuple[str, ...],
         if not active:
             break
     for t, m in models.items():
-        valid_energy = _energies(np.where(invalid, np.float32(0), ys[t]))
+        valid_energy = valid_energies[t]
         m.stats = {
             "relative_residual": [float(r / n) if n > 0 else 0.0
                                   for r, n in zip(residual[t], valid_energy, strict=True)],
