@@ -335,7 +335,8 @@ def test_bench_on_a_fifo_does_not_hang(capsys, tmp_path):
     (["blend", "a.sbrdf", "b.sbrdf", "--alpha", "inf", "-o", "c.sbrdf"], "--alpha"),
     (["fit-scene", "sphere", "--target-snr", "nan"], "--target-snr"),
     (["train", "-o", "e.npz", "--taus", "0"], "--taus"),
-    (["train", "-o", "e.npz", "--grid", "1000", "1000", "1000"], "--grid"),
+    (["train", "--corpus", "mitsuba", "-o", "e.npz", "--grid", "1000", "1000", "1000"],
+     "--grid"),
     (["encode"], "required"),
     ([], "required"),
 ])
