@@ -208,10 +208,6 @@ def cmd_train(args: argparse.Namespace) -> int:
     return 0
 
 
-def _ensemble(path: str | None):
-    return resolve_ensemble(path)
-
-
 def cmd_encode(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     options = {"selector": args.selector, "fill": args.fill, "basis": args.basis}
@@ -223,7 +219,7 @@ def cmd_encode(args: argparse.Namespace) -> int:
                              "batch yet); give --coeffs for a batch")
         return _encode_batch(args, options)
     _check_outputs([args.output], [args.source, args.ensemble])
-    ens = _ensemble(args.ensemble)
+    ens = resolve_ensemble(args.ensemble)
     _check_coeffs(args.coeffs, ens)
     if args.bytes is not None:
         model = encode_to_bytes(load_brdf(args.source), ens, args.bytes,
@@ -253,7 +249,7 @@ def _encode_batch(args: argparse.Namespace, options: dict) -> int:
     options = {"n_coeffs": args.coeffs, "max_error": args.max_error,
                "transform": args.transform, "fill_iters": args.fill_iters,
                "budget": args.budget, **options}
-    ens = _ensemble(args.ensemble)
+    ens = resolve_ensemble(args.ensemble)
     _check_coeffs(args.coeffs, ens)
     with executor(args.workers, args.scheduler) as ex:
         summary = encode_batch(args.source, args.output, ens, options, ex)

@@ -282,6 +282,7 @@ class Bench:
         self.out = Path(cfg.out)
         self.work = self.out / "work"
         self.progress = progress
+        self.ensemble = resolve_ensemble(cfg.ensemble)  # read once: provenance and models
         self.results = self._load_results()
         self.scenes: dict[str, Path] = {}  # scene name -> path, the scenes that can run
         self._masks: dict[str, np.ndarray] = {}
@@ -293,7 +294,7 @@ class Bench:
         """What the results depend on beyond the config: the ensemble the sparse models use,
         the encoder's defaults and the .sbrdf version written (all changed between
         versions)."""
-        return {"ensemble": resolve_ensemble(self.cfg.ensemble).id,
+        return {"ensemble": self.ensemble.id,
                 "encoder_defaults": dict(ENCODE_OPTIONS), "sbrdf_version": VERSION}
 
     def _load_results(self) -> dict:
@@ -350,7 +351,7 @@ class Bench:
         self.work.mkdir(parents=True, exist_ok=True)
         if self.cfg.render:
             self._resolve_scenes()
-        ens = resolve_ensemble(self.cfg.ensemble)
+        ens = self.ensemble
         models = [make_model(s, ens) for s in self.cfg.models]
         mats = self.materials()
         self._train(models, mats)
