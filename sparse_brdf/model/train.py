@@ -87,7 +87,8 @@ def _sq_norms(x: np.ndarray) -> np.ndarray:
     return np.array([float(np.dot(t.ravel(), t.ravel())) for t in x])
 
 
-def _code(s: np.ndarray, tau: int) -> tuple[np.ndarray, np.ndarray, float]:
+def _keep_largest(s: np.ndarray, tau: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """The ``tau`` largest |s| of a projection: (flat indices, values, kept energy)."""
     flat = s.ravel()
     e = flat * flat
     idx = top_k(e, tau)
@@ -189,7 +190,7 @@ def _code_tensor(data: _Tensors, i: int, s: np.ndarray, tau: int, u) -> tuple:
     Returns (idx, val, error, fill): error is the squared error over the tensor's valid
     bins; masked, ``fill`` holds the free-bin values of the new reconstruction (once they
     are filled in, ``error`` is the error over the whole filled tensor)."""
-    idx, val, kept = _code(s, tau)
+    idx, val, kept = _keep_largest(s, tau)
     err = data.norms[i] - kept
     if not data.masked:
         return idx, val, err, None
@@ -309,7 +310,7 @@ def _assign_all(data: _Tensors, state_u, tau, progress, known=None) -> tuple[np.
         else:
             found = {}
             for j in cands:
-                idx, val, kept = _code(project(xi, u1[j], u2[j], u3[j]), tau)
+                idx, val, kept = _keep_largest(project(xi, u1[j], u2[j], u3[j]), tau)
                 found[j] = (idx, val, data.norms[i] - kept)
         if own >= 0:
             found[own] = (known[1][i], known[2][i], known[3][i])
