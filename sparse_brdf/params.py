@@ -27,7 +27,7 @@ from numbers import Integral, Real
 
 from .errors import SparseBRDFError, UsageError
 
-__all__ = ["Choice", "Interval", "check", "check_all", "check_choice", "check_range"]
+__all__ = ["SEED", "Choice", "Interval", "check", "check_all", "check_choice", "check_range"]
 
 
 @dataclass(frozen=True)
@@ -37,14 +37,20 @@ class Choice:
     values: tuple
 
     def __contains__(self, value: object) -> bool:
-        try:
-            return value in self.values and not isinstance(value, bool)
-        except (TypeError, ValueError):  # e.g. an array: not a choice
-            return False
+        if isinstance(value, bool) or not isinstance(value, (str, Real)):
+            return False  # an array, a list, None: never a choice
+        return value in self.values
 
     def describe(self) -> str:
         """``one of a, b, c``."""
         return "one of " + ", ".join(map(str, self.values))
+
+
+def _number(x: float | None) -> str:
+    """A bound as written: integers in full (1458000, not 1.458e+06), others with %g."""
+    if x is not None and float(x).is_integer() and abs(x) < 1e16:
+        return str(int(x))
+    return f"{x:g}" if x is not None else ""
 
 
 #: Which ends of an :class:`Interval` belong to it: (lo, hi).
@@ -87,14 +93,19 @@ class Interval:
         """``an integer >= 1``, ``in [0, 1)``, ``> 0``, ...: what follows "must be"."""
         lo_in, hi_in = _CLOSED[self.closed]
         what = "an integer " if self.kind is int else ""
+        lo, hi = _number(self.lo), _number(self.hi)
         if self.lo is None and self.hi is None:
             return "an integer" if self.kind is int else "a finite number"
         if self.hi is None:
-            return f"{what}{'>=' if lo_in else '>'} {self.lo:g}"
+            return f"{what}{'>=' if lo_in else '>'} {lo}"
         if self.lo is None:
-            return f"{what}{'<=' if hi_in else '<'} {self.hi:g}"
-        return (f"{what}in {'[' if lo_in else '('}{self.lo:g}, {self.hi:g}"
-                f"{']' if hi_in else ')'}")
+            return f"{what}{'<=' if hi_in else '<'} {hi}"
+        return f"{what}in {'[' if lo_in else '('}{lo}, {hi}{']' if hi_in else ')'}"
+
+    def capped(self, hi: float) -> Interval:
+        """This interval with its upper end lowered to ``hi`` (e.g. a grid's entries)."""
+        return Interval(self.kind, self.lo, hi if self.hi is None else min(self.hi, hi),
+                        self.closed)
 
     def parse(self, text: str, name: str = "value") -> int | float:
         """``text`` (a command-line word) as a checked number of this interval."""
@@ -105,6 +116,9 @@ class Interval:
                              f", got {text!r}") from None
         return check(name, value, self)
 
+
+#: Every seed a user gives (trainer, renders, bench): 32 bits, as Mitsuba's samplers take.
+SEED = Interval(int, 0, (1 << 32) - 1)
 
 #: What a parameter may be declared as: a :class:`Choice`, an :class:`Interval`, or a plain
 #: tuple (read as a Choice).

@@ -30,7 +30,7 @@ import numpy as np
 import tomllib
 
 from ..brdf import BRDF
-from ..coords import MERL_SHAPE
+from ..coords import GRID_BINS
 from ..errors import ConfigError, MissingDataError, UsageError, short
 from ..fileio import atomic_write, require_file
 from ..metrics import cosine_weighted_snr, gamma_mse, rae, snr_forms
@@ -40,11 +40,12 @@ from ..model.ensemble import resolve_ensemble
 from ..model.sbrdf import VERSION, save_sbrdf
 from ..model.specs import make_model, parse_spec
 from ..parallel import Executor, InProcess
+from ..params import Interval, check
 from ..paths import CONFIGS_DIR
-from ..sources.corpora import get_corpus
+from ..sources.corpora import SPLITS, get_corpus
 from ..sources.merl import write_merl
 from .render import (
-    RENDER_LIMITS,
+    RENDER_PARAMETERS,
     check_scene_data,
     find_scene,
     noise_floor_snr,
@@ -137,12 +138,13 @@ class BenchConfig:
 
 #: Largest bench config read (the shipped ones are under 2 kB).
 _MAX_CONFIG_BYTES = 1 << 20
-#: Allowed ranges of the numeric settings (inclusive; None: unbounded).
-_SETTING_RANGES = {
-    "spp": (1, RENDER_LIMITS["spp"]), "res": (1, RENDER_LIMITS["res"]),
-    "seed": (0, RENDER_LIMITS["seed"]), "noise_seed": (0, RENDER_LIMITS["seed"]),
-    "max_materials": (1, None), "pca_train_max": (2, None), "speed_evals": (1, 1 << 26),
-    "curve_coeffs": (1, int(np.prod(MERL_SHAPE))),
+#: The settings' values (a list setting: each of its items), declared as
+#: :mod:`sparse_brdf.params` declarations; the render settings are the renderer's.
+SETTINGS = {
+    "spp": RENDER_PARAMETERS["spp"], "res": RENDER_PARAMETERS["res"],
+    "seed": RENDER_PARAMETERS["seed"], "noise_seed": RENDER_PARAMETERS["seed"],
+    "max_materials": Interval(int, 1), "pca_train_max": Interval(int, 2),
+    "speed_evals": Interval(int, 1, 1 << 26), "curve_coeffs": GRID_BINS, "split": SPLITS,
 }
 _SETTING_TYPES = {
     "int": lambda v: isinstance(v, int) and not isinstance(v, bool),
@@ -159,13 +161,9 @@ def _check_setting(path: Path, key: str, value, annotation) -> None:
     kind = str(annotation).removesuffix(" | None")
     if not _SETTING_TYPES.get(kind, lambda v: True)(value):
         raise ConfigError(f"{path}: setting {key} = {value!r}: expected {kind}")
-    lo, hi = _SETTING_RANGES.get(key, (None, None))
-    for v in value if isinstance(value, list) else [value]:
-        if lo is not None and (v < lo or (hi is not None and v > hi)):
-            raise ConfigError(f"{path}: setting {key} = {v!r}: must be in [{lo}, "
-                              f"{hi if hi is not None else 'inf'}]")
-    if key == "split" and value not in ("train", "test", "all"):
-        raise ConfigError(f"{path}: setting split = {value!r}: expected train, test or all")
+    if key in SETTINGS:
+        for v in value if isinstance(value, list) else [value]:
+            check(f"{path}: setting {key}", v, SETTINGS[key], error=ConfigError)
 
 
 def _check_model_spec(path: Path, spec) -> None:

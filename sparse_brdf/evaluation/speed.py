@@ -35,6 +35,7 @@ from ..model.compact import Compact
 from ..model.layouts import DECODERS
 from ..model.sbrdf import save_sbrdf
 from ..model.sparse import SparseBRDF
+from ..params import check_choice
 from ..sources.merl import write_merl
 
 #: Model kinds :func:`evals_per_second` times (the part of ``Compact.model`` before ``-``).
@@ -129,8 +130,7 @@ def evals_per_second(model, n: int = 1 << 20, repeats: int = 5, ensemble=None, *
     import drjit as dr  # lazy: Dr.Jit is slow to import (see the module doc)
 
     n, repeats = _check_counts(n, repeats)
-    if decoder not in DECODERS:
-        raise ValueError(f"decoder={decoder!r}: expected one of {', '.join(DECODERS)}")
+    check_choice("decoder", decoder, DECODERS)
     if not variant.startswith(("llvm", "cuda")):
         raise ValueError(f"variant={variant!r}: timing needs a JIT variant (llvm_* or cuda_*)")
     with use_variant(variant):

@@ -23,11 +23,14 @@ import numpy as np
 
 from ..brdf import BRDF
 from ..errors import UsageError
+from ..params import Interval
 from .encode import choose_transform, encode
 from .ensemble import Ensemble, resolve_ensemble
 from .sbrdf import VERSION, as_stored, check_version, min_file_size, to_bytes
 from .sparse import SparseBRDF
 
+#: The byte budget of a file (at least its header, name and checksum: :func:`check_budget`).
+PARAMETERS = {"n_bytes": Interval(int, 1)}
 #: First guess of the bytes per coefficient beyond the fixed part, per file version: on
 #: the low side (measured 1.7-2.3 for version 2, docs/file-format.md) so that the first
 #: encoding overshoots the budget and is trimmed, rather than fitting whole.

@@ -10,17 +10,14 @@ byte budget, :func:`~sparse_brdf.model.budget.encode_to_bytes`), behind the inte
 from __future__ import annotations
 
 from ..brdf import BRDF
-from ..params import Interval, check, check_choice
+from ..params import check, check_choice
+from .budget import PARAMETERS as BUDGET_PARAMETERS
 from .budget import encode_to_bytes
 from .compact import BRDFModel, Compact
 from .encode import DEFAULT_N_COEFFS, ENCODE_OPTIONS, PAPER_OPTIONS, check_options, encode
 from .encode import PARAMETERS as ENCODE_PARAMETERS
 from .ensemble import resolve_ensemble
 from .sbrdf import VERSION, as_stored, check_version, to_bytes
-
-#: A :class:`SparseModel`'s byte budget per file (its other parameters are
-#: :func:`~sparse_brdf.model.encode.encode`'s, ``encode.PARAMETERS``).
-PARAMETERS = {"n_bytes": Interval(int, 1)}
 
 
 def sparse_name(n_coeffs: int = DEFAULT_N_COEFFS, transform: str = "auto",
@@ -46,7 +43,7 @@ def sparse_name(n_coeffs: int = DEFAULT_N_COEFFS, transform: str = "auto",
     """
     check_version(version)
     if n_bytes is not None:
-        check("n_bytes", n_bytes, PARAMETERS["n_bytes"])
+        check("n_bytes", n_bytes, BUDGET_PARAMETERS["n_bytes"])
     check("n_coeffs", n_coeffs, ENCODE_PARAMETERS["n_coeffs"])
     check_choice("transform", transform, ENCODE_PARAMETERS["transform"])
     full = check_options(**(options or {}))

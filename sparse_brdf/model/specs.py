@@ -170,7 +170,7 @@ def parse_spec(spec: str) -> ModelSpec:
         raise UsageError(f"model {spec!r}: a model spec is a string")
     kind, _, arg = spec.partition(":")
     if kind not in KINDS:
-        raise UsageError(f"unknown model {spec!r}: expected one of "
+        raise UsageError(f"unknown model {spec!r}: the models are "
                          f"{', '.join(k.grammar for k in KINDS.values())}")
     try:
         kwargs = KINDS[kind].parse(arg)

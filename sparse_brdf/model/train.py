@@ -42,6 +42,7 @@ from ..errors import BRDFFileError, UsageError
 from ..fileio import atomic_write
 from ..parallel import Executor, InProcess
 from ..parallel import executor as open_executor
+from ..params import SEED, Interval, check, check_choice
 from .ensemble import Ensemble
 from .tensor import (
     hosvd_factors,
@@ -65,6 +66,14 @@ DEFAULT_MAX_MOVED = 0.01
 #: training error itself) and ``random`` (random balanced clusters, the first trainer's).
 INITS: tuple[str, ...] = ("seeded", "random")
 DEFAULT_INIT = "seeded"
+#: The trainer's parameters a user sets, declared once (:mod:`sparse_brdf.params`; the
+#: CLI's bounds): ``tau`` at most a tensor's entries and ``n_dicts`` at most the tensors,
+#: checked against the data by :func:`_check_training_args`.
+PARAMETERS = {
+    "tau": Interval(int, 1), "n_dicts": Interval(int, 1), "n_iter": Interval(int, 0),
+    "reassign_every": Interval(int, 1), "tol": Interval(float, 0.0),
+    "max_moved": Interval(float, 0.0, 1.0), "init": INITS, "seed": SEED,
+}
 
 
 @dataclass
@@ -645,7 +654,7 @@ def _init_state(data: _Shards, tau, n_dicts, rng, init: str = "random") -> Train
     elif init == "seeded":
         labels = _seed_labels(data, tau, n_dicts, rng)
     else:
-        raise UsageError(f"unknown init {init!r}: expected one of {', '.join(INITS)}")
+        check_choice("init", init, INITS)
     sums = [[np.zeros((m, m)) for m in (n1, n2, n3)] for _ in range(n_dicts)]
     for part in data.run(_shard_gram_sums, data.slices(labels), n_dicts):  # shard order
         for j in range(n_dicts):
@@ -704,15 +713,11 @@ def _check_training_args(x, tau: int, n_dicts: int, init: str = DEFAULT_INIT,
     x = np.asarray(x) if not isinstance(x, np.memmap) else x
     if x.ndim != 4:
         raise UsageError(f"training tensors must have shape (N, n1, n2, n3), got {x.shape}")
-    if tau < 1 or tau > np.prod(x.shape[1:]):
-        raise UsageError(f"tau must be in [1, {np.prod(x.shape[1:])}], got {tau}")
-    if n_dicts < 1 or n_dicts > len(x):
-        raise UsageError(f"n_dicts must be in [1, {len(x)}] (one tensor per cluster at least), "
-                         f"got {n_dicts}")
-    if init not in INITS:
-        raise UsageError(f"unknown init {init!r}: expected one of {', '.join(INITS)}")
-    if reassign_every < 1:
-        raise UsageError(f"reassign_every must be >= 1, got {reassign_every}")
+    check("tau", tau, PARAMETERS["tau"].capped(int(np.prod(x.shape[1:]))))
+    check("n_dicts (one tensor per cluster at least)", n_dicts,
+          PARAMETERS["n_dicts"].capped(len(x)))
+    check_choice("init", init, INITS)
+    check("reassign_every", reassign_every, PARAMETERS["reassign_every"])
     return x
 
 
