@@ -56,6 +56,11 @@ class UsageError(SparseBRDFError, ValueError):
     """An option or argument has an unusable value (out of range, NaN, inconsistent)."""
 
 
+class MissingFileError(SparseBRDFError, FileNotFoundError):
+    """An input the user named does not exist: a file, a scene, a config, or a folder or
+    glob that holds no material."""
+
+
 class InputFileError(SparseBRDFError, OSError):
     """An input path exists but is not a regular file (a folder, a pipe, a device)."""
 

@@ -16,7 +16,7 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import IO
 
-from .errors import InputFileError, Interrupted, OutputError, SparseBRDFError
+from .errors import InputFileError, Interrupted, MissingFileError, OutputError, SparseBRDFError
 
 #: Temporary files of :func:`atomic_path` that exist right now (str paths). Sets' add and
 #: discard are atomic under the GIL, so a signal handler may read it without a lock.
@@ -82,7 +82,8 @@ def atomic_write(path: str | os.PathLike, mode: str = "wb") -> Iterator[IO]:
 
 
 def require_file(path: str | os.PathLike, what: str = "file") -> Path:
-    """Return ``path`` as a Path, raising FileNotFoundError naming it when it is absent and
+    """Return ``path`` as a Path, raising :class:`~sparse_brdf.errors.MissingFileError` (a
+    FileNotFoundError) naming it when it is absent and
     :class:`~sparse_brdf.errors.InputFileError` when it is a folder, pipe or device (reading
     a FIFO would hang)."""
     path = Path(path)
@@ -90,7 +91,7 @@ def require_file(path: str | os.PathLike, what: str = "file") -> Path:
         if path.exists():
             raise InputFileError(f"{path}: not a regular file (a folder, pipe or device), "
                                  f"expected a {what}")
-        raise FileNotFoundError(f"{path}: no such {what}")
+        raise MissingFileError(f"{path}: no such {what}")
     return path
 
 

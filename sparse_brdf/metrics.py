@@ -9,6 +9,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .coords import MERL_SHAPE, bin_solid_angle, cos_io, cosine_product
+from .errors import ImageFileError
 
 GAMMA = 2.0
 
@@ -38,22 +39,24 @@ def render_snr(ref: np.ndarray, img: np.ndarray, mask: np.ndarray | None = None)
 
     ``ref``/``img``: linear images (H, W, C); ``mask``: bool (H, W) selecting the pixels
     summed over (None: every pixel, the whole-image form). Identical images give ``inf``;
-    a zero reference with a nonzero image gives ``-inf``. Raises ValueError on a shape
-    mismatch, non-finite pixels or an empty mask.
+    a zero reference with a nonzero image gives ``-inf``. Raises
+    :class:`~sparse_brdf.errors.ImageFileError` (a ValueError) on a shape mismatch,
+    non-finite pixels or an empty mask.
     """
     ref = np.asarray(ref, dtype=np.float64)
     img = np.asarray(img, dtype=np.float64)
     if ref.shape != img.shape:
-        raise ValueError(f"image shapes differ: reference {ref.shape}, image {img.shape}")
+        raise ImageFileError(f"image shapes differ: reference {ref.shape}, image {img.shape}")
     for what, a in (("reference", ref), ("image", img)):
         if not np.all(np.isfinite(a)):
-            raise ValueError(f"{what} image holds {int((~np.isfinite(a)).sum())} NaN/inf values")
+            raise ImageFileError(f"{what} image holds {int((~np.isfinite(a)).sum())} NaN/inf "
+                                 "values")
     if mask is not None:
         mask = np.asarray(mask, dtype=bool)
         if mask.shape != ref.shape[:mask.ndim]:
-            raise ValueError(f"mask shape {mask.shape} does not match the images {ref.shape}")
+            raise ImageFileError(f"mask shape {mask.shape} does not match the images {ref.shape}")
         if not mask.any():
-            raise ValueError("the object mask selects no pixel")
+            raise ImageFileError("the object mask selects no pixel")
         ref, img = ref[mask], img[mask]
     signal = float(np.sum(ref**2))
     noise = float(np.sum((ref - img) ** 2))

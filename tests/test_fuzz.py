@@ -303,3 +303,189 @@ def test_cli_bad_arguments(work, bad_inputs, capsys, monkeypatch, data):
         assert os.stat(p).st_mtime_ns == mtime, (argv, p)
     leftovers = [p.name for p in work.rglob(".*") if p.is_file()]
     assert leftovers == [], (argv, leftovers)
+
+
+# ------------------------------------------------ bench configs: every combination, exit 0/2
+
+#: Model specs of every kind, good and odd (the grammar's own tests: tests/test_specs.py).
+_SPEC_PARTS = {
+    "sparse": st.one_of(
+        st.sampled_from(["", "262", "16", "b900", "b0", "bx", "0", "-3", "1e3", "99999999"]),
+        st.integers(1, 2000).map(str), st.integers(1, 5000).map(lambda n: f"b{n}")),
+    "transform": st.sampled_from(["", "auto", "log-plus", "log-plus-cosine", "log", "paper"]),
+    "option": st.sampled_from(["selector=render", "selector=gamma-mse", "selector=x",
+                               "fill=missing", "fill=invalid", "fill=all", "fill_iters=0",
+                               "fill_iters=7", "fill_iters=x", "fill_iters=2000",
+                               "basis=rgb", "basis=opponent", "basis=xyz", "budget=joint",
+                               "budget=channel", "version=1", "version=2", "version=3",
+                               "colour=rgb", "fill", "=", ""]),
+    "size": st.one_of(st.integers(-2, 400).map(str), st.sampled_from(["", "x", "1.5", "²"])),
+}
+
+
+def _either(odd: bool, good, bad):
+    """``good``, or (when this axis is the odd one) ``good`` or ``bad``."""
+    return st.one_of(good, bad) if odd else good
+
+
+@st.composite
+def model_spec(draw, odd: bool = False) -> str:
+    """A model spec of any kind: well-formed, or (``odd``) possibly not."""
+    kind = draw(_either(odd, st.sampled_from(["sparse", "naive", "cpd", "tucker", "pca",
+                                              "tabulated"]),
+                        st.sampled_from(["svd", "", "PCA"])))
+    size = _either(odd, st.integers(1, 60).map(str), _SPEC_PARTS["size"])
+    if kind == "sparse":
+        parts = [draw(_either(odd, st.sampled_from(["", "16", "262", "b900", "b3000"]),
+                              _SPEC_PARTS["sparse"]))]
+        good_opts = st.sampled_from(["selector=render", "fill=missing", "fill_iters=2",
+                                     "basis=rgb", "budget=channel", "version=1"])
+        if draw(st.booleans()):
+            parts.append(draw(_either(odd, st.sampled_from(["", "auto", "log-plus", "paper"]),
+                                      _SPEC_PARTS["transform"])))
+        if draw(st.booleans()):
+            opts = draw(st.lists(_either(odd, good_opts, _SPEC_PARTS["option"]), max_size=3,
+                                 unique=True))
+            parts.append(",".join(opts))
+        return "sparse:" + ":".join(parts)
+    if kind == "tucker":
+        ranks = draw(st.lists(size, min_size=3, max_size=3) if not odd
+                     else st.lists(size, max_size=4))
+        return "tucker" + draw(st.sampled_from(["", ":" + "x".join(ranks)]))
+    if kind in ("naive", "tabulated"):
+        return kind + draw(_either(odd, st.just(""), size.map(lambda s: ":" + s)))
+    return kind + draw(st.one_of(st.just(""), size.map(lambda s: ":" + s)))
+
+
+@pytest.fixture(scope="module")
+def bench_world(work) -> dict[str, str]:
+    """Corpora, scenes and ensembles a config may name: a folder of three small-grid
+    materials, an empty folder, a folder of a corrupt file, a small ensemble, a corrupt
+    one, a scene with a syntax error."""
+    from conftest import random_orthonormal
+    from sparse_brdf.model.ensemble import Ensemble
+
+    d = work / "bench_world"
+    (d / "mats").mkdir(parents=True)
+    (d / "empty").mkdir()
+    (d / "corrupt").mkdir()
+    for i, rgb in enumerate(((0.2, 0.1, 0.05), (0.5, 0.5, 0.5), (0.01, 0.2, 0.3))):
+        values = np.broadcast_to(np.asarray(rgb, np.float32), (*SMALL, 3)).copy()
+        write_merl(d / "mats" / f"m{i}.binary", BRDF(values, geometric_valid(SMALL), f"m{i}"))
+    (d / "corrupt" / "x.binary").write_bytes(b"\x01" * 30)
+    (d / "mixed").mkdir()  # two grids: the small one, and a 4 x 4 x 8 one
+    for name in ("m0", "m1"):
+        (d / "mixed" / f"{name}.binary").write_bytes((d / "mats" / f"{name}.binary").read_bytes())
+    tiny = np.full((4, 4, 8, 3), 0.1, np.float32)
+    write_merl(d / "mixed" / "tiny.binary", BRDF(tiny, geometric_valid((4, 4, 8)), "tiny"))
+    rng = np.random.default_rng(5)
+    u = [np.stack([random_orthonormal(n, rng) for _ in range(2)]) for n in SMALL]
+    Ensemble(*u, taus=np.array([16, 16])).save(d / "small.npz")
+    (d / "bad.npz").write_bytes(b"PK\x03\x04" + bytes(30))
+    (d / "bad.xml").write_text('<scene version="3.0.0"><bsdf')
+    return {k: str(v) for k, v in {"mats": d / "mats", "mixed": d / "mixed",
+                                    "empty": d / "empty",
+                                    "corrupt": d / "corrupt", "small": d / "small.npz",
+                                    "bad_npz": d / "bad.npz", "bad_xml": d / "bad.xml",
+                                    "missing": d / "no-such"}.items()}
+
+
+#: Usable values of the numeric and boolean settings, and odd ones.
+_GOOD_SETTINGS = {"spp": st.integers(1, 64), "res": st.integers(1, 256),
+                  "seed": st.integers(0, 4).map(lambda i: 2 * i),  # never the noise_seed
+                  "noise_seed": st.integers(0, 4).map(lambda i: 2 * i + 1),
+                  "max_materials": st.integers(1, 9), "pca_train_max": st.integers(2, 50),
+                  "speed_evals": st.integers(1, 1 << 20),
+                  "curve_coeffs": st.lists(st.integers(1, 2000), max_size=3),
+                  "render": st.booleans(), "stability": st.booleans(), "speed": st.booleans()}
+_ODD = st.one_of(st.integers(-3, 0), st.sampled_from([2**31, 2**70]),
+                 st.floats(allow_nan=True), st.booleans(), st.text(max_size=3),
+                 st.lists(st.integers(-1, 3), max_size=2))
+
+
+_AXES = ("corpora", "split", "models", "scenes", "ensemble", "settings")
+
+
+@st.composite
+def bench_config(draw, world: dict[str, str]) -> dict:
+    """A bench config: every corpus and split combination, model specs of every kind,
+    scenes and ensembles, usable settings; in most examples one axis (``_AXES``) is given
+    odd values too."""
+    odd = draw(st.sampled_from([None, None, *_AXES]))
+    good_corpora = ["mitsuba", "merl", "rgl", "merl-demo", world["mats"]]
+    odd_corpora = [world["empty"], world["corrupt"], world["missing"], "", "no-such"]
+    cfg: dict = {
+        "corpora": draw(st.lists(_either(odd == "corpora", st.sampled_from(good_corpora),
+                                         st.sampled_from(odd_corpora)), max_size=3)),
+        "split": draw(_either(odd == "split", st.sampled_from(["train", "test", "all"]),
+                              st.sampled_from(["", "Test", 3]))),
+        "models": draw(st.lists(model_spec(odd == "models"), max_size=4)),
+        "stability_models": draw(st.lists(model_spec(odd == "models"), max_size=2)),
+        "scenes": draw(st.lists(_either(odd == "scenes", st.sampled_from(
+            ["sphere.xml", "paper_sphere", "spheres.xml"]), st.sampled_from(
+            ["nope.xml", world["bad_xml"], ""])), max_size=3)),
+        "ensemble": draw(_either(odd == "ensemble", st.sampled_from([None, world["small"]]),
+                                 st.sampled_from([world["bad_npz"], world["missing"],
+                                                  "0" * 32, ""]))),
+    }
+    for key, good in _GOOD_SETTINGS.items():
+        if draw(st.integers(0, 2)) == 0:
+            cfg[key] = draw(_either(odd == "settings", good, _ODD))
+    return {k: v for k, v in cfg.items() if v is not None}
+
+
+def _write_config(path: Path, cfg: dict) -> Path:
+    path.write_text("".join(f"{k} = {_toml(v)}\n" for k, v in cfg.items()))
+    return path
+
+
+def _bench(capsys, argv) -> tuple[int, str, str]:
+    try:
+        code = main([str(a) for a in argv])
+    except SystemExit as exc:  # argparse
+        code = exc.code
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@settings(max_examples=120, deadline=None, database=None, derandomize=True,
+          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@given(data=st.data())
+def test_bench_configs_check_with_exit_0_or_2(work, bench_world, capsys, monkeypatch, data):
+    """``bench CONFIG --check`` over generated configs: status 0, or 2 with one line
+    naming what is wrong; never an internal error (70)."""
+    monkeypatch.chdir(work)
+    cfg = data.draw(bench_config(bench_world))
+    path = _write_config(work / "generated.toml", cfg)
+    code, out, err = _bench(capsys, ["bench", path, "--check"])
+    assert code in (0, 2), (cfg, err)
+    if code == 2:
+        assert len(err.splitlines()) == 1 and "Traceback" not in err, (cfg, err)
+    else:
+        assert "ok:" in out and err.count("\n") <= 0, (cfg, out, err)
+
+
+@settings(max_examples=12, deadline=None, database=None, derandomize=True,
+          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@given(models=st.lists(st.sampled_from(["sparse:16", "sparse:b700:basis=rgb", "naive",
+                                        "tabulated", "pca:2", "tucker:2x1x1", "sparse:0",
+                                        "cpd:1"]), min_size=1, max_size=3),
+       split=st.sampled_from(["train", "test", "all"]),
+       curve=st.lists(st.integers(1, 20000), min_size=1, max_size=2),
+       corpus=st.sampled_from(["mats", "mixed"]))
+def test_bench_runs_with_exit_0_or_2(work, bench_world, capsys, models, split, curve,
+                                     corpus):
+    """Small real runs (BRDF-space metrics, small grids, one folder of mixed grids):
+    status 0 or 2 with one line, never 70; a config the check refuses, the run refuses
+    with the same line."""
+    cfg = {"corpora": [bench_world[corpus]], "split": split, "models": models,
+           "ensemble": bench_world["small"], "render": False, "speed": False,
+           "stability": False, "curve_coeffs": curve}
+    path = _write_config(work / "run.toml", cfg)
+    checked = _bench(capsys, ["bench", path, "--check"])
+    ran = _bench(capsys, ["bench", path, "--out", work / "run_out"])
+    assert checked[0] in (0, 2) and ran[0] in (0, 2), (cfg, checked, ran)
+    for code, _, err in (checked, ran):
+        assert code == 0 or len(err.splitlines()) == 1, (cfg, err)
+    if checked[0] == 2:
+        assert ran[2] == checked[2], (cfg, checked, ran)

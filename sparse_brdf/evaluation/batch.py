@@ -34,7 +34,7 @@ import os
 import time
 from pathlib import Path
 
-from ..errors import BRDFFileError, EnsembleMismatchError, OutputError, UsageError
+from ..errors import BRDFFileError, EnsembleMismatchError, MissingFileError, OutputError, UsageError
 from ..fileio import atomic_write
 from ..metrics import cosine_weighted_snr
 from ..model.encode import encode
@@ -62,7 +62,8 @@ def is_batch(source: str | os.PathLike) -> bool:
 
 def batch_sources(pattern: str | os.PathLike) -> list[Path]:
     """The material files of a folder (``FOLDER_SUFFIXES``) or a glob, sorted; raises
-    FileNotFoundError if there are none, UsageError if two share an output name."""
+    :class:`~sparse_brdf.errors.MissingFileError` if there are none, UsageError if two
+    share an output name."""
     s = os.fspath(pattern)
     if Path(s).is_dir():
         files = [p for p in Path(s).iterdir() if p.suffix.lower() in FOLDER_SUFFIXES]
@@ -70,7 +71,7 @@ def batch_sources(pattern: str | os.PathLike) -> list[Path]:
         files = [Path(p) for p in glob.glob(s) if Path(p).suffix.lower() in SUFFIXES]
     files = sorted(p for p in files if p.is_file())
     if not files:
-        raise FileNotFoundError(f"{s}: no materials ({', '.join(SUFFIXES)} files) found")
+        raise MissingFileError(f"{s}: no materials ({', '.join(SUFFIXES)} files) found")
     by_stem: dict[str, list[str]] = {}
     for p in files:
         by_stem.setdefault(p.stem, []).append(str(p))

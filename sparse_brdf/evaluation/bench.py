@@ -17,6 +17,7 @@ that the bench does not evaluate; a config that leaves none is refused.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import json
 import os
@@ -31,7 +32,14 @@ import tomllib
 
 from ..brdf import BRDF
 from ..coords import GRID_BINS
-from ..errors import ConfigError, MissingDataError, UsageError, short
+from ..errors import (
+    ConfigError,
+    MissingDataError,
+    MissingFileError,
+    SparseBRDFError,
+    UsageError,
+    short,
+)
 from ..fileio import atomic_write, require_file
 from ..metrics import cosine_weighted_snr, gamma_mse, rae, snr_forms
 from ..model.compact import BRDFModel
@@ -73,8 +81,8 @@ def find_config(name: str | os.PathLike) -> Path:
         return p
     if (CONFIGS_DIR / f"{p}.toml").is_file():
         return CONFIGS_DIR / f"{p}.toml"
-    raise FileNotFoundError(f"{name}: no such config file, nor a shipped config "
-                            f"(shipped: {', '.join(shipped_configs())})")
+    raise MissingFileError(f"{name}: no such config file, nor a shipped config "
+                           f"(shipped: {', '.join(shipped_configs())})")
 
 
 @dataclass
@@ -142,6 +150,9 @@ class BenchConfig:
         for spec in data.get("models", []) + data.get("stability_models", []):
             _check_model_spec(path, spec)
         cfg = cls(**data)
+        if cfg.seed == cfg.noise_seed:
+            raise ConfigError(f"{path}: setting noise_seed = seed = {cfg.seed}: the noise "
+                              "floor compares renders of two different seeds")
         cfg.source = path
         return cfg
 
@@ -173,7 +184,10 @@ def _check_setting(path: Path, key: str, value, annotation) -> None:
         raise ConfigError(f"{path}: setting {key} = {value!r}: expected {kind}")
     if key in SETTINGS:
         for v in value if isinstance(value, list) else [value]:
-            check(f"{path}: setting {key}", v, SETTINGS[key], error=ConfigError)
+            try:
+                check(f"setting {key}", v, SETTINGS[key])
+            except UsageError as exc:
+                raise ConfigError(f"{path}: {exc}") from None
 
 
 def _check_model_spec(path: Path, spec) -> None:
@@ -214,6 +228,15 @@ def _check_training_set(cfg: BenchConfig, learners: list, train: list) -> None:
             f"{cfg.split!r} leave {len(train)} (use split = 'test', or drop the PCA models)")
 
 
+@contextlib.contextmanager
+def _naming(cfg: BenchConfig, setting: str):
+    """Re-raise an error of the package (same type) with the config and setting named."""
+    try:
+        yield
+    except SparseBRDFError as exc:
+        raise type(exc)(f"{cfg.label}: setting {setting}: {exc}") from exc
+
+
 def check_config(cfg: BenchConfig) -> dict:
     """Check what a run of ``cfg`` needs, without running, reading a material or writing
     anything: its ensemble, every model (sparse ones over that ensemble), the corpora and
@@ -237,21 +260,25 @@ def check_config(cfg: BenchConfig) -> dict:
     SparseBRDFError
         The first problem, naming the config, the corpus, the scene or the ensemble.
     """
-    ens = resolve_ensemble(cfg.ensemble)
+    with _naming(cfg, "ensemble"):
+        ens = resolve_ensemble(cfg.ensemble)
     models = [make_model(s, ens) for s in cfg.models]
     smodels = [make_model(s, ens) for s in cfg.stability_models] if cfg.stability else []
-    mats = evaluated_materials(cfg)
+    with _naming(cfg, "corpora"):
+        mats = evaluated_materials(cfg)
     learners = [m for m in models + smodels if m.learns]
-    train = training_materials(cfg, mats) if learners else []
+    with _naming(cfg, "corpora"):
+        train = training_materials(cfg, mats) if learners else []
     _check_training_set(cfg, learners, train)
     scenes, skipped = [], {}
     for name in cfg.scenes if cfg.render else []:
-        path = find_scene(name)
-        try:
-            check_scene_data(path)
-        except MissingDataError as exc:
-            skipped[path.name] = str(exc)
-            continue
+        with _naming(cfg, "scenes"):
+            path = find_scene(name)
+            try:
+                check_scene_data(path)
+            except MissingDataError as exc:
+                skipped[path.name] = str(exc)
+                continue
         scenes.append(path.name)
     return {"materials": len(mats), "training": len(train),
             "models": [m.name for m in models], "scenes": scenes, "skipped_scenes": skipped}

@@ -29,6 +29,7 @@ import OpenEXR
 from ..errors import (
     ImageFileError,
     MissingDataError,
+    MissingFileError,
     OutputError,
     RenderError,
     SceneError,
@@ -60,8 +61,8 @@ def find_scene(name: str | os.PathLike) -> Path:
         if cand.is_file():
             return cand
     shipped = ", ".join(sorted(q.stem for q in SCENES_DIR.glob("*.xml")))
-    raise FileNotFoundError(f"{name}: no such scene file, and no shipped scene of that name "
-                            f"(shipped: {shipped})")
+    raise MissingFileError(f"{name}: no such scene file, and no shipped scene of that name "
+                           f"(shipped: {shipped})")
 
 
 def parse_overrides(items: Iterable[str]) -> dict[str, str]:
@@ -261,9 +262,7 @@ def load_scene(
 
     import mitsuba_plugin  # lazy: imports Mitsuba and Dr.Jit
 
-    scene_path = Path(scene_path)
-    if not scene_path.is_file():
-        raise FileNotFoundError(f"{scene_path}: no such scene file")
+    scene_path = require_file(scene_path, "scene file")
     kwargs = {k: str(v) for k, v in (params or {}).items()}
     for key, val in (("spp", spp), ("seed", seed), ("res", res)):
         if val is not None:  # checked: 0 spp is a SIGFPE inside Mitsuba

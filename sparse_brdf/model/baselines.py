@@ -358,6 +358,11 @@ class PCAModel(BRDFModel):
             raise UsageError(f"{self.name}: PCA needs at least 2 training BRDFs, "
                              f"got {len(brdfs)}")
         shape = brdfs[0].shape
+        for b in brdfs:
+            if b.shape != shape:
+                first = brdfs[0].source or brdfs[0].name
+                raise UsageError(f"{self.name}: training BRDFs on different grids: "
+                                 f"{b.source or b.name} {b.shape}, {first} {shape}")
         self.mask_ = np.broadcast_to(brdfs[0].valid[..., None], (*shape, 3))
         for b in brdfs:
             self.mask_ = self.mask_ & b.valid[..., None]
@@ -376,6 +381,9 @@ class PCAModel(BRDFModel):
 
     def compress(self, brdf: BRDF) -> Compact:
         require_fitted(self, self.basis_ is not None)
+        if brdf.shape != self.mask_.shape[:3]:
+            raise UsageError(f"{brdf.source or brdf.name}: BRDF grid {brdf.shape} does not "
+                             f"match the {self.mask_.shape[:3]} grid {self.name} was fitted on")
         k = min(self.n_coeffs, self.basis_.shape[0])
         basis = self.basis_[:k]
         coef = basis @ (self._map(brdf) - self.mean_)

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import BRDFFileError, EnsembleMismatchError
+from ..errors import BRDFFileError, EnsembleMismatchError, MissingDataError
 from ..fileio import atomic_write, require_file
 from ..paths import DEFAULT_ENSEMBLE_ID, ENSEMBLES_DIR
 
@@ -158,7 +158,8 @@ def _load_shipped(ensemble_id: str) -> Ensemble:
     path = ENSEMBLES_DIR / f"{ensemble_id}.npz"
     if not path.is_file():
         if ensemble_id == DEFAULT_ENSEMBLE_ID:
-            raise FileNotFoundError(f"{path}: the default ensemble is not installed")
+            raise MissingDataError(f"{path}: the default ensemble is not installed (a "
+                                   "broken install: reinstall sparse-brdf)")
         raise EnsembleMismatchError(
             f"ensemble {ensemble_id} is not shipped with this version (shipped: "
             f"{', '.join(shipped_ids()) or 'none'}); pass its file with --ensemble")

@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from ..brdf import BRDF
-from ..errors import BRDFFileError, EnsembleMismatchError
+from ..errors import BRDFFileError, EnsembleMismatchError, UsageError
 from ..fileio import atomic_write, require_file
 from ..params import check_choice
 from ..transforms import TRANSFORMS
@@ -101,7 +101,8 @@ def to_bytes(model: SparseBRDF, version: int = VERSION) -> bytes:
     check_version(version)
     name = model.name.encode("utf-8")[:255]
     if any(n > 0xFFFF for n in model.shape) or int(np.prod(model.shape)) > 0xFFFFFFFF:
-        raise ValueError(f"grid {model.shape} is too large for the .sbrdf format")
+        raise UsageError(f"{model.name}: grid {model.shape} is too large for the .sbrdf "
+                         "format (sides of at most 65535 bins)")
     common = (MAGIC, version, TRANSFORMS.index(model.transform),
               FLAG_OPPONENT if model.basis == "opponent" else 0, *model.shape,
               bytes.fromhex(model.ensemble_id[:32]), *(int(d) for d in model.dict_index),

@@ -20,7 +20,7 @@ from pathlib import Path
 
 from ..brdf import BRDF
 from ..coords import MERL_SHAPE
-from ..errors import MissingDataError, UsageError
+from ..errors import MissingDataError, MissingFileError, UsageError
 from ..params import check_choice
 from ..paths import DEMO_MATERIALS_DIR, shared_data_dir
 from .catalog import mitsuba_catalog
@@ -106,6 +106,8 @@ def list_corpora() -> dict[str, str]:
 
 def get_corpus(name: str) -> Corpus:
     """A corpus by name (``mitsuba``, ``merl``, ``rgl``) or by folder path."""
+    if not isinstance(name, str) or not name.strip():
+        raise UsageError(f"corpus {name!r}: give mitsuba, merl, rgl or a folder path")
     if name == "mitsuba":
         mats = tuple(Material(n, "mitsuba", f"mitsuba:{n}") for n in sorted(mitsuba_catalog()))
         return Corpus("mitsuba", list_corpora()["mitsuba"], mats)
@@ -123,6 +125,6 @@ def get_corpus(name: str) -> Corpus:
     if folder.is_dir():
         c = _folder_corpus(folder.name, folder, f"folder {folder}")
         if not c.materials:
-            raise FileNotFoundError(f"{folder}: no .binary or .h5 files in this folder")
+            raise MissingFileError(f"{folder}: no .binary or .h5 files in this folder")
         return c
     raise UsageError(f"unknown corpus {name!r}: use mitsuba, merl, rgl or a folder path")
