@@ -32,6 +32,7 @@ _cache_used = [0]  # bytes of partial products cached in this process
 
 
 def shard_info(sh: TensorStore) -> tuple:
+    """The shard's norms as given, valid energies and unmeasured bins (once, at the start)."""
     return sh.raw_norms, sh.energy, sh.extra
 
 
@@ -50,13 +51,14 @@ def shard_refill(sh: TensorStore, labels, idx, val, u1, u2, u3) -> None:
 
 
 def drop_cache(sh: TensorStore) -> None:
+    """Forget the shard's cached mode-3 products."""
     with _cache_lock:
         _cache_used[0] -= sum(a.nbytes for a in sh.cache.values())
     sh.cache = {}
 
 
 def shard_partials(sh: TensorStore, labels, codes_idx, codes_val, mode, n_dicts,
-                    u1, u2, u3) -> list:
+                   u1, u2, u3) -> list:
     """The shard's part of each cluster's Procrustes product Z for ``mode`` (0, 1, 2):
     a float64 (n, n) sum over the cluster's tensors in the shard, None for none.
 
