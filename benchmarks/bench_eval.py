@@ -35,11 +35,12 @@ from pathlib import Path
 
 import numpy as np
 
-from sparse_brdf.evaluation.bench import make_model
 from sparse_brdf.evaluation.speed import evals_per_second
 from sparse_brdf.fileio import atomic_write
-from sparse_brdf.model.baselines import PCAModel, SparseModel, TabulatedModel
+from sparse_brdf.model.baselines import PCAModel, TabulatedModel
 from sparse_brdf.model.ensemble import Ensemble
+from sparse_brdf.model.sparse_model import SparseModel
+from sparse_brdf.model.specs import make_model
 from sparse_brdf.paths import shared_data_dir
 from sparse_brdf.sources.corpora import get_corpus
 from sparse_brdf.sources.load import load_brdf
@@ -52,10 +53,10 @@ def _log(msg: str) -> None:
 def build_cases(brdf, corpus: str, pca_train: int, ens: Ensemble) -> list[dict]:
     """Fit every model on ``brdf``: [{name, evaluator, compact, decoder}]."""
     cases = [{"name": "tabulated", "evaluator": "tabulated_brdf plugin",
-              "compact": TabulatedModel().fit(brdf)}]
+              "compact": TabulatedModel().compress(brdf)}]
     for n in (32, 128, 262):
         _log(f"encoding sparse {n}")
-        c = SparseModel(ens, n).fit(brdf)
+        c = SparseModel(ens, n).compress(brdf)
         for decoder in ("grouped", "strict"):
             cases.append({"name": f"sparse {decoder} {n}", "decoder": decoder,
                           "evaluator": f"sparse_brdf plugin ({decoder})", "compact": c})
@@ -64,14 +65,14 @@ def build_cases(brdf, corpus: str, pca_train: int, ens: Ensemble) -> list[dict]:
         for name in ("naive", "cpd:1", "tucker:1x1x1"):
             _log(f"fitting {name}")
             cases.append({"name": name, "evaluator": "own evaluator",
-                          "compact": make_model(name).fit(brdf)})
+                          "compact": make_model(name).compress(brdf)})
     mats = [m for m in get_corpus(corpus).split("train") if m.name != brdf.name][:pca_train]
     _log(f"training PCA on {len(mats)} {corpus} training materials")
-    pca = PCAModel(300).train([m.load(brdf.shape) for m in mats])
+    pca = PCAModel(300).fit([m.load(brdf.shape) for m in mats])
     for k in (40, 300):
         model = copy.copy(pca)  # the trained state shared, not copied
         model.n_coeffs, model.name = k, f"pca-{k}"
-        c = model.fit(brdf)
+        c = model.compress(brdf)
         cases.append({"name": f"pca:{k} (k = {c.info['n_coeffs']})",
                       "evaluator": "own evaluator", "compact": c})
     return cases

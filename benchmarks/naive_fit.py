@@ -32,7 +32,8 @@ import numpy as np
 from sparse_brdf.brdf import BRDF
 from sparse_brdf.evaluation.render import find_scene, object_mask, read_exr, render_scene, write_exr
 from sparse_brdf.metrics import snr_forms
-from sparse_brdf.model.baselines import BRDFModel, NaiveModel
+from sparse_brdf.model.baselines import NaiveModel
+from sparse_brdf.model.compact import BRDFModel
 from sparse_brdf.sources.cache import cache_dir
 from sparse_brdf.sources.corpora import Material, get_corpus
 from sparse_brdf.sources.merl import write_merl
@@ -96,7 +97,7 @@ def evaluate(model: BRDFModel, mats: Sequence[Material], scenes: Sequence[str],
         for mat in mats:
             brdf = mat.load()
             t0 = time.perf_counter()
-            rec = model.fit(brdf).reconstruct()
+            rec = model.compress(brdf).reconstruct()
             fit_s = time.perf_counter() - t0
             model_path = write_merl(tmp / f"{mat.name}-model.binary",
                                     BRDF(rec, brdf.valid, brdf.name))

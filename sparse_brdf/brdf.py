@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .coords import bin_edges, cos_io
-from .errors import InvalidBRDFError
+from .errors import InvalidBRDFError, short
 
 
 @dataclass
@@ -52,6 +52,11 @@ class BRDF:
             raise InvalidBRDFError(f"{self.name}: the BRDF has no valid bin")
         self.values = v
         self.valid = valid
+
+    def __repr__(self) -> str:
+        src = f", source={short(self.source)!r}" if self.source else ""
+        return (f"BRDF({short(self.name)!r}, shape={self.shape}, "
+                f"valid={int(self.valid.sum())}/{self.valid.size} bins{src})")
 
     @property
     def shape(self) -> tuple[int, int, int]:

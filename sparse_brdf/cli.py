@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import math
 import os
@@ -15,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .coords import MERL_SHAPE
+from .coords import GRID_BINS, GRID_SIDE, check_grid
 from .errors import (
     BRDFFileError,
     ImageFileError,
@@ -28,7 +29,7 @@ from .evaluation.batch import encode_batch, encode_file, is_batch
 from .evaluation.bench import Bench, BenchConfig
 from .evaluation.fit_scene import fit_scene
 from .evaluation.render import (
-    RENDER_LIMITS,
+    RENDER_PARAMETERS,
     find_scene,
     noise_floor_snr,
     object_mask,
@@ -41,35 +42,30 @@ from .evaluation.render import (
 )
 from .fileio import check_output, cleanup_on_signals, remove_temporaries
 from .metrics import snr_forms
+from .model import budget as budget_module
+from .model import encode as encode_module
+from .model import train as train_module
+from .model.budget import encode_to_bytes
 from .model.encode import (
-    BUDGETS,
     DEFAULT_FILL_ITERS,
     DEFAULT_N_COEFFS,
-    ENCODE_OPTIONS,
-    FILLS,
     PAPER_OPTIONS,
-    SELECTORS,
     check_n_coeffs,
+    encode,
 )
 from .model.ensemble import Ensemble, resolve_ensemble
+from .model.interpolate import PARAMETERS as INTERPOLATE
 from .model.interpolate import interpolate
-from .model.layouts import DECODERS, SAMPLING
+from .model.layouts import DECODERS, PLUGIN_DEFAULTS, SAMPLING
 from .model.sbrdf import decode_file, load_sbrdf, save_sbrdf
-from .model.train import (
-    DEFAULT_INIT,
-    DEFAULT_MAX_MOVED,
-    DEFAULT_N_ITER,
-    DEFAULT_REASSIGN_EVERY,
-    DEFAULT_TOL,
-    INITS,
-    train_ensemble,
-)
+from .model.train import train_dictionaries, train_ensemble
 from .parallel import executor
-from .sources.corpora import get_corpus, list_corpora
+from .params import Interval
+from .sources.corpora import SPLITS, TRAINING_CORPORA, get_corpus, list_corpora
 from .sources.dataset import training_data
 from .sources.load import load_brdf
 from .sources.merl import write_merl
-from .transforms import COLOUR_BASES, TRANSFORMS
+from .transforms import COLOUR_BASES
 
 EPILOG = f"""examples:
   sparse-brdf corpus list
@@ -81,41 +77,32 @@ EPILOG = f"""examples:
 """
 
 
-#: Bounds of the numeric options: coefficients per channel (the MERL grid's entries: no
-#: channel holds more), and the renders' samples per pixel, image side and 32-bit seed.
-MAX_COEFFS = math.prod(MERL_SHAPE)
-MAX_SPP, MAX_RES, MAX_SEED = (RENDER_LIMITS[k] for k in ("spp", "res", "seed"))
+#: The declared parameters the options take their bounds and choices from.
+ENCODE, TRAIN, RENDER = (encode_module.PARAMETERS, train_module.PARAMETERS, RENDER_PARAMETERS)
+#: Coefficients per channel: at most the MERL grid's entries (no channel holds more).
+COEFFS = ENCODE["n_coeffs"].capped(GRID_BINS.hi)
 
 
-def _int_option(lo: int, hi: int | None = None):
-    """An argparse type: an integer in [lo, hi] (one-line message otherwise)."""
-    def integer(text: str) -> int:
+def _typed(c: Interval):
+    """An argparse type from a declared :class:`~sparse_brdf.params.Interval`: the value,
+    or a one-line message saying what the option takes."""
+    def value(text: str) -> int | float:
         try:
-            value = int(text)
+            v = int(text) if c.kind is int else float(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-        if value < lo or (hi is not None and value > hi):
-            bound = f">= {lo}" if hi is None else f"in [{lo}, {hi}]"
-            raise argparse.ArgumentTypeError(f"must be an integer {bound}, got {value}")
-        return value
-    return integer
+            what = "an integer" if c.kind is int else "a number"
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+        if v not in c:
+            raise argparse.ArgumentTypeError(f"must be {c.describe()}, got {text}")
+        return v
+    return value
 
 
-def _float_option(lo: float = -math.inf, hi: float = math.inf, below_hi: bool = False):
-    """An argparse type: a finite number in [lo, hi] (or [lo, hi) with ``below_hi``)."""
-    def number(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-        if not math.isfinite(value):
-            raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
-        if value < lo or value > hi or (below_hi and value >= hi):
-            bound = (f">= {lo:g}" if hi == math.inf else f"<= {hi:g}" if lo == -math.inf
-                     else f"in [{lo:g}, {hi:g}{')' if below_hi else ']'}")
-            raise argparse.ArgumentTypeError(f"must be {bound}, got {value:g}")
-        return value
-    return number
+def _default(func, name: str):
+    """The default of ``func``'s parameter ``name`` (a tuple as a list): what an option
+    that stands for it defaults to."""
+    d = inspect.signature(func).parameters[name].default
+    return list(d) if isinstance(d, tuple) else d
 
 
 def _check_outputs(outputs, inputs) -> None:
@@ -171,10 +158,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     materials = []
     for name in args.corpus:
         materials += get_corpus(name).split(args.split)
-    shape = tuple(args.grid)
-    if math.prod(shape) > MAX_COEFFS:
-        raise UsageError(f"--grid {' '.join(map(str, shape))}: at most {MAX_COEFFS} bins "
-                         "(the MERL grid's)")
+    shape = check_grid(args.grid, "--grid")
     if max(args.taus) > math.prod(shape):
         raise UsageError(f"--taus {max(args.taus)}: a tensor of that grid has only "
                          f"{math.prod(shape)} coefficients")
@@ -221,9 +205,11 @@ def cmd_encode(args: argparse.Namespace) -> int:
         with executor(args.workers, args.scheduler) as ex:
             summary = encode_batch(args.source, args.output, args.ensemble,
                                    {"n_coeffs": args.coeffs, **options}, ex)
+        _note_capped(args, summary["grid"])
         return _report_batch(args, summary)
     path, model = encode_file(args.source, args.output, args.ensemble, args.coeffs,
                               args.bytes, **options)
+    _note_capped(args, model.shape)
     seconds = time.perf_counter() - t0
     info = {"output": str(path), "bytes": path.stat().st_size, "seconds": seconds,
             "transform": model.transform, "coefficients": model.n_coeffs.tolist(),
@@ -262,6 +248,24 @@ def _add_where(p: argparse.ArgumentParser, what: str) -> None:
                    help=f"run {what} on an existing Dask cluster (e.g. tcp://host:8786)")
 
 
+def _note_capped(args: argparse.Namespace, shape: tuple[int, ...]) -> None:
+    """``--coeffs`` is a maximum: the library caps it at a channel's entries. Say so on
+    stderr when the user gave a number beyond the grid; the default stays silent."""
+    most = math.prod(shape)
+    if args.coeffs_given and args.coeffs > most:
+        print(f"sparse-brdf: note: --coeffs {args.coeffs}: a channel of the "
+              f"{'x'.join(map(str, shape))} grid holds {most} coefficients; encoded at "
+              f"most {most}", file=sys.stderr)
+
+
+class _Given(argparse.Action):
+    """Store an option's value and record that the user gave it (``DEST_given``)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        setattr(namespace, self.dest, values)
+        setattr(namespace, f"{self.dest}_given", True)
+
+
 def cmd_decode(args: argparse.Namespace) -> int:
     _check_outputs([args.output], [args.source, args.ensemble])
     try:
@@ -276,10 +280,9 @@ def cmd_decode(args: argparse.Namespace) -> int:
 def cmd_blend(args: argparse.Namespace) -> int:
     _check_outputs([args.output], [args.a, args.b, args.ensemble])
     ens = resolve_ensemble(args.ensemble, for_id=load_sbrdf(args.a).ensemble_id)
-    if args.coeffs is not None:
-        check_n_coeffs(args.coeffs, ens)
+    n = None if args.coeffs is None else check_n_coeffs(args.coeffs, ens)
     a, b = load_sbrdf(args.a, ens), load_sbrdf(args.b, ens)
-    out = save_sbrdf(args.output, interpolate(a, b, args.alpha, ens, args.coeffs))
+    out = save_sbrdf(args.output, interpolate(a, b, args.alpha, ens, n))
     print(f"wrote {out}")
     return 0
 
@@ -420,34 +423,40 @@ def _add_data_commands(sub) -> None:
 def _add_train(sub) -> None:
     t = sub.add_parser("train", help="train a dictionary ensemble (docs/method.md, Training)",
                        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    t.add_argument("--corpus", nargs="+", default=["merl", "rgl", "mitsuba"],
+    t.add_argument("--corpus", nargs="+", default=list(TRAINING_CORPORA),
                    help="corpora to train on (names or folders)")
-    t.add_argument("--split", default="train", choices=["train", "test", "all"])
-    t.add_argument("--transform", nargs="+", default=list(TRANSFORMS), choices=TRANSFORMS)
-    t.add_argument("--basis", default="rgb", choices=COLOUR_BASES,
+    t.add_argument("--split", default="train", choices=SPLITS)
+    t.add_argument("--transform", nargs="+", default=_default(training_data, "transforms"),
+                   choices=_default(training_data, "transforms"))
+    t.add_argument("--basis", default=_default(training_data, "basis"), choices=COLOUR_BASES,
                    help="colour basis of the training channels (the encoder's coded channels)")
-    t.add_argument("--taus", nargs="+", type=_int_option(1, MAX_COEFFS),
-                   default=[32, 64, 128, 256],
+    t.add_argument("--taus", nargs="+", type=_typed(TRAIN["tau"].capped(GRID_BINS.hi)),
+                   default=_default(train_ensemble, "taus"),
                    help="training sparsities; one set of dictionaries per value")
-    t.add_argument("--dicts", type=_int_option(1), default=8, help="dictionaries per sparsity")
-    t.add_argument("--iterations", type=_int_option(0), default=DEFAULT_N_ITER,
+    t.add_argument("--dicts", type=_typed(TRAIN["n_dicts"]),
+                   default=_default(train_ensemble, "n_dicts"), help="dictionaries per sparsity")
+    t.add_argument("--iterations", type=_typed(TRAIN["n_iter"]),
+                   default=_default(train_ensemble, "n_iter"),
                    help="at most this many iterations per sparsity")
-    t.add_argument("--reassign-every", type=_int_option(1), default=DEFAULT_REASSIGN_EVERY,
+    t.add_argument("--reassign-every", type=_typed(TRAIN["reassign_every"]),
+                   default=_default(train_dictionaries, "reassign_every"),
                    help="cluster against every dictionary at every N-th iteration")
-    t.add_argument("--tol", type=_float_option(0), default=DEFAULT_TOL,
+    t.add_argument("--tol", type=_typed(TRAIN["tol"]), default=_default(train_dictionaries, "tol"),
                    help="stop once an iteration lowers the objective by less than this "
                         "(relative) and the latest clustering moved at most --max-moved")
-    t.add_argument("--max-moved", type=_float_option(0, 1), default=DEFAULT_MAX_MOVED,
+    t.add_argument("--max-moved", type=_typed(TRAIN["max_moved"]),
+                   default=_default(train_dictionaries, "max_moved"),
                    help="fraction of tensors a clustering may move for training to stop")
-    t.add_argument("--masked", action=argparse.BooleanOptionalAction, default=True,
+    t.add_argument("--masked", action=argparse.BooleanOptionalAction,
+                   default=_default(train_dictionaries, "masked"),
                    help="fit valid bins only (bins below the horizon and unmeasured bins "
                         "are free values); --no-masked fits them as zeros")
-    t.add_argument("--init", default=DEFAULT_INIT, choices=INITS,
+    t.add_argument("--init", default=_default(train_dictionaries, "init"), choices=TRAIN["init"],
                    help="initial clusters: seeded (k-means++ in the training error) or "
                         "random balanced")
-    t.add_argument("--seed", type=_int_option(0, MAX_SEED), default=0)
-    t.add_argument("--grid", nargs=3, type=_int_option(2, 0xFFFF), default=[90, 90, 180],
-                   metavar=("N_H", "N_D", "N_P"))
+    t.add_argument("--seed", type=_typed(TRAIN["seed"]), default=_default(train_ensemble, "seed"))
+    t.add_argument("--grid", nargs=3, type=_typed(GRID_SIDE),
+                   default=_default(training_data, "shape"), metavar=("N_H", "N_D", "N_P"))
     t.add_argument("--checkpoint-dir", help="checkpoint every iteration here and resume")
     t.add_argument("--extend", help="unite the new dictionaries with this ensemble")
     t.add_argument("-o", "--output", required=True, help="output ensemble .npz")
@@ -466,39 +475,46 @@ def _add_codec_commands(sub) -> None:
                         "summary.csv, summary.json; finished outputs are kept; exit status "
                         "1 if any material failed)")
     size = e.add_mutually_exclusive_group()
-    size.add_argument("--coeffs", type=_int_option(1, MAX_COEFFS), default=DEFAULT_N_COEFFS,
-                      help="max coefficients per channel")
-    size.add_argument("--bytes", type=_int_option(1), default=None, metavar="N",
+    size.add_argument("--coeffs", type=_typed(COEFFS), default=_default(encode, "n_coeffs"),
+                      action=_Given,
+                      help="max coefficients per channel (capped to a channel's entries on "
+                           "a smaller grid)")
+    size.add_argument("--bytes", type=_typed(budget_module.PARAMETERS["n_bytes"]),
+                      default=_default(encode_to_bytes, "n_bytes"), metavar="N",
                       help="byte budget instead: the .sbrdf file holds at most N bytes "
                            "(header included), the coefficients kept the largest over the "
                            "channels (docs/file-format.md, Byte budgets)")
-    e.add_argument("--max-error", type=_float_option(0, 1, below_hi=True), default=None,
+    e.add_argument("--max-error", type=_typed(ENCODE["max_error"]),
+                   default=_default(encode, "max_error"),
                    help="stop adding coefficients once the relative squared residual in the "
                         "transformed domain is below this (e.g. 1e-4)")
-    e.add_argument("--transform", default="auto", choices=["auto", *TRANSFORMS],
+    e.add_argument("--transform", default=_default(encode, "transform"),
+                   choices=ENCODE["transform"],
                    help="auto: the one --selector prefers")
-    e.add_argument("--selector", default=ENCODE_OPTIONS["selector"], choices=SELECTORS,
+    e.add_argument("--selector", default=_default(encode, "selector"),
+                   choices=ENCODE["selector"],
                    help="how auto picks the transform: the smaller render-proxy error, or "
                         "the smaller gamma-mapped MSE (the paper's)")
-    e.add_argument("--fill", default=ENCODE_OPTIONS["fill"], choices=FILLS,
+    e.add_argument("--fill", default=_default(encode, "fill"), choices=ENCODE["fill"],
                    help="bins filled from the model instead of fitted as zeros: every "
                         "invalid bin, or only unmeasured bins above the horizon")
-    e.add_argument("--fill-iters", type=_int_option(0, 1000), default=None,
+    e.add_argument("--fill-iters", type=_typed(ENCODE["fill_iters"]),
+                   default=_default(encode, "fill_iters"),
                    help="fill rounds (0: no fill; default per --fill: "
                         + ", ".join(f"{k} {v}" for k, v in DEFAULT_FILL_ITERS.items()) + ")")
-    e.add_argument("--basis", default=ENCODE_OPTIONS["basis"], choices=COLOUR_BASES,
+    e.add_argument("--basis", default=_default(encode, "basis"), choices=ENCODE["basis"],
                    help="colour basis of the coded channels (opponent: luminance and two "
                         "colour differences)")
     e.add_argument("--paper", action="store_true",
                    help="the paper's encoder: --selector gamma-mse --fill missing --basis rgb")
-    e.add_argument("--budget", default=None, choices=BUDGETS,
+    e.add_argument("--budget", default=_default(encode, "budget"), choices=ENCODE["budget"],
                    help="--coeffs per channel, or 3 x --coeffs over the channels "
                         "(default: joint for --basis opponent, else channel)")
     e.add_argument("--ensemble", help="ensemble .npz (default: the shipped default)")
     e.add_argument("--json", action="store_true", help="print the encoding statistics as JSON")
     _add_where(e, "a batch")
     _add_source_help(e)
-    e.set_defaults(func=cmd_encode)
+    e.set_defaults(func=cmd_encode, coeffs_given=False)
 
     d = sub.add_parser("decode", help="decode a .sbrdf file to a MERL .binary file")
     d.add_argument("source", help=".sbrdf file")
@@ -518,13 +534,13 @@ def _add_render(sub) -> None:
     r.add_argument("--material", action="append", default=[], metavar="ID=FILE",
                    help="replace BSDF ID: a .sbrdf selects sparse_brdf, any other BRDF "
                         "source tabulated_brdf (repeatable)")
-    r.add_argument("--spp", type=_int_option(1, MAX_SPP), default=64)
-    r.add_argument("--seed", type=_int_option(0, MAX_SEED), default=0)
-    r.add_argument("--res", type=_int_option(1, MAX_RES), default=None,
+    r.add_argument("--spp", type=_typed(RENDER["spp"]), default=_default(render_scene, "spp"))
+    r.add_argument("--seed", type=_typed(RENDER["seed"]), default=_default(render_scene, "seed"))
+    r.add_argument("--res", type=_typed(RENDER["res"]), default=_default(render_scene, "res"),
                    help="square resolution (scene default)")
-    r.add_argument("--sampling", default="cosine", choices=SAMPLING,
+    r.add_argument("--sampling", default=PLUGIN_DEFAULTS["sampling"], choices=SAMPLING,
                    help="cosine: shared sample paths (for SNR); lobe: lower variance")
-    r.add_argument("--decoder", default="auto", choices=DECODERS)
+    r.add_argument("--decoder", default=PLUGIN_DEFAULTS["decoder"], choices=DECODERS)
     r.add_argument("--ensemble", help="ensemble .npz for .sbrdf materials "
                    "(default: the shipped one each file names)")
     r.add_argument("--mask", metavar="MASK.exr",
@@ -563,17 +579,18 @@ def _add_fit_scene(sub) -> None:
                         help="give each material of a scene the fewest coefficients that "
                              "reach a target rendering SNR in that scene")
     fs.add_argument("scene", help="scene XML (a path, or a name in the shipped scenes/)")
-    fs.add_argument("--target-snr", type=_float_option(), required=True, metavar="DB")
+    fs.add_argument("--target-snr", type=_typed(Interval(float)), required=True, metavar="DB")
     fs.add_argument("--material", action="append", default=[], metavar="ID=FILE",
                     help="measured material of BSDF ID (repeatable); tabulated_brdf BSDFs "
                          "with a filename in the XML are found by themselves")
-    fs.add_argument("-o", "--output", default="fit_scene_out", help="output folder")
-    fs.add_argument("--spp", type=_int_option(1, MAX_SPP), default=8,
+    fs.add_argument("-o", "--output", default=_default(fit_scene, "out"), help="output folder")
+    fs.add_argument("--spp", type=_typed(RENDER["spp"]), default=_default(fit_scene, "spp"),
                     help="spp of the verification renders")
-    fs.add_argument("--res", type=_int_option(1, MAX_RES), default=64,
+    fs.add_argument("--res", type=_typed(RENDER["res"]), default=_default(fit_scene, "res"),
                     help="resolution of verification renders")
-    fs.add_argument("--seed", type=_int_option(0, MAX_SEED), default=0)
-    fs.add_argument("--bytes", type=_int_option(1), default=None, metavar="N",
+    fs.add_argument("--seed", type=_typed(RENDER["seed"]), default=_default(fit_scene, "seed"))
+    fs.add_argument("--bytes", type=_typed(budget_module.PARAMETERS["n_bytes"]),
+                    default=_default(fit_scene, "max_bytes"), metavar="N",
                     help="per material: no .sbrdf file holds more than N bytes (the ladder "
                          "of budgets ends at the largest coefficients that fit)")
     fs.add_argument("--ensemble", help="ensemble .npz (default: the shipped one)")
@@ -585,9 +602,10 @@ def _add_blend_and_bench(sub) -> None:
     bl = sub.add_parser("blend", help="interpolate two .sbrdf materials in coefficient space")
     bl.add_argument("a", help="first .sbrdf (its dictionaries and transform are used)")
     bl.add_argument("b", help="second .sbrdf (same ensemble and transform)")
-    bl.add_argument("--alpha", type=_float_option(0, 1), required=True,
+    bl.add_argument("--alpha", type=_typed(INTERPOLATE["alpha"]), required=True,
                     help="0 gives A, 1 gives B")
-    bl.add_argument("--coeffs", type=_int_option(1, MAX_COEFFS),
+    bl.add_argument("--coeffs", type=_typed(INTERPOLATE["n_coeffs"].capped(GRID_BINS.hi)),
+                    default=_default(interpolate, "n_coeffs"),
                     help="coefficients per channel of the result")
     bl.add_argument("--ensemble", help="ensemble .npz (default: the shipped one the files name)")
     bl.add_argument("-o", "--output", required=True, help="output .sbrdf")

@@ -8,10 +8,33 @@ takes the shape so that tests can use small grids (e.g. 18x18x36) with the same 
 from __future__ import annotations
 
 import functools
+import math
 
 import numpy as np
 
+from .errors import UsageError
+from .params import Interval, check
+
 MERL_SHAPE: tuple[int, int, int] = (90, 90, 180)
+#: A grid's side: at least 2 bins, at most 65535 (a ``.sbrdf`` header's 16 bits); a
+#: grid holds at most the MERL grid's bins (:func:`check_grid`).
+GRID_SIDE = Interval(int, 2, 0xFFFF)
+#: Bins of a grid (and so coefficients of a channel): at most the MERL grid's.
+GRID_BINS = Interval(int, 1, math.prod(MERL_SHAPE))
+
+
+def check_grid(shape, name: str = "grid") -> tuple[int, int, int]:
+    """``shape`` as a tuple of three ints if it is a usable grid (each side in
+    :data:`GRID_SIDE`, at most :data:`GRID_BINS` bins), else a
+    :class:`~sparse_brdf.errors.UsageError` naming ``name``."""
+    shape = tuple(shape)
+    if len(shape) != 3:
+        raise UsageError(f"{name} must be three sides (n_h, n_d, n_p), got {shape!r}")
+    out = tuple(check(f"{name} side", n, GRID_SIDE) for n in shape)
+    if math.prod(out) not in GRID_BINS:
+        raise UsageError(f"{name} {' '.join(map(str, out))}: {math.prod(out)} bins, at most "
+                         f"{GRID_BINS.hi} (the MERL grid's)")
+    return out  # type: ignore[return-value]
 HALF_PI = np.pi / 2
 
 

@@ -20,6 +20,13 @@ def one_line(text: object) -> str:
                         else f"\\u{ord(m.group()):04x}", s)
 
 
+def short(text: object, n: int = 48) -> str:
+    """``text`` as one line of at most ``n`` characters (middle elided with "..."), for
+    the one-line reprs of the package's classes (names and paths can be 255 bytes)."""
+    s = one_line(text)
+    return s if len(s) <= n else s[: n // 2 - 2] + "..." + s[-(n - n // 2 - 1):]
+
+
 class SparseBRDFError(Exception):
     """Base class of every error this package raises on purpose: the command line prints
     its message as one line and exits with status 2. Any other exception is a bug."""

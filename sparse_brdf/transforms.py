@@ -16,15 +16,18 @@ import functools
 import numpy as np
 
 from .coords import cosine_product
+from .params import check_choice
 
+#: The transforms (declared choices of every ``transform`` parameter; ``encode`` adds
+#: "auto", the one its selector prefers).
 TRANSFORMS: tuple[str, str] = ("log-plus", "log-plus-cosine")
 COS_CLIP = (0.01, 1.0)
 
 
 def check_transform(name: str) -> str:
-    if name not in TRANSFORMS:
-        raise ValueError(f"unknown transform {name!r}: expected one of {', '.join(TRANSFORMS)}")
-    return name
+    """``name`` if it is one of :data:`TRANSFORMS`, else a
+    :class:`~sparse_brdf.errors.UsageError` naming them."""
+    return check_choice("transform", name, TRANSFORMS)
 
 
 @functools.lru_cache(maxsize=8)
@@ -82,10 +85,9 @@ _OPPONENT = np.array([[1, 1, 1], [1, -1, 0], [1, 1, -2]], np.float64) / np.sqrt(
 
 
 def check_basis(name: str) -> str:
-    if name not in COLOUR_BASES:
-        raise ValueError(f"unknown colour basis {name!r}: expected one of "
-                         f"{', '.join(COLOUR_BASES)}")
-    return name
+    """``name`` if it is one of :data:`COLOUR_BASES`, else a
+    :class:`~sparse_brdf.errors.UsageError` naming them."""
+    return check_choice("colour basis", name, COLOUR_BASES)
 
 
 def colour_matrix(basis: str) -> np.ndarray:

@@ -6,17 +6,18 @@ import pytest
 from conftest import SMALL
 from sparse_brdf.brdf import BRDF
 from sparse_brdf.coords import bin_angles, geometric_valid
+from sparse_brdf.errors import UsageError
 from sparse_brdf.metrics import rae
 from sparse_brdf.model.baselines import (
     CPDModel,
     NaiveModel,
     PCAModel,
-    SparseModel,
     TabulatedModel,
     TuckerModel,
     bin_solid_angle,
 )
 from sparse_brdf.model.sbrdf import file_size, to_bytes
+from sparse_brdf.model.sparse_model import SparseModel
 from sparse_brdf.sources.corpora import get_corpus
 from sparse_brdf.sources.load import load_brdf
 
@@ -27,17 +28,17 @@ def brdf():
 
 
 def test_tabulated_is_exact(brdf):
-    c = TabulatedModel().fit(brdf)
+    c = TabulatedModel().compress(brdf)
     assert rae(brdf.values, c.reconstruct(), brdf.valid) == 0
     assert c.nbytes == np.prod(SMALL) * 3 * 4
 
 
 def test_naive_model_storage_and_fit(brdf):
-    c = NaiveModel().fit(brdf)
+    c = NaiveModel().compress(brdf)
     assert c.nbytes == 3 * (2 + sum(SMALL)) * 4  # kd, ks folded, a, b, c per channel
     assert rae(brdf.values, c.reconstruct(), brdf.valid) < 0.05
     exact = load_brdf("mitsuba:diffuse-green", shape=SMALL)  # a constant fits exactly
-    assert rae(exact.values, NaiveModel().fit(exact).reconstruct(), exact.valid) < 1e-3
+    assert rae(exact.values, NaiveModel().compress(exact).reconstruct(), exact.valid) < 1e-3
 
 
 KD = np.array([0.02, 0.05, 0.1])
@@ -61,7 +62,7 @@ def _per_channel(c):
 
 def test_naive_recovers_a_separable_material():
     brdf, factors = _separable()
-    c = NaiveModel().fit(brdf)
+    c = NaiveModel().compress(brdf)
     assert rae(brdf.values, c.reconstruct(), brdf.valid) < 1e-6
     np.testing.assert_allclose(c.params["kd"], KD, atol=1e-5)
     for key, f in zip("abc", factors, strict=True):
@@ -75,7 +76,7 @@ def test_naive_ignores_invalid_bins():
     brdf, _ = _separable()
     valid = brdf.valid & (np.random.default_rng(0).random(SMALL) > 0.3)
     values = np.where(valid[..., None], brdf.values, np.float32(1e3))
-    c = NaiveModel().fit(BRDF(values, valid, "holes"))
+    c = NaiveModel().compress(BRDF(values, valid, "holes"))
     assert rae(brdf.values, c.reconstruct(), brdf.valid) < 1e-5
     assert np.all(NaiveModel().weights(BRDF(values, valid, "holes"))[~valid] == 0)
 
@@ -87,7 +88,7 @@ def test_naive_factors_are_non_negative():
     brdf, _ = _separable()
     values = brdf.values.copy()
     values[3:5] = 0.0
-    c = NaiveModel().fit(BRDF(values, brdf.valid, "dip"))
+    c = NaiveModel().compress(BRDF(values, brdf.valid, "dip"))
     for key in ("kd", "ks", "a", "b", "c"):
         assert c.params[key].min() >= 0, key
     assert np.all(c.params["a"][:, 3:5] == 0)
@@ -98,7 +99,7 @@ def test_naive_fit_minimises_its_objective(brdf):
     """No small change of any stored number (kd or one entry of a, b, c, by 1 %) lowers
     the documented weighted objective: the fit is a minimum of it."""
     model = NaiveModel()
-    per = _per_channel(model.fit(brdf))
+    per = _per_channel(model.compress(brdf))
     e0 = model.objective(brdf, per)
     rng = np.random.default_rng(1)
     for _ in range(40):
@@ -129,7 +130,7 @@ def test_naive_weights_and_solid_angle():
     (TuckerModel((2, 2, 2)), 3 * (8 + 2 * sum(SMALL))),
 ])
 def test_tensor_baselines(brdf, model, numbers):
-    c = model.fit(brdf)
+    c = model.compress(brdf)
     rec = c.reconstruct()
     assert c.nbytes == numbers * 4
     assert rec.shape == brdf.values.shape and np.all(np.isfinite(rec)) and rec.min() >= 0
@@ -137,20 +138,20 @@ def test_tensor_baselines(brdf, model, numbers):
 
 
 def test_pca_needs_training_and_caps_components(brdf):
-    with pytest.raises(RuntimeError, match="train"):
-        PCAModel(5).fit(brdf)
+    with pytest.raises(UsageError, match="fit"):
+        PCAModel(5).compress(brdf)
     train = [m.load(SMALL) for m in get_corpus("mitsuba").split("train")[:8]]
-    model = PCAModel(300).train(train)
-    c = model.fit(brdf)
+    model = PCAModel(300).fit(train)
+    c = model.compress(brdf)
     assert c.info["n_coeffs"] <= 7 and c.nbytes == 4 * c.info["n_coeffs"]
     # a training material is reproduced by its own projection
     own = train[3]
-    assert rae(own.values, model.fit(own).reconstruct(), own.valid) < 1e-3
+    assert rae(own.values, model.compress(own).reconstruct(), own.valid) < 1e-3
 
 
 def test_sparse_model_counts_file_bytes(brdf, small_ensemble):
-    c = SparseModel(small_ensemble, 16).fit(brdf)  # version 2: its file, header included
+    c = SparseModel(small_ensemble, 16).compress(brdf)  # version 2: its file, header included
     assert c.nbytes == len(to_bytes(c.info["model"])) < file_size(48, len(brdf.name))
     assert rae(brdf.values, c.reconstruct(), brdf.valid) < 1
-    v1 = SparseModel(small_ensemble, 16, version=1).fit(brdf)
+    v1 = SparseModel(small_ensemble, 16, version=1).compress(brdf)
     assert v1.nbytes == file_size(48, len(brdf.name)) and v1.model == "sparse-16-version=1"

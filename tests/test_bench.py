@@ -6,9 +6,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sparse_brdf.evaluation.bench import Bench, BenchConfig, make_model
+from sparse_brdf.evaluation.bench import Bench, BenchConfig
 from sparse_brdf.evaluation.report import pareto
 from sparse_brdf.model.encode import ENCODE_OPTIONS
+from sparse_brdf.model.specs import make_model
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -12,12 +12,12 @@ import pytest
 from conftest import SMALL
 from sparse_brdf.cli import main
 from sparse_brdf.coords import bin_solid_angle, geometric_valid
-from sparse_brdf.evaluation.bench import make_model
 from sparse_brdf.metrics import cosine_weighted_snr, make_render_proxy, render_proxy_error
 from sparse_brdf.model import baselines
 from sparse_brdf.model.encode import ENCODE_OPTIONS, PAPER_OPTIONS, check_options
 from sparse_brdf.model.encode import encode as _encode
 from sparse_brdf.model.sbrdf import load_sbrdf, save_sbrdf
+from sparse_brdf.model.specs import make_model
 from sparse_brdf.sources.load import load_brdf
 from sparse_brdf.sources.merl import write_merl
 from sparse_brdf.transforms import forward, inverse, to_basis
@@ -170,7 +170,7 @@ def test_options_are_checked():
     assert check_options(basis="opponent")["budget"] == "joint"
     assert check_options(fill="invalid")["fill_iters"] == 3
     for bad, match in ((dict(fill="all"), "unknown fill"), (dict(basis="xyz"), "colour basis"),
-                       (dict(budget="x"), "unknown budget"), (dict(fill_iters=-1), ">= 0"),
+                       (dict(budget="x"), "unknown budget"), (dict(fill_iters=-1), "fill_iters must be an integer in"),
                        (dict(colour="rgb"), "unknown encoding option")):
         with pytest.raises(ValueError, match=match):
             check_options(**bad)

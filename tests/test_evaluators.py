@@ -19,10 +19,10 @@ from sparse_brdf.model.baselines import (
     CPDModel,
     NaiveModel,
     PCAModel,
-    SparseModel,
     TabulatedModel,
     TuckerModel,
 )
+from sparse_brdf.model.sparse_model import SparseModel
 from sparse_brdf.model.train import hosvd_ensemble
 from sparse_brdf.sources.corpora import get_corpus
 from sparse_brdf.sources.dataset import training_tensors
@@ -61,7 +61,7 @@ def other():
 @pytest.fixture(scope="module")
 def pca_model():
     train = [m.load(SMALL) for m in get_corpus("mitsuba").split("train")[:4]]
-    return PCAModel(40).train(train)
+    return PCAModel(40).fit(train)
 
 
 @pytest.fixture(scope="module")
@@ -70,8 +70,8 @@ def compacts(brdf, pca_model):
 
     with warnings.catch_warnings():  # tensorly: ranks above a mode's size are clipped
         warnings.simplefilter("ignore", UserWarning)
-        out = {name: make().fit(brdf) for name, make in MODELS.items()}
-    out["pca-40"] = pca_model.fit(brdf)
+        out = {name: make().compress(brdf) for name, make in MODELS.items()}
+    out["pca-40"] = pca_model.compress(brdf)
     return out
 
 
@@ -165,13 +165,13 @@ def test05_second_material_reuses_the_kernel(llvm, brdf, other, pca_model):
     pairs = {"naive": (NaiveModel(n_iter=3), NaiveModel(n_iter=3)),
              "cpd": (CPDModel(1, n_iter=3), CPDModel(2, n_iter=3)),
              "tucker": (TuckerModel((1, 1, 1)), TuckerModel((2, 2, 2))),
-             "pca": (pca_model, PCAModel(2).train([brdf, other, brdf]))}
+             "pca": (pca_model, PCAModel(2).fit([brdf, other, brdf]))}
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     try:
         for kind, (first, second) in pairs.items():
             hashes = []
             for model, mat in ((first, brdf), (second, other)):
-                ev = evaluator_for(model.fit(mat))
+                ev = evaluator_for(model.compress(mat))
                 dr.kernel_history()  # clear
                 ev.eval_numpy(wi, wo)
                 hashes.append({k["hash"] for k in dr.kernel_history()
@@ -186,7 +186,7 @@ def test05_second_material_reuses_the_kernel(llvm, brdf, other, pca_model):
 
 
 def test06_params_hold_what_nbytes_counts(compacts, brdf):
-    for name, c in {**compacts, "tabulated": TabulatedModel().fit(brdf)}.items():
+    for name, c in {**compacts, "tabulated": TabulatedModel().compress(brdf)}.items():
         assert c.params is not None, name
         assert c.param_nbytes() == c.nbytes, name
         assert all(v.dtype == np.float32 for k, v in c.params.items()
@@ -224,10 +224,10 @@ def test08_evals_per_second_of_baselines(compacts, name):
 
 @pytest.mark.parametrize("decoder", ["grouped", "strict"])
 def test09_evals_per_second_of_sparse_and_tabulated(brdf, small_hosvd, decoder):
-    c = SparseModel(small_hosvd, 16).fit(brdf)
+    c = SparseModel(small_hosvd, 16).compress(brdf)
     assert math.isfinite(r := evals_per_second(c, n=4096, repeats=2, ensemble=small_hosvd,
                                                decoder=decoder)) and r > 0
-    for model in (TabulatedModel().fit(brdf), brdf):
+    for model in (TabulatedModel().compress(brdf), brdf):
         rate = evals_per_second(model, n=4096, repeats=1)
         assert math.isfinite(rate) and rate > 0
 

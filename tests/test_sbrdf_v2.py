@@ -20,7 +20,6 @@ from hypothesis import strategies as st
 from conftest import SMALL, random_orthonormal
 from sparse_brdf.cli import main
 from sparse_brdf.errors import BRDFFileError, EnsembleMismatchError
-from sparse_brdf.evaluation.bench import make_model
 from sparse_brdf.model.budget import encode_to_bytes, fit_bytes, truncate
 from sparse_brdf.model.ensemble import Ensemble
 from sparse_brdf.model.sbrdf import (
@@ -36,6 +35,7 @@ from sparse_brdf.model.sbrdf import (
     to_bytes,
 )
 from sparse_brdf.model.sparse import SparseBRDF
+from sparse_brdf.model.specs import make_model
 from sparse_brdf.sources.load import load_brdf
 from sparse_brdf.sources.merl import write_merl
 
@@ -277,9 +277,9 @@ def test_bench_specs_with_byte_budgets(small_ensemble):
     assert make_model("sparse:262:version=1", small_ensemble).name == "sparse-262-version=1"
     m = make_model("sparse:b900:basis=rgb,version=1", small_ensemble)
     assert m.name == "sparse-b900-basis=rgb-version=1"
-    c = m.fit(brdf)
+    c = m.compress(brdf)
     assert c.nbytes == len(to_bytes(c.info["model"], 1)) <= 900 and c.info["version"] == 1
-    c2 = make_model("sparse:b900", small_ensemble).fit(brdf)
+    c2 = make_model("sparse:b900", small_ensemble).compress(brdf)
     assert c2.nbytes == len(to_bytes(c2.info["model"])) <= 900
     assert c2.info["model"].n_coeffs.sum() > 2 * c.info["model"].n_coeffs.sum()
     for bad in ("sparse:bx", "sparse:b0", "sparse:262:version=3"):

@@ -56,7 +56,7 @@ def test_split_is_deterministic_and_about_15_percent():
     assert not set(test) & set(train)
     assert len(test) + len(train) == len(c.materials)
     assert abs(len(test) - TEST_FRACTION * len(c.materials)) <= 1
-    with pytest.raises(ValueError, match="split must be"):
+    with pytest.raises(ValueError, match="unknown split"):
         c.split("validation")
 
 

@@ -4,21 +4,23 @@ import numpy as np
 
 from conftest import SMALL
 from sparse_brdf.evaluation.stability import CASES, run_stability, stability_markdown
-from sparse_brdf.model.baselines import BRDFModel, Compact, NaiveModel, SparseModel
+from sparse_brdf.model.baselines import NaiveModel
+from sparse_brdf.model.compact import BRDFModel, Compact
+from sparse_brdf.model.sparse_model import SparseModel
 from sparse_brdf.sources.load import load_brdf
 
 
 class Exploding(BRDFModel):
     name = "exploding"
 
-    def fit(self, brdf):
+    def compress(self, brdf):
         raise RuntimeError("boom")
 
 
 class NaNModel(BRDFModel):
     name = "nan"
 
-    def fit(self, brdf):
+    def compress(self, brdf):
         return Compact(self.name, 4, lambda: np.full(brdf.values.shape, np.nan))
 
 

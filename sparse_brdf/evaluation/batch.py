@@ -91,7 +91,7 @@ def encode_file(source: str | os.PathLike, output: str | os.PathLike,
     """
     out = check_output(output, [source, None if isinstance(ensemble, Ensemble) else ensemble])
     ens = resolve_ensemble(ensemble)
-    check_n_coeffs(n_coeffs, ens)
+    n_coeffs = check_n_coeffs(n_coeffs, ens)
     brdf = load_brdf(source)
     model = (encode_to_bytes(brdf, ens, n_bytes, **options) if n_bytes is not None
              else encode(brdf, ens, n_coeffs, **options))
@@ -219,7 +219,7 @@ def encode_batch(pattern: str | os.PathLike, out_dir: str | os.PathLike,
     ens = resolve_ensemble(ensemble)
     options = dict(options or {})
     if options.get("n_coeffs") is not None:
-        check_n_coeffs(options["n_coeffs"], ens)
+        options["n_coeffs"] = check_n_coeffs(options["n_coeffs"], ens)
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise OutputError(f"{out}: a batch's output must be a folder, not a file")
@@ -234,7 +234,8 @@ def encode_batch(pattern: str | os.PathLike, out_dir: str | os.PathLike,
             rows[i] = {"material": src.stem, **_skipped_row(src, path, ens, before.get(src.stem))}
         else:
             todo.append(i)
-    meta = {**key, "pattern": os.fspath(pattern), "where": ex.describe()}
+    meta = {**key, "pattern": os.fspath(pattern), "where": ex.describe(),
+            "grid": list(ens.shape)}
     handle = ex.scatter(ens)
     write_summary(out, rows, {**meta, "seconds": 0.0})
     bar = tqdm(total=len(todo), desc="encode", unit="material", disable=not progress)

@@ -30,28 +30,22 @@ import numpy as np
 import tomllib
 
 from ..brdf import BRDF
-from ..coords import MERL_SHAPE
-from ..errors import ConfigError, MissingDataError
+from ..coords import GRID_BINS
+from ..errors import ConfigError, MissingDataError, UsageError, short
 from ..fileio import atomic_write, require_file
 from ..metrics import cosine_weighted_snr, gamma_mse, rae, snr_forms
-from ..model.baselines import (
-    BRDFModel,
-    CPDModel,
-    NaiveModel,
-    PCAModel,
-    SparseModel,
-    TabulatedModel,
-    TuckerModel,
-)
-from ..model.encode import DEFAULT_N_COEFFS, ENCODE_OPTIONS, PAPER_OPTIONS, error_curve
+from ..model.compact import BRDFModel
+from ..model.encode import ENCODE_OPTIONS, error_curve
 from ..model.ensemble import resolve_ensemble
 from ..model.sbrdf import VERSION, save_sbrdf
+from ..model.specs import make_model, parse_spec
 from ..parallel import Executor, InProcess
+from ..params import Interval, check
 from ..paths import CONFIGS_DIR
-from ..sources.corpora import get_corpus
+from ..sources.corpora import SPLITS, get_corpus
 from ..sources.merl import write_merl
 from .render import (
-    RENDER_LIMITS,
+    RENDER_PARAMETERS,
     check_scene_data,
     find_scene,
     noise_floor_snr,
@@ -64,7 +58,7 @@ from .report import write_report
 from .speed import evals_per_second
 from .stability import run_stability
 
-__all__ = ["Bench", "BenchConfig", "make_model"]
+__all__ = ["Bench", "BenchConfig"]
 
 
 def shipped_configs() -> list[str]:
@@ -110,6 +104,12 @@ class BenchConfig:
     stability_models: list[str] = field(default_factory=lambda: [
         "sparse:262", "naive", "cpd:1", "pca:40"])
 
+    def __repr__(self) -> str:
+        return (f"BenchConfig(corpora={short(', '.join(self.corpora), 40)!r}, "
+                f"split={self.split!r}, {len(self.models)} models, "
+                f"scenes={short(', '.join(self.scenes), 40)!r}, spp={self.spp}, "
+                f"res={self.res}, out={short(self.out, 40)!r})")
+
     @classmethod
     def load(cls, path: str | os.PathLike | None) -> BenchConfig:
         """Read a TOML config: a path, or the name of a shipped one (``sparse-brdf bench
@@ -138,12 +138,13 @@ class BenchConfig:
 
 #: Largest bench config read (the shipped ones are under 2 kB).
 _MAX_CONFIG_BYTES = 1 << 20
-#: Allowed ranges of the numeric settings (inclusive; None: unbounded).
-_SETTING_RANGES = {
-    "spp": (1, RENDER_LIMITS["spp"]), "res": (1, RENDER_LIMITS["res"]),
-    "seed": (0, RENDER_LIMITS["seed"]), "noise_seed": (0, RENDER_LIMITS["seed"]),
-    "max_materials": (1, None), "pca_train_max": (2, None), "speed_evals": (1, 1 << 26),
-    "curve_coeffs": (1, int(np.prod(MERL_SHAPE))),
+#: The settings' values (a list setting: each of its items), declared as
+#: :mod:`sparse_brdf.params` declarations; the render settings are the renderer's.
+SETTINGS = {
+    "spp": RENDER_PARAMETERS["spp"], "res": RENDER_PARAMETERS["res"],
+    "seed": RENDER_PARAMETERS["seed"], "noise_seed": RENDER_PARAMETERS["seed"],
+    "max_materials": Interval(int, 1), "pca_train_max": Interval(int, 2),
+    "speed_evals": Interval(int, 1, 1 << 26), "curve_coeffs": GRID_BINS, "split": SPLITS,
 }
 _SETTING_TYPES = {
     "int": lambda v: isinstance(v, int) and not isinstance(v, bool),
@@ -160,110 +161,18 @@ def _check_setting(path: Path, key: str, value, annotation) -> None:
     kind = str(annotation).removesuffix(" | None")
     if not _SETTING_TYPES.get(kind, lambda v: True)(value):
         raise ConfigError(f"{path}: setting {key} = {value!r}: expected {kind}")
-    lo, hi = _SETTING_RANGES.get(key, (None, None))
-    for v in value if isinstance(value, list) else [value]:
-        if lo is not None and (v < lo or (hi is not None and v > hi)):
-            raise ConfigError(f"{path}: setting {key} = {v!r}: must be in [{lo}, "
-                              f"{hi if hi is not None else 'inf'}]")
-    if key == "split" and value not in ("train", "test", "all"):
-        raise ConfigError(f"{path}: setting split = {value!r}: expected train, test or all")
+    if key in SETTINGS:
+        for v in value if isinstance(value, list) else [value]:
+            check(f"{path}: setting {key}", v, SETTINGS[key], error=ConfigError)
 
 
-def _check_model_spec(path: Path, spec: str) -> None:
-    """Raise :class:`ConfigError` unless ``spec`` names a model (see :func:`make_model`)
-    with sizes in range; nothing is trained or encoded."""
-    kind, _, arg = spec.partition(":")
-    first = arg.split(":")[0]
-    if kind == "sparse" and first.startswith("b"):  # a byte budget: sparse:bN
-        first = first[1:] or "x"
-    sizes = (first.split("x") if kind == "tucker" else [first]) if first else []
-    known = ("sparse", "naive", "cpd", "tucker", "pca", "tabulated")
-    most = (list(MERL_SHAPE) if kind == "tucker" and sizes
-            else [int(np.prod(MERL_SHAPE))] * len(sizes))
-    if (kind not in known or (kind != "sparse" and ":" in arg)
-            or len(sizes) != len(most)
-            or not all(s.isascii() and s.isdigit() and 1 <= int(s) <= n
-                       for s, n in zip(sizes, most, strict=True))):
-        raise ConfigError(f"{path}: model {spec!r}: expected sparse:N[:TRANSFORM][:OPTIONS], "
-                          "naive, cpd:L, tucker:AxBxC, pca:N or tabulated, with sizes >= 1")
-    if kind == "sparse":
-        try:
-            make_model(spec)  # the shipped ensemble, read once per process
-        except (ValueError, TypeError, KeyError) as exc:
-            raise ConfigError(f"{path}: model {spec!r}: {exc}") from exc
-
-
-def make_model(spec: str, ensemble=None) -> BRDFModel:
-    """A model from its spec: sparse:N[:TRANSFORM][:OPTIONS], naive, cpd:L, tucker:AxBxC,
-    pca:N, tabulated.
-
-    The sparse model's OPTIONS are ``paper`` (the paper's encoder, ``PAPER_OPTIONS``) or
-    ``KEY=VALUE`` pairs separated by commas, the keyword options of
-    :func:`~sparse_brdf.model.encode.encode` (``ENCODE_OPTIONS``): ``selector``
-    (render, gamma-mse), ``fill`` (invalid, missing), ``fill_iters`` (an integer),
-    ``basis`` (opponent, rgb), ``budget`` (joint, channel); TRANSFORM is auto (the
-    default), log-plus or log-plus-cosine and may be left out before the options.
-    E.g. ``sparse:262`` (today's encoder), ``sparse:262:paper``, ``sparse:262:log-plus``,
-    ``sparse:262:basis=rgb``, ``sparse:262:auto:fill=missing``. The model's name (the
-    reports' label) lists the options not at their defaults, or says ``paper``:
-    ``sparse-262-basis=rgb``, ``sparse-262-paper``.
-
-    Byte budgets: N may be ``bN``, at most N bytes per material file (header included;
-    :func:`~sparse_brdf.model.budget.encode_to_bytes`), e.g. ``sparse:b1600``,
-    ``sparse:b1600:basis=rgb``. The option ``version=1`` (or 2, the default) sets the
-    ``.sbrdf`` version counted and rendered, so that versions compare at equal bytes:
-    ``sparse:b1600:version=1`` (name ``sparse-b1600-version=1``).
-    """
-    kind, _, arg = spec.partition(":")
-    if kind == "sparse":
-        return _sparse_model(spec, arg, ensemble)
-    if kind == "naive":
-        return NaiveModel()
-    if kind == "cpd":
-        return CPDModel(int(arg or 1))
-    if kind == "tucker":
-        return TuckerModel(tuple(int(x) for x in (arg or "1x1x1").split("x")))
-    if kind == "pca":
-        return PCAModel(int(arg or 40))
-    if kind == "tabulated":
-        return TabulatedModel()
-    raise ValueError(f"unknown model {spec!r}: use sparse:N, naive, cpd:L, tucker:AxBxC, "
-                     "pca:N or tabulated")
-
-
-def _sparse_model(spec: str, arg: str, ensemble) -> SparseModel:
-    """The sparse model of ``spec`` (``arg``: what follows ``sparse:``; see make_model)."""
-    n, *rest = arg.split(":") if arg else [""]
-    transform, options = "auto", {}
-    for part in rest:
-        if part == "paper" and not options:  # the paper's encoder
-            options = dict(PAPER_OPTIONS)
-            continue
-        if "=" not in part and not options and transform == "auto":
-            transform = part or "auto"
-            continue
-        for item in filter(None, part.split(",")):
-            key, eq, value = (x.strip() for x in item.partition("="))
-            if not eq or key in options:
-                raise ValueError(f"model {spec!r}: expected distinct KEY=VALUE options, "
-                                 f"got {item!r}")
-            if key == "fill_iters":
-                if not value.isdigit():
-                    raise ValueError(f"model {spec!r}: fill_iters must be an integer >= 0, "
-                                     f"got {value!r}")
-                value = int(value)
-            options[key] = value
-    n_bytes = None
-    if n.startswith("b"):
-        if not n[1:].isdigit() or int(n[1:]) < 1:
-            raise ValueError(f"model {spec!r}: a byte budget is bN with N >= 1 bytes per "
-                             f"file, got {n!r}")
-        n_bytes, n = int(n[1:]), ""
-    version = options.pop("version", str(VERSION))
-    if version not in ("1", "2"):
-        raise ValueError(f"model {spec!r}: version must be 1 or 2, got {version!r}")
-    return SparseModel(ensemble, int(n or DEFAULT_N_COEFFS), transform, n_bytes=n_bytes,
-                       version=int(version), **options)
+def _check_model_spec(path: Path, spec) -> None:
+    """Raise :class:`ConfigError` unless ``spec`` names a model (the grammar of
+    :mod:`sparse_brdf.model.specs`); nothing is read, trained or encoded."""
+    try:
+        parse_spec(spec)
+    except UsageError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
 
 
 def _key(m) -> str:
@@ -360,7 +269,7 @@ class Bench:
         if self.cfg.speed and missing and mats:  # e.g. measurements deleted to redo them
             brdf = mats[0].load()
             for mod in missing:
-                self._speed(mod, mod.fit(brdf))
+                self._speed(mod, mod.compress(brdf))
                 self._save()
         if self.cfg.stability and "stability" not in self.results and mats:
             smodels = [make_model(s, ens) for s in self.cfg.stability_models]
@@ -419,7 +328,7 @@ class Bench:
         return self._loaded[1]
 
     def _train(self, models, evaluated) -> None:
-        needs = [m for m in models if isinstance(m, PCAModel)]
+        needs = [m for m in models if m.learns]
         if not needs:
             return
         train = self.training_materials(evaluated)
@@ -432,7 +341,7 @@ class Bench:
                 f"{len(train)} (use split = 'test', or drop the PCA models)")
         brdfs = [m.load() for m in train]
         for m in needs:
-            m.train(brdfs)
+            m.fit(brdfs)
             m.trained_on = [_key(t) for t in train]
 
     def _curve(self, brdf, ens) -> dict:
@@ -503,7 +412,7 @@ class Bench:
         row = {"material": key, "model": model.name}
         try:
             t0 = time.perf_counter()
-            compact = model.fit(brdf)
+            compact = model.compress(brdf)
             rec = compact.reconstruct()
             row["fit_s"] = time.perf_counter() - t0
             if not np.all(np.isfinite(rec)):

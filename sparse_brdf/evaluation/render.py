@@ -38,11 +38,13 @@ from ..errors import (
 from ..fileio import atomic_path, atomic_write, require_file
 from ..metrics import SNRForms, snr_forms
 from ..mitsuba_env import DEFAULT_VARIANT, set_variant
+from ..params import SEED, Interval, check
 from ..paths import SCENES_DIR, shared_envmaps_dir
 
 SPARSE_SUFFIX = ".sbrdf"
-#: Largest spp, seed and res a render accepts (Mitsuba's seed is 32-bit; 0 spp crashes it).
-RENDER_LIMITS = {"spp": 1 << 16, "seed": (1 << 32) - 1, "res": 1 << 13}
+#: The spp, seed and res a render accepts (Mitsuba's seed is 32-bit; 0 spp crashes it).
+RENDER_PARAMETERS = {"spp": Interval(int, 1, 1 << 16), "seed": SEED,
+                     "res": Interval(int, 1, 1 << 13)}
 #: The shipped scenes: ``sphere.xml`` (CC0 studio map), ``spheres.xml`` (three materials),
 #: ``paper_sphere.xml`` (the paper's scene; needs the shared Grace Cathedral map).
 
@@ -262,11 +264,9 @@ def load_scene(
     if not scene_path.is_file():
         raise FileNotFoundError(f"{scene_path}: no such scene file")
     kwargs = {k: str(v) for k, v in (params or {}).items()}
-    for key, val, lo in (("spp", spp, 1), ("seed", seed, 0), ("res", res, 1)):
-        if val is not None:
-            if int(val) < lo or int(val) > RENDER_LIMITS[key]:  # 0 spp: SIGFPE inside Mitsuba
-                raise UsageError(f"{key} must be in [{lo}, {RENDER_LIMITS[key]}], got {val}")
-            kwargs[key] = str(int(val))
+    for key, val in (("spp", spp), ("seed", seed), ("res", res)):
+        if val is not None:  # checked: 0 spp is a SIGFPE inside Mitsuba
+            kwargs[key] = str(check(key, val, RENDER_PARAMETERS[key]))
     check_scene_data(scene_path, kwargs)
     set_variant(variant)
     mitsuba_plugin.register()

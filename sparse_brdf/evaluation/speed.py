@@ -3,18 +3,18 @@
 Every model is timed with its own evaluator, never through a dense table:
 
 - ``sparse`` (a :class:`~sparse_brdf.sparse.SparseBRDF`, or the ``Compact`` of
-  :class:`~sparse_brdf.baselines.SparseModel`): the ``sparse_brdf`` Mitsuba plugin's
+  :class:`~sparse_brdf.model.sparse_model.SparseModel`): the ``sparse_brdf`` Mitsuba plugin's
   ``eval``, with the ``grouped`` or ``strict`` decoder;
 - ``tabulated`` (a :class:`~sparse_brdf.brdf.BRDF`, or the ``Compact`` of
-  :class:`~sparse_brdf.baselines.TabulatedModel`): the ``tabulated_brdf`` plugin's ``eval``;
+  :class:`~sparse_brdf.model.baselines.TabulatedModel`): the ``tabulated_brdf`` plugin's ``eval``;
 - ``naive``, ``cpd``, ``tucker``, ``pca`` (their ``Compact``): the Dr.Jit evaluators of
   :mod:`mitsuba_plugin.evaluators`, computed from the model's stored ``params``.
 
 The plugins' ``eval`` includes the cosine factor and the evaluators do not; that one
 multiplication is part of the cost. Mitsuba is imported only when a function is called.
 
->>> from sparse_brdf.baselines import NaiveModel
->>> rate = evals_per_second(NaiveModel().fit(brdf))     # doctest: +SKIP
+>>> from sparse_brdf.model.baselines import NaiveModel
+>>> rate = evals_per_second(NaiveModel().compress(brdf))     # doctest: +SKIP
 >>> f"{rate / 1e6:.0f} M evaluations/s"                 # doctest: +SKIP
 """
 
@@ -31,10 +31,11 @@ import numpy as np
 from ..brdf import BRDF
 from ..coords import geometric_valid
 from ..mitsuba_env import variant as use_variant
-from ..model.baselines import Compact
+from ..model.compact import Compact
 from ..model.layouts import DECODERS
 from ..model.sbrdf import save_sbrdf
 from ..model.sparse import SparseBRDF
+from ..params import check_choice
 from ..sources.merl import write_merl
 
 #: Model kinds :func:`evals_per_second` times (the part of ``Compact.model`` before ``-``).
@@ -104,7 +105,7 @@ def evals_per_second(model, n: int = 1 << 20, repeats: int = 5, ensemble=None, *
     Parameters
     ----------
     model : Compact, SparseBRDF or BRDF
-        A fitted :class:`~sparse_brdf.baselines.Compact` of any baseline kind (naive,
+        A fitted :class:`~sparse_brdf.model.compact.Compact` of any baseline kind (naive,
         cpd, tucker, pca, tabulated, sparse), a sparse model, or a tabulated BRDF.
     n : int, default 2**20
         Random upper-hemisphere direction pairs per timed call.
@@ -129,8 +130,7 @@ def evals_per_second(model, n: int = 1 << 20, repeats: int = 5, ensemble=None, *
     import drjit as dr  # lazy: Dr.Jit is slow to import (see the module doc)
 
     n, repeats = _check_counts(n, repeats)
-    if decoder not in DECODERS:
-        raise ValueError(f"decoder={decoder!r}: expected one of {', '.join(DECODERS)}")
+    check_choice("decoder", decoder, DECODERS)
     if not variant.startswith(("llvm", "cuda")):
         raise ValueError(f"variant={variant!r}: timing needs a JIT variant (llvm_* or cuda_*)")
     with use_variant(variant):

@@ -28,7 +28,7 @@ from ..coords import grid_angles
 from ..errors import SparseBRDFError
 from ..fileio import atomic_write
 from ..metrics import cosine_weighted_snr
-from ..model.baselines import BRDFModel
+from ..model.compact import BRDFModel
 from ..sources.merl import MERL_SCALE, read_merl
 
 Perturb = Callable[[np.ndarray, np.ndarray, np.random.Generator], tuple[np.ndarray, np.ndarray]]
@@ -137,7 +137,7 @@ def run_stability(
                 rows.append(row)
                 continue
             try:
-                rec = m.fit(brdf).reconstruct()
+                rec = m.compress(brdf).reconstruct()
                 if not np.all(np.isfinite(rec)):
                     row.update(status="failed", message="NaN/inf in reconstruction")
                 else:

@@ -6,5 +6,8 @@
 - ``encode``: projection, sparsification and model selection; ``sparse``: the
   :class:`SparseBRDF` result; ``sbrdf``: its file format and :func:`decode_file`.
 - ``interpolate``: blending two coded materials; ``layouts``: the flat buffers a renderer
-  reads, with numpy reference decoders; ``baselines``: the models compared in the bench.
+  reads, with numpy reference decoders.
+- The models compared in the bench: ``compact`` (the interface: ``fit(brdfs)`` learns,
+  ``compress(brdf)`` gives a ``Compact``), ``sparse_model`` (the paper's model),
+  ``baselines`` (the others) and ``specs`` (the grammar of their bench specs).
 """

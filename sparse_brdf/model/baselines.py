@@ -1,15 +1,14 @@
-"""Baseline BRDF models behind one interface: fit a BRDF -> compact model -> reconstruct.
+"""The baseline BRDF models the paper's model is compared with.
 
-Every model is a :class:`BRDFModel`: ``fit(brdf)`` returns a :class:`Compact` with
-``reconstruct()`` (linear RGB values of the BRDF's grid shape, (n1, n2, n3, 3)) and
+Each is a :class:`~sparse_brdf.model.compact.BRDFModel` (``fit(brdfs)`` learns and
+returns the model, ``compress(brdf)`` gives a :class:`~sparse_brdf.model.compact.Compact`
+with ``reconstruct()`` (linear RGB values of the BRDF's grid shape, (n1, n2, n3, 3)),
 ``nbytes`` (exact storage of what the model keeps per material, float32 numbers; shared
-bases such as a PCA basis or an ensemble are not counted, as in the paper) and ``params``
-(those stored numbers themselves, which :mod:`mitsuba_plugin.evaluators` evaluates at
-direction pairs without a dense reconstruction). Models that learn from a training set
-(PCA) have ``train(brdfs)``; using them untrained raises.
+bases such as a PCA basis are not counted, as in the paper) and ``params`` (those stored
+numbers themselves, which :mod:`mitsuba_plugin.evaluators` evaluates at direction pairs
+without a dense reconstruction). PCA learns from training BRDFs; compressing with it
+unfitted raises. The paper's own model is :class:`~sparse_brdf.model.sparse_model.SparseModel`.
 
-- :class:`SparseModel`   the paper's model over an ensemble (``nbytes``: its ``.sbrdf``
-  file, header included; version 2 by default, about 2 bytes per coefficient)
 - :class:`NaiveModel`    Bagher et al. 2016: kd + ks a(theta_h) b(theta_d) c(phi_d) per
   channel (362 numbers), non-negative alternating weighted least squares
   (:func:`fit_separable`) with solid-angle and cosine weights
@@ -23,19 +22,16 @@ direction pairs without a dense reconstruction). Models that learn from a traini
 
 from __future__ import annotations
 
-from abc import ABC, abstractmethod
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Sequence
 
 import numpy as np
 
 from ..brdf import BRDF
-from ..coords import bin_solid_angle, cosine_product
-from ..transforms import check_transform, cosine_weight, forward, inverse
-from .budget import encode_to_bytes
-from .encode import DEFAULT_N_COEFFS, ENCODE_OPTIONS, PAPER_OPTIONS, check_options, encode
-from .ensemble import resolve_ensemble
-from .sbrdf import VERSION, VERSIONS, as_stored, to_bytes
+from ..coords import MERL_SHAPE, bin_solid_angle, cosine_product
+from ..errors import UsageError
+from ..params import Interval, check
+from ..transforms import cosine_weight, forward, inverse
+from .compact import BRDFModel, Compact, require_fitted
 
 _F32 = 4
 
@@ -60,121 +56,14 @@ def _naive_params(per_channel) -> dict[str, np.ndarray]:
     return {k: _f32(v) for k, v in out.items()}
 
 
-@dataclass
-class Compact:
-    """A fitted compact model of one BRDF.
-
-    Attributes
-    ----------
-    model : str
-        The model's name (``"naive"``, ``"cpd-1"``, ``"tucker-1x1x1"``, ``"pca-40"``,
-        ``"tabulated"``, ``"sparse-262"``, ...); the part before the first ``-`` is its kind.
-    nbytes : int
-        Storage of the numbers kept per material (float32): the bytes of the arrays in
-        ``params`` whose keys do not start with ``shared_``.
-    reconstruct : callable
-        Returns the dense linear RGB tensor, shape (n1, n2, n3, 3).
-    info : dict or None
-        Extra results (e.g. the sparse model itself under ``"model"``).
-    params : dict of str to ndarray, or None
-        Exactly the numbers the model stores per material, as float32 arrays (see each
-        model's ``fit``); shared state the model needs to evaluate (e.g. a PCA basis) is
-        referenced under keys prefixed ``shared_`` and not counted in ``nbytes``. What
-        :mod:`mitsuba_plugin.evaluators` evaluates from. None for the sparse model (its
-        :class:`~sparse_brdf.sparse.SparseBRDF` is ``info["model"]``).
-    """
-
-    model: str
-    nbytes: int
-    reconstruct: Callable[[], np.ndarray]
-    info: dict | None = None
-    params: dict[str, np.ndarray] | None = None
-
-    @property
-    def kind(self) -> str:
-        """The model family: ``naive``, ``cpd``, ``tucker``, ``pca``, ``tabulated``,
-        ``sparse`` (the name up to its first ``-``)."""
-        return self.model.split("-", 1)[0]
-
-    def param_nbytes(self) -> int:
-        """Bytes of the per-material arrays in ``params`` (keys not prefixed ``shared_``)."""
-        if self.params is None:
-            raise ValueError(f"{self.model}: this compact model has no params")
-        return sum(int(v.nbytes) for k, v in self.params.items()
-                   if not k.startswith("shared_"))
-
-
-class BRDFModel(ABC):
-    """Fit a BRDF -> compact model -> reconstruct the tensor."""
-
-    name: str = "model"
-
-    def train(self, brdfs: Sequence[BRDF]) -> BRDFModel:  # noqa: B027 - optional hook
-        """Learn shared state from training BRDFs (no-op for per-material models)."""
-        return self
-
-    @abstractmethod
-    def fit(self, brdf: BRDF) -> Compact:
-        """Fit ``brdf``; return its compact model."""
-
-
 class TabulatedModel(BRDFModel):
     """The full tabulated BRDF (float32), the upper bound of every comparison."""
 
     name = "tabulated"
 
-    def fit(self, brdf: BRDF) -> Compact:
+    def compress(self, brdf: BRDF) -> Compact:
         v = brdf.values.copy()
         return Compact(self.name, v.nbytes, lambda: v, params={"table": v})
-
-
-class SparseModel(BRDFModel):
-    """The sparse ensemble model at ``n_coeffs`` per channel (see :func:`encode`; the
-    keyword options ``selector``, ``fill``, ``fill_iters``, ``basis``, ``budget`` are
-    passed on). ``name``: ``sparse-N``, then ``-TRANSFORM`` unless "auto", then
-    ``-KEY=VALUE`` for each option not at its default, in the order above (so that
-    every option set has its own name, e.g. ``sparse-262-fill=missing``), or ``-paper``
-    for the paper's encoder (``PAPER_OPTIONS``).
-
-    ``n_bytes``: a byte budget per material instead of ``n_coeffs`` (each file holds at
-    most that many bytes, :func:`~sparse_brdf.model.budget.encode_to_bytes`; the name
-    starts ``sparse-bN``). ``version``: the ``.sbrdf`` version whose bytes are counted
-    and which is rendered (name suffix ``-version=1`` unless the default, 2). The model
-    scored is the file's (values quantised for version 2); ``nbytes`` is the file's size."""
-
-    def __init__(self, ensemble=None, n_coeffs: int = DEFAULT_N_COEFFS,
-                 transform: str = "auto", n_bytes: int | None = None,
-                 version: int = VERSION, **options):
-        if version not in VERSIONS:
-            raise ValueError(f"unknown .sbrdf version {version!r}: expected one of "
-                             f"{', '.join(map(str, VERSIONS))}")
-        if n_bytes is not None and n_bytes < 1:
-            raise ValueError(f"byte budget must be >= 1, got {n_bytes}")
-        self.ensemble = resolve_ensemble(ensemble)
-        self.n_coeffs, self.n_bytes, self.version = n_coeffs, n_bytes, version
-        self.transform = transform if transform == "auto" else check_transform(transform)
-        full = check_options(**options)
-        implied = check_options(basis=full["basis"], fill=full["fill"])
-        self.options = {k: full[k] for k in ENCODE_OPTIONS
-                        if full[k] != (implied if k in ("fill_iters", "budget")
-                                       else ENCODE_OPTIONS)[k]}
-        suffix = ("-paper" if self.options == PAPER_OPTIONS
-                  else "".join(f"-{k}={v}" for k, v in self.options.items()))
-        size = f"b{n_bytes}" if n_bytes is not None else str(n_coeffs)
-        self.name = (f"sparse-{size}" + ("" if transform == "auto" else f"-{transform}")
-                     + suffix + ("" if version == VERSION else f"-version={version}"))
-
-    def fit(self, brdf: BRDF) -> Compact:
-        if self.n_bytes is None:
-            m = encode(brdf, self.ensemble, self.n_coeffs, transform=self.transform,
-                       **self.options)
-        else:
-            m = encode_to_bytes(brdf, self.ensemble, self.n_bytes, self.version,
-                                transform=self.transform, **self.options)
-        m = as_stored(m, self.version)  # what the file holds, and so what renders
-        return Compact(self.name, len(to_bytes(m, self.version)),
-                       lambda: m.decode(self.ensemble, valid=brdf.valid).values,
-                       {"transform": m.transform, "model": m, "version": self.version})
 
 
 def _axis_sums(t: np.ndarray, x: np.ndarray, y: np.ndarray, axis: int) -> np.ndarray:
@@ -313,18 +202,16 @@ class NaiveModel(BRDFModel):
     """
 
     name = "naive"
+    #: The options' ranges.
+    PARAMETERS = {"n_iter": Interval(int, 1), "tol": Interval(float, 0.0),
+                  "cos_power": Interval(float, 0.0), "solid_angle_power": Interval(float, 0.0),
+                  "q": Interval(float, 0.0, 1.0), "eps": Interval(float, 0.0, closed="right")}
 
     def __init__(self, n_iter: int = 100, tol: float = 1e-6, cos_power: float = 1.5,
                  solid_angle_power: float = 1.25, q: float = 1.0, eps: float = 1e-3):
-        checks = (("n_iter", n_iter, n_iter >= 1 and int(n_iter) == n_iter, "an integer >= 1"),
-                  ("tol", tol, tol >= 0, ">= 0"),
-                  ("cos_power", cos_power, cos_power >= 0, ">= 0"),
-                  ("solid_angle_power", solid_angle_power, solid_angle_power >= 0, ">= 0"),
-                  ("q", q, 0 <= q <= 1, "in [0, 1]"),
-                  ("eps", eps, eps > 0, "> 0"))
-        for key, value, ok, what in checks:
-            if not ok:
-                raise ValueError(f"NaiveModel: {key} must be {what}, got {value!r}")
+        for key, value in (("n_iter", n_iter), ("tol", tol), ("cos_power", cos_power),
+                           ("solid_angle_power", solid_angle_power), ("q", q), ("eps", eps)):
+            check(f"NaiveModel: {key}", value, self.PARAMETERS[key])
         self.n_iter, self.tol = int(n_iter), float(tol)
         self.cos_power, self.solid_angle_power = float(cos_power), float(solid_angle_power)
         self.q, self.eps = float(q), float(eps)
@@ -346,7 +233,7 @@ class NaiveModel(BRDFModel):
         return np.array([np.sum(w[..., ch] * (rho[..., ch] - kd - np.einsum(
             "i,j,k->ijk", a, b, c)) ** 2) for ch, (kd, a, b, c) in enumerate(per_channel)])
 
-    def fit(self, brdf: BRDF) -> Compact:
+    def compress(self, brdf: BRDF) -> Compact:
         w = self.weights(brdf)
         out = []
         params = []
@@ -370,11 +257,15 @@ class CPDModel(BRDFModel):
     Invalid bins are masked out (tensorly's EM imputation), not fitted as zeros.
     """
 
+    #: The rank: at least 1, at most the MERL grid's entries (per channel).
+    PARAMETERS = {"rank": Interval(int, 1, int(np.prod(MERL_SHAPE)))}
+
     def __init__(self, rank: int = 1, n_iter: int = 30, seed: int = 0):
+        check("cpd rank", rank, self.PARAMETERS["rank"])
         self.rank, self.n_iter, self.seed = rank, n_iter, seed
         self.name = f"cpd-{rank}"
 
-    def fit(self, brdf: BRDF) -> Compact:
+    def compress(self, brdf: BRDF) -> Compact:
         # lazy: tensorly takes ~0.7 s to import and only these two baselines use it
         import tensorly as tl
         from tensorly.decomposition import parafac
@@ -399,11 +290,19 @@ class CPDModel(BRDFModel):
 class TuckerModel(BRDFModel):
     """Tucker decomposition with ``ranks`` of the log-plus tensor of each channel."""
 
+    #: Each mode's rank: at least 1, at most the MERL grid's side of that mode.
+    PARAMETERS = {"ranks": tuple(Interval(int, 1, n) for n in MERL_SHAPE)}
+
     def __init__(self, ranks: tuple[int, int, int] = (1, 1, 1), seed: int = 0):
-        self.ranks, self.seed = tuple(ranks), seed
+        ranks = tuple(ranks)
+        if len(ranks) != 3:
+            raise UsageError(f"tucker ranks must be three integers, got {ranks!r}")
+        for r, c in zip(ranks, self.PARAMETERS["ranks"], strict=True):
+            check("tucker rank", r, c)
+        self.ranks, self.seed = ranks, seed
         self.name = "tucker-" + "x".join(map(str, self.ranks))
 
-    def fit(self, brdf: BRDF) -> Compact:
+    def compress(self, brdf: BRDF) -> Compact:
         # lazy: tensorly takes ~0.7 s to import and only these two baselines use it
         import tensorly as tl
         from tensorly.decomposition import tucker
@@ -438,8 +337,12 @@ class PCAModel(BRDFModel):
     """
 
     EPS = 1e-3
+    learns = True
+    #: Components kept: at least 1 (and at most the training BRDFs less one, by itself).
+    PARAMETERS = {"n_coeffs": Interval(int, 1, int(np.prod(MERL_SHAPE)))}
 
     def __init__(self, n_coeffs: int = 40):
+        check("pca n_coeffs", n_coeffs, self.PARAMETERS["n_coeffs"])
         self.n_coeffs = n_coeffs
         self.name = f"pca-{n_coeffs}"
         self.basis_: np.ndarray | None = None
@@ -448,9 +351,12 @@ class PCAModel(BRDFModel):
         c = cosine_weight(brdf.shape)[..., None]
         return np.log((brdf.values * c + self.EPS) / (self.median_ + self.EPS))[self.mask_]
 
-    def train(self, brdfs: Sequence[BRDF]) -> PCAModel:
+    def fit(self, brdfs: Sequence[BRDF]) -> PCAModel:
+        """Learn the median, mean and principal components of ``brdfs`` (at least 2, on
+        one grid); returns ``self``."""
         if len(brdfs) < 2:
-            raise ValueError("PCA needs at least 2 training BRDFs")
+            raise UsageError(f"{self.name}: PCA needs at least 2 training BRDFs, "
+                             f"got {len(brdfs)}")
         shape = brdfs[0].shape
         self.mask_ = np.broadcast_to(brdfs[0].valid[..., None], (*shape, 3))
         for b in brdfs:
@@ -468,9 +374,8 @@ class PCAModel(BRDFModel):
         self.basis_ = ((centred.T @ v[:, keep]) / np.sqrt(w[keep])).T.astype(np.float32)
         return self
 
-    def fit(self, brdf: BRDF) -> Compact:
-        if self.basis_ is None:
-            raise RuntimeError(f"{self.name}: call train() with training BRDFs first")
+    def compress(self, brdf: BRDF) -> Compact:
+        require_fitted(self, self.basis_ is not None)
         k = min(self.n_coeffs, self.basis_.shape[0])
         basis = self.basis_[:k]
         coef = basis @ (self._map(brdf) - self.mean_)
@@ -486,3 +391,7 @@ class PCAModel(BRDFModel):
                   "shared_median": self.median_, "shared_mask": self.mask_,
                   "shared_eps": np.array(self.EPS, np.float32)}
         return Compact(self.name, k * _F32, lambda: rho, {"n_coeffs": k}, params)
+
+    def __repr__(self) -> str:
+        fitted = "unfitted" if self.basis_ is None else f"{self.basis_.shape[0]} components"
+        return f"PCAModel({self.name!r}, {fitted})"

@@ -23,11 +23,14 @@ import numpy as np
 
 from ..brdf import BRDF
 from ..errors import UsageError
+from ..params import Interval
 from .encode import choose_transform, encode
 from .ensemble import Ensemble, resolve_ensemble
-from .sbrdf import VERSION, VERSIONS, as_stored, min_file_size, to_bytes
+from .sbrdf import VERSION, as_stored, check_version, min_file_size, to_bytes
 from .sparse import SparseBRDF
 
+#: The byte budget of a file (at least its header, name and checksum: :func:`check_budget`).
+PARAMETERS = {"n_bytes": Interval(int, 1)}
 #: First guess of the bytes per coefficient beyond the fixed part, per file version: on
 #: the low side (measured 1.7-2.3 for version 2, docs/file-format.md) so that the first
 #: encoding overshoots the budget and is trimmed, rather than fitting whole.
@@ -81,9 +84,7 @@ def _largest(lo: int, hi: int, ok) -> int:
 def check_budget(name: str, n_bytes: int, version: int = VERSION) -> None:
     """:class:`~sparse_brdf.errors.UsageError` (a ValueError) unless a file of ``version``
     named ``name`` can hold a coefficient in ``n_bytes`` (the message names ``--bytes``)."""
-    if version not in VERSIONS:
-        raise UsageError(f"unknown .sbrdf version {version!r}: expected one of "
-                         f"{', '.join(map(str, VERSIONS))}")
+    check_version(version)
     floor = min_file_size(len(name.encode("utf-8")[:255]), version)
     if not isinstance(n_bytes, (int, np.integer)) or n_bytes <= floor:
         raise UsageError(f"--bytes {n_bytes}: a version-{version} .sbrdf file of {name!r} "

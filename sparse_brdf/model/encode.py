@@ -34,7 +34,16 @@ from ..metrics import (
     render_proxy_error,
 )
 from ..parallel import parallel_map
-from ..transforms import TRANSFORMS, check_basis, check_transform, forward, inverse, to_basis
+from ..params import Interval, check, check_choice
+from ..transforms import (
+    COLOUR_BASES,
+    TRANSFORMS,
+    check_basis,
+    check_transform,
+    forward,
+    inverse,
+    to_basis,
+)
 from .ensemble import Ensemble, resolve_ensemble
 from .pruning import PrunedSearch, slice_order
 from .sparse import SparseBRDF
@@ -61,6 +70,19 @@ ENCODE_OPTIONS = {"selector": "render", "fill": "invalid", "fill_iters": None,
                   "basis": "opponent", "budget": None}
 #: The paper's encoder as options of :func:`encode` (``sparse:N:paper`` in a bench).
 PAPER_OPTIONS = {"selector": "gamma-mse", "fill": "missing", "basis": "rgb"}
+#: Every parameter of :func:`encode` a user sets, declared once (:mod:`sparse_brdf.params`):
+#: the CLI's choices and bounds, a bench spec's options and the checks below read it.
+#: ``n_coeffs`` beyond a grid's entries per channel is capped to them.
+PARAMETERS = {
+    "n_coeffs": Interval(int, 1),
+    "max_error": Interval(float, 0.0, 1.0, closed="left"),
+    "transform": ("auto", *TRANSFORMS),
+    "selector": SELECTORS,
+    "fill": FILLS,
+    "fill_iters": Interval(int, 0, 1000),
+    "basis": COLOUR_BASES,
+    "budget": BUDGETS,
+}
 
 
 @dataclass
@@ -342,10 +364,9 @@ def encode(
     if brdf.shape != ens.shape:
         raise EnsembleMismatchError(f"{brdf.name}: BRDF grid {brdf.shape} does not match the "
                          f"ensemble's {ens.shape}")
-    if n_coeffs < 1:
-        raise UsageError(f"n_coeffs must be >= 1, got {n_coeffs}")
-    if max_error is not None and not (0 <= max_error < 1):
-        raise UsageError(f"max_error must be in [0, 1), got {max_error}")
+    check("n_coeffs", n_coeffs, PARAMETERS["n_coeffs"])
+    if max_error is not None:
+        check("max_error", max_error, PARAMETERS["max_error"])
     kw = check_options(selector=selector, fill=fill, fill_iters=fill_iters, basis=basis,
                        budget=budget)
     opts = _Options(n_coeffs, max_error, kw["fill"], kw["fill_iters"], kw["basis"],
@@ -361,18 +382,17 @@ def encode(
 
 
 def check_n_coeffs(n_coeffs: int, ensemble: Ensemble) -> int:
-    """``n_coeffs`` if it is at least 1 and at most the coefficients of one channel on the
-    ensemble's grid, else a :class:`~sparse_brdf.errors.UsageError` naming it (the file
-    encoders' check, :mod:`~sparse_brdf.evaluation.batch`; :func:`encode` itself keeps at
-    most what a channel holds)."""
-    most = int(np.prod(ensemble.shape))
+    """``n_coeffs``, a maximum per channel, capped at the coefficients of one channel on
+    the ensemble's grid (:func:`encode` keeps no more than a channel holds either).
+
+    Raises
+    ------
+    UsageError
+        If ``n_coeffs`` is below 1 (naming ``--coeffs``).
+    """
     if n_coeffs < 1:
-        raise UsageError(f"n_coeffs must be >= 1, got {n_coeffs}")
-    if n_coeffs > most:
-        raise UsageError(f"--coeffs {n_coeffs}: a channel of the "
-                         f"{'x'.join(map(str, ensemble.shape))} grid holds at most {most} "
-                         "coefficients")
-    return n_coeffs
+        raise UsageError(f"--coeffs must be >= 1, got {n_coeffs}")
+    return min(int(n_coeffs), int(np.prod(ensemble.shape)))
 
 
 def check_options(**options) -> dict:
@@ -391,17 +411,8 @@ def check_options(**options) -> dict:
         "budget", o["budget"] or ("channel" if o["basis"] == "rgb" else "joint"), BUDGETS)
     if o["fill_iters"] is None:
         o["fill_iters"] = DEFAULT_FILL_ITERS[o["fill"]]
-    elif int(o["fill_iters"]) != o["fill_iters"] or o["fill_iters"] < 0:
-        raise UsageError(f"fill_iters must be an integer >= 0, got {o['fill_iters']!r}")
-    o["fill_iters"] = int(o["fill_iters"])
+    o["fill_iters"] = check("fill_iters", o["fill_iters"], PARAMETERS["fill_iters"])
     return o
-
-
-def check_choice(what: str, value: str, choices: tuple[str, ...]) -> str:
-    """``value`` if it is one of ``choices``, else a ValueError naming them."""
-    if value not in choices:
-        raise UsageError(f"unknown {what} {value!r}: expected one of {', '.join(choices)}")
-    return value
 
 
 @dataclass(frozen=True)

@@ -57,6 +57,13 @@ class Ensemble:
             raise ValueError(f"ensemble taus must have shape ({k},), got {self.taus.shape}")
         self._id: str | None = None
 
+    def __repr__(self) -> str:
+        taus = sorted({int(t) for t in self.taus})
+        shown = ", ".join(map(str, taus[:8])) + (", ..." if len(taus) > 8 else "")
+        nbytes = self.u1.nbytes + self.u2.nbytes + self.u3.nbytes
+        return (f"Ensemble(id={self.id[:8]}, {self.n_dicts} dictionaries, shape={self.shape}, "
+                f"taus=[{shown}], {nbytes / 1e6:.1f} MB)")
+
     @property
     def n_dicts(self) -> int:
         return int(self.u1.shape[0])

@@ -21,10 +21,14 @@ import functools
 import numpy as np
 
 from ..errors import UsageError
+from ..params import Interval, check
 from ..transforms import colour_matrix
 from .ensemble import Ensemble, resolve_ensemble
 from .sparse import SparseBRDF
 from .tensor import reconstruct, sparse_to_dense, top_k
+
+#: The blend's parameters: ``alpha`` in [0, 1]; ``n_coeffs`` at most the grid's entries.
+PARAMETERS = {"alpha": Interval(float, 0.0, 1.0), "n_coeffs": Interval(int, 1)}
 
 
 def interpolate(
@@ -49,11 +53,10 @@ def interpolate(
     if a.transform != b.transform:
         raise UsageError(f"cannot blend {a.name} ({a.transform}) with {b.name} "
                          f"({b.transform}): encode both with the same --transform")
-    if not 0.0 <= alpha <= 1.0:
-        raise UsageError(f"alpha must be in [0, 1], got {alpha}")
-    if n_coeffs is not None and not 1 <= n_coeffs <= int(np.prod(a.shape)):
-        raise UsageError(f"n_coeffs must be in [1, {int(np.prod(a.shape))}] (the grid's "
-                         f"entries), got {n_coeffs}")
+    check("alpha", alpha, PARAMETERS["alpha"])
+    if n_coeffs is not None:
+        check("n_coeffs (at most the grid's entries)", n_coeffs,
+              PARAMETERS["n_coeffs"].capped(int(np.prod(a.shape))))
     same = a.basis == b.basis
     # B's coded channels -> A's: R = M_A M_B^T (the identity, exactly, for one basis)
     mix = np.eye(3) if same else colour_matrix(a.basis) @ colour_matrix(b.basis).T

@@ -54,6 +54,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..coords import bin_angles, cos_io
+from ..params import check_choice
 from ..transforms import COS_CLIP, colour_matrix
 
 #: The ``sparse_brdf`` plugin's decoders ("auto": :func:`choose_decoder` picks one).
@@ -65,6 +66,9 @@ LAYOUTS = ("auto", "union", "slots")
 #: Both plugins' sampling modes: cosine-weighted hemisphere, or that mixed with the
 #: glossy lobe of :func:`fit_lobe`.
 SAMPLING = ("cosine", "lobe")
+
+#: The plugins' defaults of those choices (``sparse-brdf render`` takes them too).
+PLUGIN_DEFAULTS = {"decoder": "auto", "layout": "auto", "sampling": "cosine"}
 
 #: ``decoder="auto"`` uses "grouped" unless its tables would take more than this many
 #: bytes (all three channels), then "strict". The grouped decoder is many times faster
@@ -397,11 +401,9 @@ def grouped_layout(chans, shape, kind: str | None = None) -> GroupedLayout:
     _check_modes(chans)
     if kind is None:
         kind, _ = layout_for([{(ch.source, int(a)) for a in ch.atoms} for ch in chans])
-    if kind == "slots":
+    if check_choice("grouped layout", kind, LAYOUTS[1:]) == "slots":  # "union", "slots"
         return slot_layout(chans, shape)
-    if kind == "union":
-        return union_layout(chans, shape)
-    raise ValueError(f"unknown grouped layout {kind!r}: expected slots or union")
+    return union_layout(chans, shape)
 
 
 def layout_eval(layout: GroupedLayout, ch: GroupedChannel, bins):
@@ -433,9 +435,7 @@ def grouped_bytes(model, ensemble) -> int:
 def choose_decoder(decoder: str, model, ensemble,
                    max_bytes: int = AUTO_GROUPED_MAX_BYTES) -> str:
     """Resolve ``"auto"`` to "grouped" or "strict"; check the name."""
-    if decoder not in DECODERS:
-        raise ValueError(f"unknown decoder {decoder!r}: expected grouped, strict or auto")
-    if decoder != "auto":
+    if check_choice("decoder", decoder, DECODERS) != "auto":
         return decoder
     return "grouped" if grouped_bytes(model, ensemble) <= max_bytes else "strict"
 
@@ -519,7 +519,7 @@ def model_x(model, ensemble, bins, decoder: str = "grouped",
         xs = np.stack([strict_eval(strict_channel(*channel_terms(model, ensemble, c)), bins)
                        for c in range(3)])
     else:
-        raise ValueError(f"unknown decoder {decoder!r}: expected grouped or strict")
+        check_choice("decoder", decoder, DECODERS[:2])
     return mix_channels(xs, model.basis)
 
 

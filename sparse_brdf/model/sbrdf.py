@@ -38,6 +38,7 @@ import numpy as np
 from ..brdf import BRDF
 from ..errors import BRDFFileError, EnsembleMismatchError
 from ..fileio import atomic_write, require_file
+from ..params import check_choice
 from ..transforms import TRANSFORMS
 from .ensemble import Ensemble, resolve_ensemble
 from .sparse import SparseBRDF
@@ -47,6 +48,13 @@ MAGIC = b"SBRDF\r\n\x1a"
 VERSION = 2
 #: Every version this reader knows (and the writer can write).
 VERSIONS = (1, 2)
+
+
+def check_version(version: int) -> int:
+    """``version`` if this writer can write it (:data:`VERSIONS`), else a
+    :class:`~sparse_brdf.errors.UsageError` naming the versions."""
+    return check_choice(".sbrdf version", version, VERSIONS)
+
 _PREFIX = struct.Struct("<8sH")  # magic, version: enough to dispatch
 _HEAD = struct.Struct("<8sHBB3H16s3H3IB")  # version 1; also the first 53 bytes of v2
 _HEAD2 = struct.Struct("<8sHBB3H16s3H3IBB3hII")
@@ -90,9 +98,7 @@ def min_file_size(name_len: int = 0, version: int = VERSION) -> int:
 
 def to_bytes(model: SparseBRDF, version: int = VERSION) -> bytes:
     """Serialise ``model`` as a ``.sbrdf`` file of ``version`` (1 or 2; see module doc)."""
-    if version not in VERSIONS:
-        raise ValueError(f"unknown .sbrdf version {version}: this writer knows "
-                         f"{', '.join(map(str, VERSIONS))}")
+    check_version(version)
     name = model.name.encode("utf-8")[:255]
     if any(n > 0xFFFF for n in model.shape) or int(np.prod(model.shape)) > 0xFFFFFFFF:
         raise ValueError(f"grid {model.shape} is too large for the .sbrdf format")

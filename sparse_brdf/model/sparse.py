@@ -8,7 +8,7 @@ import numpy as np
 
 from ..brdf import BRDF
 from ..coords import dirs_to_bins, geometric_valid
-from ..errors import EnsembleMismatchError, InvalidBRDFError
+from ..errors import EnsembleMismatchError, InvalidBRDFError, short
 from ..parallel import parallel_map
 from ..transforms import check_basis, check_transform, from_basis, inverse, inverse_at_bins
 from .ensemble import Ensemble
@@ -74,6 +74,12 @@ class SparseBRDF:
                 raise InvalidBRDFError(
                     f"{self.name}: channel {c}'s coefficients (largest |s| "
                     f"{float(np.abs(v).max()):.3g}) are larger than any finite BRDF's")
+
+    def __repr__(self) -> str:
+        return (f"SparseBRDF({short(self.name)!r}, shape={self.shape}, "
+                f"transform={self.transform!r}, basis={self.basis!r}, "
+                f"coefficients={self.n_coeffs.tolist()}, "
+                f"dictionaries={self.dict_index.tolist()}, ensemble={self.ensemble_id[:8]})")
 
     @property
     def n_coeffs(self) -> np.ndarray:

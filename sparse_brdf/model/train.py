@@ -36,6 +36,7 @@ import numpy as np
 from ..errors import UsageError
 from ..parallel import Executor, InProcess, blas_single_thread, parallel_map
 from ..parallel import executor as open_executor
+from ..params import SEED, Interval, check, check_choice
 from .checkpoint import TrainState, fingerprint, load_checkpoint, run_options, save_checkpoint
 from .ensemble import Ensemble
 from .pruning import PrunedSearch, slice_order
@@ -64,9 +65,18 @@ DEFAULT_MAX_MOVED = 0.01
 #: training error itself) and ``random`` (random balanced clusters, the first trainer's).
 INITS: tuple[str, ...] = ("seeded", "random")
 DEFAULT_INIT = "seeded"
+#: The trainer's parameters a user sets, declared once (:mod:`sparse_brdf.params`; the
+#: CLI's bounds): ``tau`` at most a tensor's entries and ``n_dicts`` at most the tensors,
+#: checked against the data by :func:`_check_training_args`.
+PARAMETERS = {
+    "tau": Interval(int, 1), "n_dicts": Interval(int, 1), "n_iter": Interval(int, 0),
+    "reassign_every": Interval(int, 1), "tol": Interval(float, 0.0),
+    "max_moved": Interval(float, 0.0, 1.0), "init": INITS, "seed": SEED,
+}
 
 
-def _code(s: np.ndarray, tau: int) -> tuple[np.ndarray, np.ndarray, float]:
+def _keep_largest(s: np.ndarray, tau: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """The ``tau`` largest |s| of a projection: (flat indices, values, kept energy)."""
     flat = s.ravel()
     e = flat * flat
     idx = top_k(e, tau)
@@ -79,7 +89,7 @@ def _code_tensor(data: TensorStore, i: int, s: np.ndarray, tau: int, u) -> tuple
     Returns (idx, val, error, fill): error is the squared error over the tensor's valid
     bins; masked, ``fill`` holds the free-bin values of the new reconstruction (once they
     are filled in, ``error`` is the error over the whole filled tensor)."""
-    idx, val, kept = _code(s, tau)
+    idx, val, kept = _keep_largest(s, tau)
     err = data.norms[i] - kept
     if not data.masked:
         return idx, val, err, None
@@ -177,7 +187,7 @@ def _assign_all(data: TensorStore, state_u, tau, progress, known=None) -> tuple[
         else:
             found = {}
             for j in cands:
-                idx, val, kept = _code(project(xi, u1[j], u2[j], u3[j]), tau)
+                idx, val, kept = _keep_largest(project(xi, u1[j], u2[j], u3[j]), tau)
                 found[j] = (idx, val, data.norms[i] - kept)
         if own >= 0:
             found[own] = (known[1][i], known[2][i], known[3][i])
@@ -325,7 +335,7 @@ def _init_state(data: Shards, tau, n_dicts, rng, init: str = "random") -> TrainS
     elif init == "seeded":
         labels = _seed_labels(data, tau, n_dicts, rng)
     else:
-        raise UsageError(f"unknown init {init!r}: expected one of {', '.join(INITS)}")
+        check_choice("init", init, INITS)
     sums = [[np.zeros((m, m)) for m in (n1, n2, n3)] for _ in range(n_dicts)]
     for part in data.run(shard_gram_sums, data.slices(labels), n_dicts):  # shard order
         for j in range(n_dicts):
@@ -384,15 +394,11 @@ def _check_training_args(x, tau: int, n_dicts: int, init: str = DEFAULT_INIT,
     x = np.asarray(x) if not isinstance(x, np.memmap) else x
     if x.ndim != 4:
         raise UsageError(f"training tensors must have shape (N, n1, n2, n3), got {x.shape}")
-    if tau < 1 or tau > np.prod(x.shape[1:]):
-        raise UsageError(f"tau must be in [1, {np.prod(x.shape[1:])}], got {tau}")
-    if n_dicts < 1 or n_dicts > len(x):
-        raise UsageError(f"n_dicts must be in [1, {len(x)}] (one tensor per cluster at least), "
-                         f"got {n_dicts}")
-    if init not in INITS:
-        raise UsageError(f"unknown init {init!r}: expected one of {', '.join(INITS)}")
-    if reassign_every < 1:
-        raise UsageError(f"reassign_every must be >= 1, got {reassign_every}")
+    check("tau", tau, PARAMETERS["tau"].capped(int(np.prod(x.shape[1:]))))
+    check("n_dicts (one tensor per cluster at least)", n_dicts,
+          PARAMETERS["n_dicts"].capped(len(x)))
+    check_choice("init", init, INITS)
+    check("reassign_every", reassign_every, PARAMETERS["reassign_every"])
     return x
 
 

@@ -21,6 +21,7 @@ from pathlib import Path
 from ..brdf import BRDF
 from ..coords import MERL_SHAPE
 from ..errors import MissingDataError, UsageError
+from ..params import check_choice
 from ..paths import DEMO_MATERIALS_DIR, shared_data_dir
 from .catalog import mitsuba_catalog
 from .load import load_brdf
@@ -42,6 +43,12 @@ class Material:
         return brdf
 
 
+#: The splits of a corpus (``Corpus.split``; a bench's and the trainer's ``split``).
+SPLITS: tuple[str, ...] = ("train", "test", "all")
+#: The corpora the trainer reads unless told otherwise (``sparse-brdf train --corpus``).
+TRAINING_CORPORA: tuple[str, ...] = ("merl", "rgl", "mitsuba")
+
+
 @dataclass(frozen=True)
 class Corpus:
     name: str
@@ -51,10 +58,8 @@ class Corpus:
 
     def split(self, which: str = "all") -> list[Material]:
         """``"train"``, ``"test"`` or ``"all"`` materials, in name order."""
-        if which == "all":
+        if check_choice("split", which, SPLITS) == "all":
             return list(self.materials)
-        if which not in ("train", "test"):
-            raise UsageError(f"split must be 'train', 'test' or 'all', got {which!r}")
         if self.test_only:
             return list(self.materials) if which == "test" else []
         test = set(test_names(self.name, [m.name for m in self.materials]))
