@@ -19,6 +19,7 @@ import numpy as np
 from .coords import GRID_BINS, GRID_SIDE, check_grid
 from .errors import (
     BRDFFileError,
+    EnsembleMismatchError,
     ImageFileError,
     InvalidBRDFError,
     SparseBRDFError,
@@ -26,7 +27,7 @@ from .errors import (
     one_line,
 )
 from .evaluation.batch import encode_batch, encode_file, is_batch
-from .evaluation.bench import Bench, BenchConfig
+from .evaluation.bench import Bench, BenchConfig, check_config
 from .evaluation.fit_scene import fit_scene
 from .evaluation.render import (
     RENDER_PARAMETERS,
@@ -279,9 +280,15 @@ def cmd_decode(args: argparse.Namespace) -> int:
 
 def cmd_blend(args: argparse.Namespace) -> int:
     _check_outputs([args.output], [args.a, args.b, args.ensemble])
-    ens = resolve_ensemble(args.ensemble, for_id=load_sbrdf(args.a).ensemble_id)
+    try:  # the shipped ensemble A names, unless one is given
+        ens = resolve_ensemble(args.ensemble, for_id=load_sbrdf(args.a).ensemble_id)
+    except EnsembleMismatchError as exc:
+        raise EnsembleMismatchError(f"{args.a}: {exc}") from exc
     n = None if args.coeffs is None else check_n_coeffs(args.coeffs, ens)
     a, b = load_sbrdf(args.a, ens), load_sbrdf(args.b, ens)
+    if a.transform != b.transform:
+        raise UsageError(f"cannot blend {args.a} ({a.transform}) with {args.b} "
+                         f"({b.transform}): encode both with the same --transform")
     out = save_sbrdf(args.output, interpolate(a, b, args.alpha, ens, n))
     print(f"wrote {out}")
     return 0
@@ -369,6 +376,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
         cfg.out = args.out
     if args.no_render:
         cfg.render = False
+    plan = check_config(cfg)  # a config the run would refuse fails here, before any work
+    if args.check:
+        skipped = "".join(f"; skips {k}: {v}" for k, v in plan["skipped_scenes"].items())
+        print(f"{cfg.label}: ok: {plan['materials']} materials x {len(plan['models'])} "
+              f"models, {plan['training']} training materials, scenes "
+              f"{', '.join(plan['scenes']) or 'none'}{skipped}")
+        return 0
     with executor(args.workers, args.scheduler) as ex:
         Bench(cfg).run(ex)
     print(f"wrote {cfg.out}/report.md, results.csv, results.json")
@@ -617,6 +631,9 @@ def _add_blend_and_bench(sub) -> None:
     b.add_argument("config", nargs="?", help="TOML config (default: built-in small suite)")
     b.add_argument("--out", help="output folder (overrides the config's)")
     b.add_argument("--no-render", action="store_true", help="BRDF-space metrics only")
+    b.add_argument("--check", action="store_true",
+                   help="check the config (settings, models, corpora, training materials, "
+                        "scenes) and exit without running it")
     _add_where(b, "the cells (material x model)")
     b.set_defaults(func=cmd_bench)
 

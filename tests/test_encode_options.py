@@ -170,7 +170,8 @@ def test_options_are_checked():
     assert check_options(basis="opponent")["budget"] == "joint"
     assert check_options(fill="invalid")["fill_iters"] == 3
     for bad, match in ((dict(fill="all"), "unknown fill"), (dict(basis="xyz"), "colour basis"),
-                       (dict(budget="x"), "unknown budget"), (dict(fill_iters=-1), "fill_iters must be an integer in"),
+                       (dict(budget="x"), "unknown budget"),
+                       (dict(fill_iters=-1), "fill_iters must be an integer in"),
                        (dict(colour="rgb"), "unknown encoding option")):
         with pytest.raises(ValueError, match=match):
             check_options(**bad)

@@ -93,7 +93,8 @@ def test_one_sbrdf_version_check(small_ensemble):
                    [[0]] * 3, [[1.0]] * 3)
     messages = set()
     for call in (lambda: check_version(3), lambda: to_bytes(m, 3),
-                 lambda: check_budget("x", 1000, 3), lambda: SparseModel(small_ensemble, version=3)):
+                 lambda: check_budget("x", 1000, 3),
+                 lambda: SparseModel(small_ensemble, version=3)):
         with pytest.raises(UsageError) as err:
             call()
         messages.add(str(err.value))

@@ -617,3 +617,114 @@ def test_sigint_during_encode(tmp_path):
     assert p.returncode == 128 + signal.SIGINT, err
     assert len(err.splitlines()) == 1 and "SIGINT" in err and "Traceback" not in err
     assert leftovers(out) == []
+
+
+# ------------------------------------------------- user situations, not bugs; paths named
+
+
+def test_bench_whose_pca_would_train_on_its_test_materials(capsys, tmp_path, merl):
+    """split = "all" over a folder leaves PCA no material it is not scored on: one line
+    naming the config, exit 2, from the check and from a run, and nothing written."""
+    folder = tmp_path / "mats"
+    folder.mkdir()
+    for name in ("a", "b", "c"):
+        (folder / f"{name}.binary").write_bytes(merl.read_bytes())
+    cfg = tmp_path / "fair.toml"
+    cfg.write_text(f'corpora = ["{folder}"]\nsplit = "all"\nmodels = ["naive", "pca:2"]\n'
+                   'stability = false\nspeed = false\n')
+    for extra in (["--check"], ["--out", tmp_path / "out", "--no-render"]):
+        line = fails(capsys, "bench", cfg, *extra, names=["fair.toml", "pca-2", "split"])
+        assert "bug" not in line
+    assert not (tmp_path / "out").exists()
+    cfg.write_text(f'corpora = ["{folder}"]\nsplit = "all"\nmodels = ["naive"]\n')
+    # the stability suite's default models hold a PCA model too
+    fails(capsys, "bench", cfg, "--check", names=["fair.toml", "pca-40"])
+    cfg.write_text(f'corpora = ["{folder}"]\nsplit = "all"\nmodels = ["naive"]\n'
+                   'stability_models = ["naive"]\n')
+    code, out, _ = run(capsys, "bench", cfg, "--check")
+    assert code == 0 and "3 materials x 1 models" in out
+
+
+def test_render_to_a_full_disk_names_the_output(tmp_path):
+    """The EXR writer fails for real (a file-size limit stands for a full disk: the
+    write returns EFBIG): one line naming the output, exit 2, nothing left behind."""
+    out = tmp_path / "img.exr"
+    code = (
+        "import functools, resource, signal, sys\n"
+        "import numpy as np\n"
+        "import sparse_brdf.cli as cli\n"
+        "signal.signal(signal.SIGXFSZ, signal.SIG_IGN)\n"
+        "cli.render_scene = functools.wraps(cli.render_scene)(lambda *a, **k: "
+        "np.random.default_rng(0).random((64, 64, 3), np.float32))\n"  # ~40 kB, no Mitsuba
+        "resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))\n"
+        f"sys.exit(cli.main(['render', 'sphere.xml', '-o', {str(out)!r}]))\n")
+    run_ = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          cwd=tmp_path, timeout=120)
+    lines = run_.stderr.splitlines()
+    assert run_.returncode == 2, run_.stderr
+    assert len(lines) == 1 and "img.exr" in lines[0] and "bug" not in lines[0], lines
+    assert leftovers(tmp_path) == []
+
+
+def test_exr_writer_errors_are_output_errors(tmp_path, monkeypatch):
+    class Full:
+        def __init__(self, *a):
+            pass
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *a):
+            return False
+
+        def write(self, name):
+            raise RuntimeError(f'Cannot write image file "{name}". No space left on device.')
+
+    monkeypatch.setattr(OpenEXR, "File", Full)
+    with pytest.raises(OutputError, match="x.exr.*No space left"):
+        write_exr(tmp_path / "x.exr", np.zeros((4, 4, 3), np.float32))
+    assert leftovers(tmp_path) == []
+
+
+def test_encode_on_another_grid_names_the_file(capsys, tmp_path, ens_file):
+    src = write_merl(tmp_path / "smallgrid.binary",
+                     constant_brdf((0.2, 0.1, 0.05), shape=(4, 4, 8), name="smallgrid"))
+    line = fails(capsys, "encode", src, "-o", tmp_path / "x.sbrdf", "--ensemble", ens_file,
+                 names=[src, "(4, 4, 8)"])
+    assert line.split("error: ")[1].startswith(str(src))
+    assert leftovers(tmp_path) == ["smallgrid.binary"]
+
+
+def test_blend_errors_name_the_files(capsys, tmp_path, merl, ens_file):
+    a, b = tmp_path / "good.sbrdf", tmp_path / "other.sbrdf"
+    for out, t in ((a, "log-plus"), (b, "log-plus-cosine")):
+        assert main(["encode", str(merl), "-o", str(out), "--coeffs", "20", "--transform", t,
+                     "--ensemble", str(ens_file)]) == 0
+    capsys.readouterr()
+    fails(capsys, "blend", a, b, "--alpha", "0.5", "-o", tmp_path / "c.sbrdf", "--ensemble",
+          ens_file, names=[a, b, "log-plus-cosine"])
+    # without --ensemble: A names an ensemble that is not shipped
+    line = fails(capsys, "blend", a, b, "--alpha", "0.5", "-o", tmp_path / "c.sbrdf",
+                 names=[a, load_sbrdf(a).ensemble_id, "--ensemble"])
+    assert "not shipped" in line
+    assert not (tmp_path / "c.sbrdf").exists()
+
+
+def test_encode_caps_coeffs_to_a_small_grid(capsys, tmp_path):
+    """The default --coeffs (262) is a maximum: on a 4 x 4 x 8 grid (128 per channel) it
+    is capped silently; a number the user gave is capped with a note on stderr."""
+    rng = np.random.default_rng(3)
+    shape = (4, 4, 8)
+    ens = Ensemble(*[np.stack([random_orthonormal(n, rng)]) for n in shape],
+                   taus=np.array([8])).save(tmp_path / "tiny.npz")
+    src = write_merl(tmp_path / "tiny.binary", constant_brdf((0.3, 0.2, 0.1), shape=shape))
+    code, out, err = run(capsys, "encode", src, "-o", tmp_path / "d.sbrdf", "--ensemble", ens)
+    assert code == 0 and err == "" and "wrote" in out
+    code, out, err = run(capsys, "encode", src, "-o", tmp_path / "g.sbrdf", "--ensemble", ens,
+                         "--coeffs", "300")
+    assert code == 0 and err.count("\n") == 1 and "--coeffs 300" in err and "128" in err
+    at_most = tmp_path / "m.sbrdf"
+    assert main(["encode", str(src), "-o", str(at_most), "--ensemble", str(ens),
+                 "--coeffs", "128"]) == 0
+    assert (tmp_path / "d.sbrdf").read_bytes() == at_most.read_bytes() == \
+        (tmp_path / "g.sbrdf").read_bytes()

@@ -58,7 +58,7 @@ from .report import write_report
 from .speed import evals_per_second
 from .stability import run_stability
 
-__all__ = ["Bench", "BenchConfig"]
+__all__ = ["Bench", "BenchConfig", "check_config"]
 
 
 def shipped_configs() -> list[str]:
@@ -103,6 +103,14 @@ class BenchConfig:
     stability: bool = True
     stability_models: list[str] = field(default_factory=lambda: [
         "sparse:262", "naive", "cpd:1", "pca:40"])
+    #: The file the config was read from (None: the defaults); not a setting (no
+    #: annotation), so results do not depend on where the config lives.
+    source = None
+
+    @property
+    def label(self) -> str:
+        """The config as messages name it: its file, or "the default bench config"."""
+        return str(self.source) if self.source else "the default bench config"
 
     def __repr__(self) -> str:
         return (f"BenchConfig(corpora={short(', '.join(self.corpora), 40)!r}, "
@@ -133,7 +141,9 @@ class BenchConfig:
             _check_setting(path, key, value, cls.__dataclass_fields__[key].type)
         for spec in data.get("models", []) + data.get("stability_models", []):
             _check_model_spec(path, spec)
-        return cls(**data)
+        cfg = cls(**data)
+        cfg.source = path
+        return cfg
 
 
 #: Largest bench config read (the shipped ones are under 2 kB).
@@ -173,6 +183,78 @@ def _check_model_spec(path: Path, spec) -> None:
         parse_spec(spec)
     except UsageError as exc:
         raise ConfigError(f"{path}: {exc}") from None
+
+
+def evaluated_materials(cfg: BenchConfig) -> list:
+    """The materials ``cfg`` evaluates: each corpus's split, at most ``max_materials``."""
+    mats = []
+    for c in cfg.corpora:
+        mats += get_corpus(c).split(cfg.split)[: cfg.max_materials]
+    return mats
+
+
+def training_materials(cfg: BenchConfig, evaluated) -> list:
+    """Training materials for learned models: the corpora's training splits, minus every
+    evaluated material (a model never sees what it is scored on), at most
+    ``pca_train_max``."""
+    seen = {_key(m) for m in evaluated}
+    train = []
+    for c in cfg.corpora:
+        train += [m for m in get_corpus(c).split("train") if _key(m) not in seen]
+    return train[: cfg.pca_train_max]
+
+
+def _check_training_set(cfg: BenchConfig, learners: list, train: list) -> None:
+    """:class:`ConfigError` naming the config unless the models that learn (PCA) have at
+    least 2 training materials that the bench does not evaluate."""
+    if learners and len(train) < 2:
+        raise ConfigError(
+            f"{cfg.label}: model {learners[0].name} needs at least 2 training materials that "
+            f"the bench does not evaluate; corpora {', '.join(cfg.corpora)} with split = "
+            f"{cfg.split!r} leave {len(train)} (use split = 'test', or drop the PCA models)")
+
+
+def check_config(cfg: BenchConfig) -> dict:
+    """Check what a run of ``cfg`` needs, without running, reading a material or writing
+    anything: its ensemble, every model (sparse ones over that ensemble), the corpora and
+    their split, the training materials of the models that learn, and its scenes (a
+    scene whose data is absent would be skipped, and is listed so).
+
+    Parameters
+    ----------
+    cfg : BenchConfig
+        A loaded config (its settings and model specs are checked by
+        :meth:`BenchConfig.load`).
+
+    Returns
+    -------
+    dict
+        ``materials`` (evaluated), ``training`` (for the learned models), ``models``
+        (names), ``scenes`` (that would run) and ``skipped_scenes`` (name: reason).
+
+    Raises
+    ------
+    SparseBRDFError
+        The first problem, naming the config, the corpus, the scene or the ensemble.
+    """
+    ens = resolve_ensemble(cfg.ensemble)
+    models = [make_model(s, ens) for s in cfg.models]
+    smodels = [make_model(s, ens) for s in cfg.stability_models] if cfg.stability else []
+    mats = evaluated_materials(cfg)
+    learners = [m for m in models + smodels if m.learns]
+    train = training_materials(cfg, mats) if learners else []
+    _check_training_set(cfg, learners, train)
+    scenes, skipped = [], {}
+    for name in cfg.scenes if cfg.render else []:
+        path = find_scene(name)
+        try:
+            check_scene_data(path)
+        except MissingDataError as exc:
+            skipped[path.name] = str(exc)
+            continue
+        scenes.append(path.name)
+    return {"materials": len(mats), "training": len(train),
+            "models": [m.name for m in models], "scenes": scenes, "skipped_scenes": skipped}
 
 
 def _key(m) -> str:
@@ -224,20 +306,13 @@ class Bench:
         with atomic_write(self.out / "results.json", "w") as f:
             json.dump(self.results, f, indent=1)
 
-    def materials(self):
-        mats = []
-        for c in self.cfg.corpora:
-            mats += get_corpus(c).split(self.cfg.split)[: self.cfg.max_materials]
-        return mats
+    def materials(self) -> list:
+        """The materials the bench evaluates (:func:`evaluated_materials`)."""
+        return evaluated_materials(self.cfg)
 
     def training_materials(self, evaluated) -> list:
-        """Training materials for learned models: the corpora's training splits, minus
-        every evaluated material (a model never sees what it is scored on)."""
-        seen = {_key(m) for m in evaluated}
-        train = []
-        for c in self.cfg.corpora:
-            train += [m for m in get_corpus(c).split("train") if _key(m) not in seen]
-        return train[: self.cfg.pca_train_max]
+        """Training materials for learned models (:func:`training_materials`)."""
+        return training_materials(self.cfg, evaluated)
 
     def _resolve_scenes(self) -> None:
         """The config's scenes that can run here; the others are skipped with a reason."""
@@ -334,11 +409,7 @@ class Bench:
         train = self.training_materials(evaluated)
         overlap = {_key(m) for m in train} & {_key(m) for m in evaluated}
         assert not overlap, f"training and evaluated materials overlap: {sorted(overlap)}"
-        if len(train) < 2:
-            raise ValueError(
-                f"{needs[0].name}: needs at least 2 training materials that the bench does not "
-                f"evaluate; corpora {self.cfg.corpora} with split = {self.cfg.split!r} leave "
-                f"{len(train)} (use split = 'test', or drop the PCA models)")
+        _check_training_set(self.cfg, needs, train)
         brdfs = [m.load() for m in train]
         for m in needs:
             m.fit(brdfs)

@@ -29,6 +29,7 @@ import OpenEXR
 from ..errors import (
     ImageFileError,
     MissingDataError,
+    OutputError,
     RenderError,
     SceneError,
     SparseBRDFError,
@@ -387,14 +388,20 @@ def noise_floor_snr(reference: np.ndarray, reference2: np.ndarray,
 
 
 def write_exr(path: str | os.PathLike, img: np.ndarray) -> Path:
-    """Write a linear float32 RGB image (H, W, 3) as an EXR file, atomically."""
+    """Write a linear float32 RGB image (H, W, 3) as an EXR file, atomically;
+    :class:`OutputError` naming ``path`` if the system refuses (a full disk, a file size
+    limit), with nothing left behind."""
     path = Path(path)
     arr = np.ascontiguousarray(np.asarray(img, dtype=np.float32))
     if arr.ndim != 3 or arr.shape[2] != 3:
-        raise ValueError(f"{path}: expected an image of shape (H, W, 3), got {arr.shape}")
+        raise ImageFileError(f"{path}: expected an image of shape (H, W, 3), got "
+                             f"{arr.shape}")
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     with atomic_path(path, suffix=".exr") as tmp, OpenEXR.File(header, {"RGB": arr}) as f:
-        f.write(str(tmp))
+        try:
+            f.write(str(tmp))
+        except RuntimeError as exc:  # OpenEXR's I/O errors (ENOSPC, EFBIG, ...)
+            raise OutputError(f"{path}: cannot write the EXR image: {exc}") from exc
     return path
 
 

@@ -362,7 +362,8 @@ def encode(
     """
     ens = resolve_ensemble(ensemble)
     if brdf.shape != ens.shape:
-        raise EnsembleMismatchError(f"{brdf.name}: BRDF grid {brdf.shape} does not match the "
+        raise EnsembleMismatchError(f"{brdf.source or brdf.name}: BRDF grid {brdf.shape} "
+                                    "does not match the "
                          f"ensemble's {ens.shape}")
     check("n_coeffs", n_coeffs, PARAMETERS["n_coeffs"])
     if max_error is not None:
