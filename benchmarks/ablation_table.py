@@ -1,4 +1,5 @@
-"""Ablation table from one or more bench results (docs/results.md, "Ablation").
+"""Ablation table from one or more bench results (docs/results.md, "Accuracy at equal
+coefficients").
 
     .venv/bin/python benchmarks/ablation_table.py bench_ablation [bench_ablation_v2 ...]
 
