@@ -68,3 +68,10 @@ def test_scripts_import_no_sibling_script():
             bad += [f"{p.relative_to(ROOT)}: {n}" for n in names
                     if n.split(".")[0] in scripts - SHARED]
     assert bad == []
+
+
+def test_every_archived_experiment_has_a_readme_entry():
+    readme = (BENCH / "README.md").read_text()
+    archived = sorted(p.name for p in (BENCH / "archive").glob("*.py"))
+    assert archived
+    assert [n for n in archived if f"`archive/{n}`" not in readme] == []
