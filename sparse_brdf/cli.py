@@ -24,7 +24,7 @@ from .errors import (
     UsageError,
     one_line,
 )
-from .evaluation.batch import encode_batch, is_batch
+from .evaluation.batch import encode_batch, encode_file, is_batch
 from .evaluation.bench import Bench, BenchConfig
 from .evaluation.fit_scene import fit_scene
 from .evaluation.render import (
@@ -41,7 +41,6 @@ from .evaluation.render import (
 )
 from .fileio import check_output, cleanup_on_signals, remove_temporaries
 from .metrics import snr_forms
-from .model.budget import encode_to_bytes
 from .model.encode import (
     BUDGETS,
     DEFAULT_FILL_ITERS,
@@ -50,7 +49,7 @@ from .model.encode import (
     FILLS,
     PAPER_OPTIONS,
     SELECTORS,
-    encode,
+    check_n_coeffs,
 )
 from .model.ensemble import Ensemble, resolve_ensemble
 from .model.interpolate import interpolate
@@ -210,27 +209,22 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 def cmd_encode(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
-    options = {"selector": args.selector, "fill": args.fill, "basis": args.basis}
+    options = {"max_error": args.max_error, "transform": args.transform,
+               "fill_iters": args.fill_iters, "budget": args.budget,
+               "selector": args.selector, "fill": args.fill, "basis": args.basis}
     if args.paper:
         options.update(PAPER_OPTIONS)
     if is_batch(args.source):
         if args.bytes is not None:
             raise UsageError("--bytes: byte budgets encode one material at a time (not a "
                              "batch yet); give --coeffs for a batch")
-        return _encode_batch(args, options)
-    _check_outputs([args.output], [args.source, args.ensemble])
-    ens = resolve_ensemble(args.ensemble)
-    _check_coeffs(args.coeffs, ens)
-    if args.bytes is not None:
-        model = encode_to_bytes(load_brdf(args.source), ens, args.bytes,
-                                max_error=args.max_error, transform=args.transform,
-                                fill_iters=args.fill_iters, budget=args.budget, **options)
-    else:
-        model = encode(load_brdf(args.source), ens, args.coeffs,
-                       args.max_error, args.transform, fill_iters=args.fill_iters,
-                       budget=args.budget, **options)
+        with executor(args.workers, args.scheduler) as ex:
+            summary = encode_batch(args.source, args.output, args.ensemble,
+                                   {"n_coeffs": args.coeffs, **options}, ex)
+        return _report_batch(args, summary)
+    path, model = encode_file(args.source, args.output, args.ensemble, args.coeffs,
+                              args.bytes, **options)
     seconds = time.perf_counter() - t0
-    path = save_sbrdf(args.output, model)
     info = {"output": str(path), "bytes": path.stat().st_size, "seconds": seconds,
             "transform": model.transform, "coefficients": model.n_coeffs.tolist(),
             "dictionaries": model.dict_index.tolist(), **model.stats}
@@ -244,15 +238,8 @@ def cmd_encode(args: argparse.Namespace) -> int:
     return 0
 
 
-def _encode_batch(args: argparse.Namespace, options: dict) -> int:
-    """``encode DIR_OR_GLOB -o OUT_DIR``: exit status 1 if any material failed."""
-    options = {"n_coeffs": args.coeffs, "max_error": args.max_error,
-               "transform": args.transform, "fill_iters": args.fill_iters,
-               "budget": args.budget, **options}
-    ens = resolve_ensemble(args.ensemble)
-    _check_coeffs(args.coeffs, ens)
-    with executor(args.workers, args.scheduler) as ex:
-        summary = encode_batch(args.source, args.output, ens, options, ex)
+def _report_batch(args: argparse.Namespace, summary: dict) -> int:
+    """Print a batch's summary; exit status 1 if any material failed."""
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
@@ -275,13 +262,6 @@ def _add_where(p: argparse.ArgumentParser, what: str) -> None:
                    help=f"run {what} on an existing Dask cluster (e.g. tcp://host:8786)")
 
 
-def _check_coeffs(n: int | None, ens: Ensemble) -> None:
-    """Refuse ``--coeffs`` beyond the entries of the ensemble's grid."""
-    if n is not None and n > math.prod(ens.shape):
-        raise UsageError(f"--coeffs {n}: a channel of the {'x'.join(map(str, ens.shape))} "
-                         f"grid holds at most {math.prod(ens.shape)} coefficients")
-
-
 def cmd_decode(args: argparse.Namespace) -> int:
     _check_outputs([args.output], [args.source, args.ensemble])
     try:
@@ -296,7 +276,8 @@ def cmd_decode(args: argparse.Namespace) -> int:
 def cmd_blend(args: argparse.Namespace) -> int:
     _check_outputs([args.output], [args.a, args.b, args.ensemble])
     ens = resolve_ensemble(args.ensemble, for_id=load_sbrdf(args.a).ensemble_id)
-    _check_coeffs(args.coeffs, ens)
+    if args.coeffs is not None:
+        check_n_coeffs(args.coeffs, ens)
     a, b = load_sbrdf(args.a, ens), load_sbrdf(args.b, ens)
     out = save_sbrdf(args.output, interpolate(a, b, args.alpha, ens, args.coeffs))
     print(f"wrote {out}")

@@ -166,6 +166,40 @@ def test_lazy_imports_are_deliberate_and_explained():
     assert bad == []
 
 
+# The one module that starts threads, thread or process pools, Dask clients or BLAS
+# thread limits (docs/architecture.md, "Rules").
+PARALLEL = "sparse_brdf.parallel"
+POOL_MODULES = ("concurrent.futures", "multiprocessing", "threadpoolctl", "dask",
+                "distributed", "joblib")
+POOL_NAMES = {"Thread", "Timer", "ThreadPoolExecutor", "ProcessPoolExecutor", "Pool",
+              "ThreadpoolController", "threadpool_limits", "LocalCluster", "Client"}
+
+
+def _pool_makers(path: Path) -> list[str]:
+    """Where a file imports a pool module, or names a thread or pool class."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    hits = [f"{line}: imports {name}" for name, _, line in _imports(path)
+            if any(name == m or name.startswith(m + ".") for m in POOL_MODULES)]
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute) and node.attr in POOL_NAMES:
+            hits.append(f"{node.lineno}: uses .{node.attr}")
+        elif isinstance(node, ast.ImportFrom) and node.module == "threading":
+            hits += [f"{node.lineno}: imports threading.{a.name}" for a in node.names
+                     if a.name in POOL_NAMES]
+    return hits
+
+
+def test_only_parallel_creates_threads_and_pools():
+    """Thread pools, threads, process pools, Dask clusters and BLAS thread limits are made
+    in ``sparse_brdf/parallel.py`` alone; everything else maps through it."""
+    bad = [f"{p.relative_to(ROOT)}:{hit}" for pkg in PACKAGES for p in (ROOT / pkg).rglob("*.py")
+           if _module_name(p) != PARALLEL for hit in _pool_makers(p)]
+    assert bad == []
+    # and the check can fail: parallel.py itself makes a pool and limits BLAS
+    assert any("ThreadPoolExecutor" in h for h in _pool_makers(ROOT / "sparse_brdf/parallel.py"))
+    assert any("threadpoolctl" in h for h in _pool_makers(ROOT / "sparse_brdf/parallel.py"))
+
+
 def test_functions_stay_short():
     """No function over 80 lines, in the packages and in benchmarks/, unless its first
     line carries a ``# long:`` reason."""

@@ -9,9 +9,10 @@ import numpy as np
 from ..brdf import BRDF
 from ..coords import dirs_to_bins, geometric_valid
 from ..errors import EnsembleMismatchError, InvalidBRDFError
+from ..parallel import parallel_map
 from ..transforms import check_basis, check_transform, from_basis, inverse, inverse_at_bins
 from .ensemble import Ensemble
-from .tensor import parallel_map, reconstruct_sparse
+from .tensor import reconstruct_sparse
 
 #: The largest transformed value of a float32 BRDF, ln(1 + float32 max) (both transforms;
 #: cos_i cos_o <= 1). The coded channels are orthonormal maps of the transformed R, G, B
