@@ -33,8 +33,13 @@ class SNRForms(NamedTuple):
     object: float
 
     def as_dict(self) -> dict[str, float]:
-        """The two forms as ``{"snr_whole": dB, "snr_object": dB}`` (the keys the bench
-        records)."""
+        """The two forms under the keys the bench records.
+
+        Returns
+        -------
+        dict of str to float
+            ``{"snr_whole": whole, "snr_object": object}``, in dB.
+        """
         return {"snr_whole": self.whole, "snr_object": self.object}
 
     def __str__(self) -> str:
