@@ -319,46 +319,68 @@ def encode(
     basis: str = ENCODE_OPTIONS["basis"],
     budget: str | None = None,
 ) -> SparseBRDF:
-    """Encode ``brdf`` as a :class:`SparseBRDF` over ``ensemble`` (default: shipped one).
+    """Encode ``brdf`` as a :class:`SparseBRDF` over ``ensemble``.
 
     Parameters
     ----------
-    n_coeffs : at most this many coefficients per channel (default DEFAULT_N_COEFFS = 262,
-        the paper's); with a joint budget, at most 3 ``n_coeffs`` over the three channels.
-    max_error : optional relative squared residual in the transformed domain at which
-        coding stops adding coefficients (e.g. 1e-4); None keeps ``n_coeffs``. Per
-        channel, relative to the channel's ||Y_c||^2; with a joint budget, the total
-        residual relative to the total ||Y||^2 (the basis is orthonormal, so that is the
+    brdf : BRDF
+        The material: linear RGB values (n1, n2, n3, 3) on the ensemble's grid.
+    ensemble : Ensemble, optional
+        The dictionaries; default: the shipped default ensemble.
+    n_coeffs : int
+        At most this many coefficients per channel (default DEFAULT_N_COEFFS = 262, the
+        paper's); with a joint budget, at most 3 ``n_coeffs`` over the three channels.
+    max_error : float, optional
+        Relative squared residual in the transformed domain at which coding stops adding
+        coefficients (e.g. 1e-4), in [0, 1); None keeps ``n_coeffs``. Per channel,
+        relative to the channel's ||Y_c||^2; with a joint budget, the total residual
+        relative to the total ||Y||^2 (the basis is orthonormal, so that is the
         transformed R, G, B energy in either basis).
-    transform : "auto" (``selector`` picks), "log-plus" or "log-plus-cosine".
-    fill_iters : rounds of filling (see ``fill``); None: ``DEFAULT_FILL_ITERS[fill]``
-        (3 for either); 0 disables filling (the paper fits every invalid bin as zero).
-    selector : how "auto" picks the transform (``SELECTORS``): "render", the smaller
-        :func:`~sparse_brdf.metrics.render_proxy_error` (the default), or "gamma-mse",
-        the smaller gamma-mapped MSE (the paper's).
-    fill : which bins are filled from the model instead of being fitted as zeros
-        (``FILLS``). "missing" (the paper's, plus filling): unmeasured bins above the
-        horizon (negative entries in a MERL file), each round re-running the full
+    transform : str
+        ``"auto"`` (``selector`` picks), ``"log-plus"`` or ``"log-plus-cosine"``.
+    fill_iters : int, optional
+        Rounds of filling (see ``fill``); None: ``DEFAULT_FILL_ITERS[fill]`` (3 for
+        either); 0 disables filling (the paper fits every invalid bin as zero).
+    selector : str
+        How "auto" picks the transform (``SELECTORS``): ``"render"``, the smaller
+        :func:`~sparse_brdf.metrics.render_proxy_error` (the default), or
+        ``"gamma-mse"``, the smaller gamma-mapped MSE (the paper's).
+    fill : str
+        Which bins are filled from the model instead of being fitted as zeros
+        (``FILLS``). ``"missing"`` (the paper's, plus filling): unmeasured bins above
+        the horizon (negative entries in a MERL file), each round re-running the full
         dictionary search; a BRDF without such bins is encoded as in the paper.
-        "invalid" (the default): every invalid bin (below the horizon too) is a free
-        value; one dictionary search, then ``fill_iters``
-        least-squares fits to the valid bins on the chosen dictionaries, each followed
-        by a new support from the filled channels (:func:`_fill_invalid`), fewer if
-        the support repeats.
-    basis : colour basis of the coded channels (``transforms.COLOUR_BASES``): "opponent"
-        (the default: luminance / red-green / yellow-blue of the transformed channels)
-        or "rgb" (the paper's).
-    budget : "channel" (``n_coeffs`` per channel) or "joint" (3 ``n_coeffs`` over the
+        ``"invalid"`` (the default): every invalid bin (below the horizon too) is a free
+        value; one dictionary search, then ``fill_iters`` least-squares fits to the
+        valid bins on the chosen dictionaries, each followed by a new support from the
+        filled channels (:func:`_fill_invalid`), fewer if the support repeats.
+    basis : str
+        Colour basis of the coded channels (``transforms.COLOUR_BASES``):
+        ``"opponent"`` (the default: luminance / red-green / yellow-blue of the
+        transformed channels) or ``"rgb"`` (the paper's).
+    budget : str, optional
+        ``"channel"`` (``n_coeffs`` per channel) or ``"joint"`` (3 ``n_coeffs`` over the
         three channels, largest |s| first across the channels' chosen dictionaries);
         None: "joint" for the opponent basis, "channel" for rgb (``BUDGETS``).
 
-    ``result.stats`` holds, per transform tried: gamma-mapped MSE, plain MSE, RAE, the
-    render-proxy error, the relative residual per channel, how many of the 3 K (channel,
-    dictionary) projections were completed (the others were pruned, see
-    :func:`project_pruned`), ``budget`` (coefficients per channel and the coded
-    channels' share of the energy) and, when filling, ``fill`` (rounds; for "invalid"
-    the fits run and the valid-bin residual after each, and before the first). Beside
-    them: ``chosen``, ``selector`` and ``options`` (every option, defaults resolved).
+    Returns
+    -------
+    SparseBRDF
+        The encoding. ``result.stats`` holds, per transform tried: gamma-mapped MSE,
+        plain MSE, RAE, the render-proxy error, the relative residual per channel, how
+        many of the 3 K (channel, dictionary) projections were completed (the others
+        were pruned, see :func:`project_pruned`), ``budget`` (coefficients per channel
+        and the coded channels' share of the energy) and, when filling, ``fill``
+        (rounds; for "invalid" the fits run and the valid-bin residual after each, and
+        before the first). Beside them: ``chosen``, ``selector`` and ``options`` (every
+        option, defaults resolved).
+
+    Raises
+    ------
+    EnsembleMismatchError
+        If the BRDF's grid is not the ensemble's.
+    UsageError
+        For an option out of its range or choices.
     """
     ens = resolve_ensemble(ensemble)
     if brdf.shape != ens.shape:

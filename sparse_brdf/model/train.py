@@ -493,9 +493,15 @@ def train_dictionaries(
         Training tensors (transformed BRDF channels); may be a memory map. Never written.
     tau : int
         Coefficients kept per tensor in sparse coding.
-    n_iter, tol, max_moved : stop after ``n_iter`` iterations, or earlier once the latest
-        clustering moved at most a fraction ``max_moved`` of the tensors and an iteration
-        lowered the objective by less than ``tol`` (relative).
+    n_dicts : int
+        Dictionaries to learn (K).
+    n_iter, tol, max_moved : int, float, float
+        Stop after ``n_iter`` iterations, or earlier once the latest clustering moved at
+        most a fraction ``max_moved`` of the tensors and an iteration lowered the
+        objective by less than ``tol`` (relative).
+    seed : int
+        Seed of the initial clustering; the same seed, data, options and thread count
+        give the same dictionaries.
     reassign_every : int
         Clustering against every dictionary (K projections per tensor, the dominant cost)
         happens at every ``reassign_every``-th iteration, starting with the first;
@@ -505,7 +511,10 @@ def train_dictionaries(
     checkpoint : path, optional
         ``.npz`` written after every iteration; if it exists and matches the run's
         fingerprint, training resumes from it (a larger ``n_iter`` continues a run).
-    callback : called with the state after every iteration; returning True stops.
+    progress : bool
+        Show a tqdm progress bar per iteration.
+    callback : callable, optional
+        Called with the state after every iteration; returning True stops.
     masked : bool
         Fit valid bins only: bins below the horizon (``coords.geometric_valid``) and the
         bins in ``missing`` are free values, refilled from each tensor's reconstruction
@@ -514,12 +523,26 @@ def train_dictionaries(
     missing : {tensor index: bool array (n1, n2, n3)}, optional
         Unmeasured bins of the tensors that have any (``sources.dataset.training_data``);
         the channels of one material may share one array. Used only when masked.
-    init : ``"seeded"`` or ``"random"`` (:func:`_init_state`).
-    executor : where the per-tensor work runs (``parallel.executor``; default: here).
+    init : str
+        ``"seeded"`` or ``"random"`` initial clusters (:func:`_init_state`).
+    executor : Executor, optional
+        Where the per-tensor work runs (``parallel.executor``; default: here).
 
-    Returns the final :class:`TrainState`; ``state.history`` has one dict per iteration
-    (objective -- squared error over valid bins when masked --, relative objective,
-    tensors moved and their fraction, seconds).
+    Returns
+    -------
+    TrainState
+        The final state: the mode matrices, each tensor's dictionary and code, and
+        ``state.history``, one dict per iteration (objective -- squared error over valid
+        bins when masked --, relative objective, tensors moved and their fraction,
+        seconds).
+
+    Raises
+    ------
+    UsageError
+        For arguments out of range (``tau``, ``n_dicts``, ``init``, ``reassign_every``,
+        the tensors' shape), or a checkpoint of another training run.
+    BRDFFileError
+        For a checkpoint file that cannot be read.
     """
     from tqdm.auto import tqdm  # lazy: tqdm.auto adds ~40 ms to `import sparse_brdf`
 
@@ -575,11 +598,45 @@ def train_ensemble(
     """Train ``n_dicts`` dictionaries per sparsity in ``taus`` and unite them.
 
     The sparsities are trained one after another, each with its own seed derived from
-    ``seed``; with ``checkpoint_dir`` each writes ``tau-<tau>.npz`` there and resumes.
-    ``kwargs`` go to :func:`train_dictionaries` (``masked``, ``missing``, ``init``,
-    ``reassign_every``, ``tol``, ``max_moved``). ``meta`` is stored in the ensemble with
-    the training options, history and time taken. ``workers``/``scheduler``: where the
-    per-tensor work runs (``parallel.executor``; default: in this process).
+    ``seed``.
+
+    Parameters
+    ----------
+    x : ndarray of shape (N, n1, n2, n3), float32
+        Training tensors (transformed BRDF channels, e.g. from
+        ``sources.dataset.training_tensors``); may be a memory map. Never written.
+    taus : sequence of int
+        The training sparsities (coefficients per tensor), default (32, 64, 128, 256).
+    n_dicts : int
+        Dictionaries per sparsity.
+    n_iter : int
+        Iterations per sparsity (at most; see :func:`train_dictionaries`).
+    seed : int
+        The base seed.
+    checkpoint_dir : path, optional
+        Each sparsity writes ``tau-<tau>.npz`` there after every iteration and resumes
+        from it.
+    progress : bool
+        Show tqdm progress bars.
+    meta : dict, optional
+        Stored in the ensemble's ``meta`` with the training options, history and time
+        taken.
+    workers, scheduler : int, str, optional
+        Where the per-tensor work runs (``parallel.executor``: N local Dask workers, or a
+        scheduler's address; default: in this process).
+    **kwargs
+        Passed to :func:`train_dictionaries` (``masked``, ``missing``, ``init``,
+        ``reassign_every``, ``tol``, ``max_moved``).
+
+    Returns
+    -------
+    Ensemble
+        ``len(taus) * n_dicts`` dictionaries, sparsity by sparsity.
+
+    Raises
+    ------
+    UsageError, BRDFFileError
+        As :func:`train_dictionaries`.
     """
     seeds = np.random.SeedSequence(seed).generate_state(len(taus))
     parts, histories, init_seconds = [], {}, {}
