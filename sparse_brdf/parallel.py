@@ -42,7 +42,7 @@ from typing import Any, TypeVar
 
 from threadpoolctl import ThreadpoolController
 
-from .errors import UsageError
+from .errors import UsageError, WorkerLostError
 
 #: The Dask executor's byte counters (``Executor.stats``).
 STAT_KEYS = ("bytes_scattered", "bytes_sent", "bytes_received", "tasks")
@@ -227,7 +227,19 @@ class DaskExecutor:
         return self.client.submit(fn, *args, pure=False, **kw)
 
     def _result(self, fut) -> Any:
-        out = fut.result()
+        from concurrent.futures import CancelledError
+
+        from distributed import KilledWorker  # lazy: Dask is optional (see the module doc)
+
+        try:
+            out = fut.result()
+        except (CancelledError, KilledWorker) as exc:  # not the task's own error
+            raise WorkerLostError(
+                f"a Dask worker was lost while running {str(fut.key).split('-', 1)[0]} "
+                f"({type(exc).__name__}: "
+                f"{exc}); run the command again: training resumes from its "
+                "--checkpoint-dir, a batch encode or a bench from its output folder"
+            ) from exc
         self.stats["bytes_received"] += self._size(out)
         return out
 
