@@ -54,6 +54,7 @@ from sparse_brdf.sources.load import load_brdf
 from .kernels import (
     Ops,
     Shape,
+    SpectralUpsampling,
     VariantNamespace,
     angle_coords,
     bin_weight,
@@ -366,6 +367,8 @@ class GlossyBSDF:
         self._m.BSDF.__init__(self, props)
         self.m_flags = self._flags
         self.m_components = [self._flags]
+        if self._kind == "spectral":
+            self._upsampling()  # a missing or corrupt table fails at load, not in a render
 
     def _setup_sampling(self, sampling: str, profile, shape) -> None:
         self.sampling = sampling
@@ -376,6 +379,23 @@ class GlossyBSDF:
 
     def _rho(self, wi, wo, active):  # pragma: no cover - abstract
         raise NotImplementedError
+
+    def _colour(self, rgb, si):
+        """The variant's value of the linear-RGB BRDF value ``rgb`` (a Color3f): itself
+        in rgb variants, its luminance (``mi.luminance``) in mono ones, its spectrum at
+        ``si.wavelengths`` in spectral ones (:class:`~mitsuba_plugin.kernels.
+        SpectralUpsampling`). A Python branch at trace time: rgb kernels are unchanged."""
+        if self._kind == "rgb":
+            return rgb
+        if self._kind == "mono":
+            return self._m.UnpolarizedSpectrum(self._m.luminance(rgb))
+        return self._upsampling().spectrum(rgb, si.wavelengths)
+
+    def _out(self, value):
+        """``value`` (an UnpolarizedSpectrum) as the variant's Spectrum: in polarized
+        variants a depolarizing Mueller matrix (``mi.depolarizer``), which needs no
+        rotation between the local and world frames."""
+        return self._m.depolarizer(value) if self._polarized else value
 
     def _pdf(self, wi, wo):
         m = self._m
@@ -388,10 +408,10 @@ class GlossyBSDF:
 
     # Mitsuba interface ---------------------------------------------------------------
     def sample(self, ctx, si, sample1, sample2, active=True):
-        m, zero3 = self._m, self._zero3
+        m, zero = self._m, self._zero_s
         bs = dr.zeros(m.BSDFSample3f)
         if not ctx.is_enabled(m.BSDFFlags.GlossyReflection):
-            return bs, m.Color3f(zero3)
+            return bs, self._out(zero)
         wi = si.wi
         wo = m.warp.square_to_cosine_hemisphere(sample2)
         if self.sampling == "lobe":
@@ -406,17 +426,18 @@ class GlossyBSDF:
         bs.sampled_component = m.UInt32(0)
         co = m.Frame3f.cos_theta(wo)
         ok = active & (m.Frame3f.cos_theta(wi) > 0.0) & (co > 0.0) & (pdf > 0.0)
-        f = self._rho(wi, wo, ok)
+        f = self._colour(self._rho(wi, wo, ok), si)
         weight = f * (co / dr.maximum(pdf, 1e-30))
-        return bs, dr.select(ok, weight, zero3)
+        return bs, self._out(dr.select(ok, weight, zero))
 
     def eval(self, ctx, si, wo, active=True):
-        m, zero3 = self._m, self._zero3
+        m, zero = self._m, self._zero_s
         if not ctx.is_enabled(m.BSDFFlags.GlossyReflection):
-            return m.Color3f(zero3)
+            return self._out(zero)
         co = m.Frame3f.cos_theta(wo)
         ok = active & (m.Frame3f.cos_theta(si.wi) > 0.0) & (co > 0.0)
-        return dr.select(ok, self._rho(si.wi, wo, ok) * co, zero3)
+        f = self._colour(self._rho(si.wi, wo, ok), si)
+        return self._out(dr.select(ok, f * co, zero))
 
     def pdf(self, ctx, si, wo, active=True):
         if not ctx.is_enabled(self._m.BSDFFlags.GlossyReflection):
@@ -506,7 +527,7 @@ class TabulatedBRDF(GlossyBSDF):
         return acc
 
     def to_string(self):
-        return (f"TabulatedBRDF[filename={self.filename!r}, shape={self.shape}, "
+        return (f"{type(self).__name__}[filename={self.filename!r}, shape={self.shape}, "
                 f"sampling={self.sampling}, interpolate={self.interpolate}, "
                 f"memory_bytes={self.memory_bytes}]")
 
@@ -658,7 +679,7 @@ class SparseBSDF(GlossyBSDF):
         return self._m.Color3f(*out)
 
     def to_string(self):
-        return (f"SparseBRDF[filename={self.filename!r}, transform={self.transform}, "
+        return (f"{type(self).__name__}[filename={self.filename!r}, transform={self.transform}, "
                 f"basis={self.basis}, terms={self.n_terms}, decoder={self.decoder}, "
                 f"layout={self.layout}, sampling={self.sampling}, "
                 f"interpolate={self.interpolate}, memory_bytes={self.memory_bytes}]")
@@ -673,13 +694,70 @@ def _derive(blueprint: type, base: type, **attrs) -> type:
     return type(blueprint.__name__, (base,), {**body, **attrs})
 
 
-def make_classes(module) -> tuple[type, type]:
+#: What each kind of variant returns from ``eval``: its colour representation.
+VARIANT_KINDS = ("rgb", "mono", "spectral")
+
+
+def variant_kind(name: str) -> tuple[str, bool]:
+    """(colour kind, polarized) of the Mitsuba variant ``name``, e.g.
+    ``("spectral", True)`` for ``llvm_ad_spectral_polarized``; a :class:`PluginError`
+    naming the variant if the plugin cannot render in it."""
+    parts = name.split("_")
+    kinds = [k for k in VARIANT_KINDS if k in parts]
+    if len(kinds) != 1 or (parts[0] not in ("scalar", "llvm", "cuda")):
+        raise PluginError(f"mitsuba_plugin: the Mitsuba variant {name!r} is not supported "
+                          f"(expected a scalar, llvm or cuda variant of "
+                          f"{', '.join(VARIANT_KINDS)} colours)")
+    return kinds[0], "polarized" in parts
+
+
+def srgb_coeff_path() -> Path:
+    """Mitsuba's RGB-to-spectrum table, ``data/srgb.coeff`` (Mitsuba's file resolver,
+    else the installed package's folder)."""
+    import mitsuba as mi  # lazy: `import mitsuba_plugin` does not load Mitsuba
+
+    try:
+        p = Path(str(mi.file_resolver().resolve("data/srgb.coeff")))
+        if p.is_file():
+            return p
+    except Exception:  # noqa: BLE001 - fall back to the package folder
+        pass
+    return Path(mi.__file__).parent / "data" / "srgb.coeff"
+
+
+def _upsampling_loader(name: str, ops: Ops):
+    """A function returning the variant's :class:`SpectralUpsampling`, read once."""
+    box: list = []
+    lock = threading.Lock()
+
+    def get(_self=None):
+        with lock:
+            if not box:
+                path = srgb_coeff_path()
+                try:
+                    box.append(SpectralUpsampling(ops, path))
+                except (OSError, ValueError) as exc:
+                    raise PluginError(f"mitsuba_plugin: variant {name}: cannot read "
+                                      f"Mitsuba's spectral upsampling table {path}: "
+                                      f"{exc}") from exc
+        return box[0]
+
+    return get
+
+
+def make_classes(module, name: str | None = None) -> tuple[type, type]:
     """(TabulatedBRDF, SparseBSDF) of variant module ``module`` (e.g.
-    ``mitsuba.llvm_ad_rgb``): the classes above on that variant's ``mi.BSDF``."""
+    ``mitsuba.llvm_ad_rgb``, whose variant is ``name``, default: the module's own name):
+    the classes above on that variant's ``mi.BSDF``."""
     m = VariantNamespace(module)
+    name = name or m.name
+    kind, polarized = variant_kind(name)
+    ops = Ops(m)
     flags = m.BSDFFlags.GlossyReflection | m.BSDFFlags.FrontSide
-    base = _derive(GlossyBSDF, m.BSDF, _m=m, _ops=Ops(m), _flags=flags,
-                   _glossy=int(+m.BSDFFlags.GlossyReflection), _zero3=m.Color3f(0.0))
+    base = _derive(GlossyBSDF, m.BSDF, _m=m, _ops=ops, _flags=flags,
+                   _glossy=int(+m.BSDFFlags.GlossyReflection), _zero3=m.Color3f(0.0),
+                   _zero_s=m.UnpolarizedSpectrum(0.0), _kind=kind, _polarized=polarized,
+                   _upsampling=_upsampling_loader(name, ops))
     return _derive(TabulatedBRDF, base), _derive(SparseBSDF, base)
 
 
@@ -692,7 +770,8 @@ def _current_variant(variant: str | None = None) -> str:
 
     name = variant or mi.variant()
     if name is None:
-        raise RuntimeError("no Mitsuba variant is set: call mi.set_variant(...) first")
+        raise PluginError("mitsuba_plugin: no Mitsuba variant is set: call "
+                          "mi.set_variant(...) first")
     return name
 
 
@@ -700,7 +779,13 @@ def classes(variant: str | None = None) -> tuple[type, type]:
     """(TabulatedBRDF, SparseBSDF) classes of ``variant`` (default: the current one)."""
     name = _current_variant(variant)
     if name not in _CLASSES:
-        _CLASSES[name] = make_classes(importlib.import_module(f"mitsuba.{name}"))
+        variant_kind(name)  # an unsupported variant: one line naming it
+        try:
+            module = importlib.import_module(f"mitsuba.{name}")
+        except ImportError as exc:
+            raise PluginError(f"mitsuba_plugin: the Mitsuba variant {name!r} is not "
+                              f"available in this installation: {exc}") from exc
+        _CLASSES[name] = make_classes(module, name)
     return _CLASSES[name]
 
 
