@@ -17,6 +17,7 @@ The per-material data the kernels read is built with numpy by
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import os
 import threading
@@ -24,6 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import drjit as dr
+import numpy as np
 
 from sparse_brdf.errors import PluginError
 from sparse_brdf.model.ensemble import resolve_ensemble
@@ -51,6 +53,7 @@ from sparse_brdf.model.layouts import (
 from sparse_brdf.model.sbrdf import decode_file, load_sbrdf
 from sparse_brdf.sources.load import load_brdf
 
+from . import differentiable as dif
 from .kernels import (
     Ops,
     Shape,
@@ -306,12 +309,18 @@ def upload_strict(ops: Ops, lay) -> StrictBuffers:
     return StrictBuffers(values, packed, rows, per)
 
 
-def strict_x(ops: Ops, buf: StrictBuffers, shape: Shape, c: int, bins, lin, active):
+def strict_x(ops: Ops, buf: StrictBuffers, shape: Shape, c: int, bins, lin, active,
+             grad=None):
     """X of channel ``c``: one loop over its terms, sorted by (c, b, a), evaluating
     ``sum_c U3[k, c] sum_b U2[j, b] sum_a s U1[i, a]``; the partial sums are closed at
     the flagged ends of each b-group and c-group, so U2 and U3 are read once per group
     (numpy twin: :func:`~sparse_brdf.model.layouts.strict_eval`). At the nearest bin
-    (``bins``) or interpolated (``lin``, bins is None)."""
+    (``bins``) or interpolated (``lin``, bins is None).
+
+    ``grad`` = (values, order): instead, the derivative carrier
+    ``sum_t (s_t - detach(s_t)) U1[i, a_t] U2[j, b_t] U3[k, c_t]``, zero in value, with
+    ``s_t = values[order[t]]`` read from the differentiable values themselves (a
+    sum-style loop, which Dr.Jit differentiates in both modes)."""
     sp = buf.channels[c]
     n = shape.n
     s_buf, p_buf, r_buf = buf.values, buf.packed, buf.rows
@@ -346,6 +355,17 @@ def strict_x(ops: Ops, buf: StrictBuffers, shape: Shape, c: int, bins, lin, acti
         acc_c = dr.select(end_c, zero, acc_c)
         return acc, acc_c, acc_b
 
+    def body_grad(t, state):
+        values, order = grad
+        p = ops.gather_u(p_buf, soff + t, active)
+        s = ops.gather(values, ops.gather_u(order, t, active), active)
+        term = ((s - dr.detach(s)) * row(0, p & mask, active)
+                * row(1, (p >> PACK_BITS) & mask, active)
+                * row(2, (p >> (2 * PACK_BITS)) & mask, active))
+        return (state[0] + term,)
+
+    if grad is not None:
+        return ops.loop(sp["t"], body_grad, (zero,), sum_style=True)[0]
     return ops.loop(sp["t"], body, (zero, zero, zero))[0]
 
 
@@ -610,17 +630,20 @@ class SparseBSDF(GlossyBSDF):
         self._shape = Shape(ops, model.shape)
         self._use_cos = ops.f(1.0 if model.transform == "log-plus-cosine" else 0.0)
         self.layout = None
+        self._model, self._ens, self._grad, self._ad = model, ens, False, None
         if self.decoder == "grouped":
             self._build_grouped(model, ens, layout)
         else:
             self._build_strict(model, ens)
+        # the coded channels' values, as mi.traverse exposes them (``values_0`` ...)
+        self._values = [self._value_array(v) for v in model.values]
         self._setup_sampling(self.sampling, sparse_profile(model, ens), model.shape)
 
     # data ----------------------------------------------------------------------------
     def _build_grouped(self, model, ens, layout: str) -> None:
         chans = grouped_channels(model, ens)
         self.channels = chans
-        lay = grouped_layout(chans, model.shape, None if layout == "auto" else layout)
+        lay = grouped_layout(chans, model.shape, None if layout in ("auto", None) else layout)
         self.layout = lay.kind
         self._grouped = upload_grouped(self._ops, lay, chans[0])
         self.memory_bytes = (self._ops.nbytes(self._grouped.tables)
@@ -637,12 +660,71 @@ class SparseBSDF(GlossyBSDF):
             self._strict.values, self._strict.packed, self._strict.rows))
         self.distinct_atoms = tuple(tuple(r.shape[0] for r in ch.rows) for ch in chans)
 
+    # differentiable values -----------------------------------------------------------
+    def _value_array(self, v):
+        v = np.asarray(v, np.float32)
+        return self._m.Float(v) if self._ops.jit else self._m.TensorXf(v)
+
+    def traverse(self, callback):
+        """Expose the coded channels' coefficient values as ``values_0``, ``values_1``,
+        ``values_2`` (Float arrays in the file's term order, one per channel),
+        differentiable. The support (which atoms) is fixed; only the values change."""
+        for c, v in enumerate(self._values):
+            callback.put(f"values_{c}", v, self._m.ParamFlags.Differentiable)
+
+    def parameters_changed(self, keys=None):
+        """Re-derive the decoder's buffers from the (possibly updated) values: exactly as
+        from a file holding those values, plus, when a channel's values carry gradients,
+        a zero-valued Dr.Jit term through which they flow (:mod:`mitsuba_plugin.
+        differentiable`)."""
+        if keys and not any(str(k).startswith("values_") for k in keys):
+            return
+        vals = []
+        for c, (v, n) in enumerate(zip(self._values, self.n_terms, strict=True)):
+            a = np.asarray(dr.detach(v) if self._ops.jit else v, np.float32).ravel()
+            if a.size != n:
+                raise PluginError(f"{self.plugin}: {self.filename!r}: values_{c} holds "
+                                  f"{a.size} values, channel {c} has {n} terms (the "
+                                  "support is fixed)")
+            if not np.isfinite(a).all():
+                raise PluginError(f"{self.plugin}: {self.filename!r}: values_{c} holds "
+                                  "NaN or inf values")
+            vals.append(a)
+        model = dataclasses.replace(self._model, values=vals)
+        self._model = model
+        if self.decoder == "grouped":
+            self._build_grouped(model, self._ens, self.layout)
+        else:
+            self._build_strict(model, self._ens)
+        self._grad = self._ops.jit and any(dr.grad_enabled(v) for v in self._values)
+        if self._grad:
+            self._attach_gradients()
+
+    def _attach_gradients(self) -> None:
+        """Build the derivative carrier's data once (it depends on the support only): the
+        strict decoder's atom rows and packed indices, and per channel the file's term
+        index of each of its terms (:func:`mitsuba_plugin.differentiable.strict_orders`).
+        The decoders' own buffers stay detached, so the kernel's derivative flows only
+        through the values, read inside the kernel like any Mitsuba parameter."""
+        if self._ad is None:
+            chans = [strict_channel(*channel_terms(self._model, self._ens, c))
+                     for c in range(3)]
+            orders = [self._ops.uints(o if o.size else [0])
+                      for o in dif.strict_orders(self._model, self._ens)]
+            self._ad = (upload_strict(self._ops, strict_layout(chans)), orders)
+
     # lookups -------------------------------------------------------------------------
     def _x_grouped(self, bins, lin, active):
         return grouped_x(self._ops, self._grouped, bins, lin, active)
 
     def _x_strict(self, c, bins, lin, active):
         return strict_x(self._ops, self._strict, self._shape, c, bins, lin, active)
+
+    def _x_grad(self, c, bins, lin, active):
+        """The derivative carrier of channel c (zero in value), see :func:`strict_x`."""
+        buf, orders = self._ad
+        return strict_x(self._ops, buf, self._shape, c, bins, lin, active,
+                        grad=(self._values[c], orders[c]))
 
     def _rho(self, wi, wo, active):
         ops, sh = self._ops, self._shape
@@ -669,6 +751,8 @@ class SparseBSDF(GlossyBSDF):
             valid = dr.select(ok, 1.0, 0.0)
         if not grouped:
             xs = [self._x_strict(c, bins, lin, active) for c in range(3)]
+        if self._grad:  # a Python branch: only differentiated renders trace the carrier
+            xs = [x + self._x_grad(c, bins, lin, active) for c, x in enumerate(xs)]
         if self._mix is not None:  # a Python branch: rgb materials trace no mix
             xs = mix_colour(xs, self._mix)
         scale = valid * dr.rcp(w)

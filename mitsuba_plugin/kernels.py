@@ -108,14 +108,19 @@ class Ops:
             return dr.select(cond, a, b)
         return a if cond else b
 
-    def loop(self, n, body, init):
+    def loop(self, n, body, init, sum_style: bool = False):
         """acc = init; for g in range(n): acc = body(g, acc) -- a Dr.Jit loop over an
-        opaque count, so one kernel serves any n."""
+        opaque count, so one kernel serves any n. ``sum_style``: the body only adds to
+        ``acc`` terms that do not depend on it, which lets Dr.Jit differentiate the loop
+        in reverse mode without storing its trajectory (set only when differentiating,
+        so undifferentiated kernels are unchanged)."""
         m = self.m
+        extra = {"max_iterations": -1} if sum_style else {}
         _, acc = dr.while_loop(
             state=(m.UInt32(0), init),
             cond=lambda g, acc: g < n,
             body=lambda g, acc: (g + 1, body(g, acc)),
+            **extra,
         )
         return acc
 
