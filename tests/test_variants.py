@@ -4,8 +4,6 @@ renders against rgb ones."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -17,9 +15,10 @@ from sparse_brdf.paths import SCENES_DIR
 mi = pytest.importorskip("mitsuba")
 dr = pytest.importorskip("drjit")
 
+from test_plugin import make_exact_material  # noqa: E402
+
 import mitsuba_plugin  # noqa: E402
 from mitsuba_plugin.bsdfs import variant_kind  # noqa: E402
-from test_plugin import make_exact_material  # noqa: E402
 
 #: Every variant of Mitsuba 3.9 that runs on the CPU.
 CPU_VARIANTS = ("scalar_rgb", "scalar_spectral", "scalar_spectral_polarized", "llvm_ad_rgb",
