@@ -1,4 +1,5 @@
-"""Ablation table from one or more bench results (docs/results.md, "Ablation").
+"""Ablation table from one or more bench results (docs/results.md, "Accuracy at equal
+coefficients").
 
     .venv/bin/python benchmarks/ablation_table.py bench_ablation [bench_ablation_v2 ...]
 
@@ -9,12 +10,12 @@ corpus, plus encode time and bytes. Rows are named ``<bench folder>: <model>``.
 
 from __future__ import annotations
 
-import argparse
 import json
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
+from harness import parser
 
 FORMS = (("snr_object", "object"), ("snr_whole", "whole"))
 
@@ -30,7 +31,7 @@ def load(folder: Path) -> dict[str, dict[str, dict]]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = parser(__doc__, json_option=False)
     ap.add_argument("folders", nargs="+", type=Path)
     args = ap.parse_args()
     models: dict[str, dict[str, dict]] = {}

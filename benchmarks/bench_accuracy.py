@@ -10,13 +10,12 @@ Writes ``accuracy.json``, ``accuracy.png`` and ``accuracy.md`` into ``--out``.
 
 from __future__ import annotations
 
-import argparse
 import json
-import platform
 import time
 from pathlib import Path
 
 import numpy as np
+from harness import header, machine, parser
 
 from sparse_brdf.model.encode import encode, error_curve
 from sparse_brdf.model.ensemble import Ensemble
@@ -39,8 +38,7 @@ def measure(brdf, ens, counts):
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = parser(__doc__, json_option=False)
     p.add_argument("--corpus", nargs="+", default=["merl", "rgl"])
     p.add_argument("--counts", nargs="+", type=int, default=[16, 32, 64, 128, 262, 512, 1024])
     p.add_argument("--ensemble", help="default: the shipped one")
@@ -57,10 +55,9 @@ def main() -> None:
         x, _ = training_tensors(train)
         hosvd = hosvd_ensemble(x)
         del x
+    info = machine()  # the load average as the timing starts
     results = {"materials": [], "counts": args.counts, "ensemble": ens.id,
-               "machine": f"{platform.node()} {platform.processor()} "
-                          f"{len(__import__('os').sched_getaffinity(0))} cores",
-               "date": time.strftime("%Y-%m-%d")}
+               "machine": info, "date": time.strftime("%Y-%m-%d")}
     enc_times = []
     from tqdm import tqdm
 
@@ -74,6 +71,7 @@ def main() -> None:
             row["hosvd"] = measure(brdf, hosvd, args.counts)
         results["materials"].append(row)
     results["encode_seconds"] = enc_times
+    print(header(info))
     (out / "accuracy.json").write_text(json.dumps(results, indent=1))
     report(results, out)
 

@@ -1,14 +1,26 @@
-"""Encode time per material with the shipped ensemble (run on an otherwise idle machine).
+"""Encode time per material with the shipped ensemble: in-process, or as whole commands.
 
     .venv/bin/python benchmarks/bench_encode.py [--n 8]
     .venv/bin/python benchmarks/bench_encode.py \
         --options selector=render,fill=invalid,basis=opponent
+    .venv/bin/python benchmarks/bench_encode.py --whole --n 8 [--code OTHER_CHECKOUT]
 
-Times `encode` at 262 coefficients per channel: both transforms (the default) and one
-forced transform; tabulation is excluded (materials are loaded first). Each material is
-timed ``--repeats`` times (interleaved: every material once per round) and its median
-taken, since the virtual machine's speed drifts by 10-20 % from minute to minute; the
-table gives the mean and the max over materials of those medians.
+In-process (the default): times `encode` at 262 coefficients per channel, both
+transforms (the default) and one forced transform; tabulation is excluded (materials are
+loaded first).
+
+``--whole``: times the commands a user runs, each a new process (imports, loading the
+material from the tabulation cache, encoding, writing the file): ``sparse-brdf encode SRC
+-o OUT`` (262 per channel) and ``sparse-brdf encode SRC -o OUT --bytes 6300``. With
+``--code DIR`` (another checkout, e.g. ``git worktree`` of an older commit) every command
+also runs with that checkout's package first on ``PYTHONPATH``, interleaved with this
+one's, and the files both write are compared byte for byte: on a machine loaded by
+others, the ratio within one run is the figure to trust.
+
+Each material is timed ``--repeats`` times (interleaved: every material and variant once
+per round) and its median taken, since the virtual machine's speed drifts by 10-40 %
+from minute to minute; the table gives the mean and the max over materials of those
+medians, and the load average before and after.
 """
 
 from __future__ import annotations
@@ -16,31 +28,41 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
 from sparse_brdf import Ensemble, encode, get_corpus
 from sparse_brdf.paths import shared_data_dir
 
+ROOT = Path(__file__).resolve().parents[1]
+#: The whole commands timed by ``--whole``: name -> extra arguments of ``encode``.
+COMMANDS = {"encode (262 per channel)": [], "encode --bytes 6300": ["--bytes", "6300"]}
 
-def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--n", type=int, default=8, help="materials per corpus")
-    p.add_argument("--corpus", nargs="+", default=None,
-                   help="test splits to time (default: merl, or mitsuba without ../shared)")
-    p.add_argument("--options", default="", help="encoder options KEY=VALUE,... (as in the "
-                   "bench's sparse model specs), applied to every timed encode")
-    p.add_argument("--repeats", type=int, default=3, help="timings per material (median)")
-    args = p.parse_args()
-    opts = dict(kv.split("=", 1) for kv in args.options.split(",") if kv)
+
+def _materials(args) -> tuple[str, list]:
     names = args.corpus or ["merl" if shared_data_dir() else "mitsuba"]
-    corpus = "+".join(names)
-    mats = [m for c in names for m in get_corpus(c).split("test")[: args.n]]
+    return "+".join(names), [m for c in names for m in get_corpus(c).split("test")[: args.n]]
+
+
+def _header(what: str, n: int, corpus: str, args, load: tuple[float, float]) -> str:
+    return (f"{n} {corpus} test materials, {what}, {len(os.sched_getaffinity(0))} cores, "
+            f"{platform.node()}, {time.strftime('%Y-%m-%d %H:%M')}, median of "
+            f"{args.repeats} per material, load average (1 min) {load[0]:.1f} before, "
+            f"{load[1]:.1f} after")
+
+
+def in_process(args) -> None:
+    opts = dict(kv.split("=", 1) for kv in args.options.split(",") if kv)
+    corpus, mats = _materials(args)
     ens = Ensemble.default()
     brdfs = [m.load() for m in mats]
     encode(brdfs[0], ens, **opts)  # warm-up (thread pool, caches)
+    load0 = os.getloadavg()[0]
     auto = np.zeros((args.repeats, len(brdfs)))
     forced = np.zeros_like(auto)
     completed = []
@@ -55,15 +77,88 @@ def main() -> None:
             encode(b, ens, transform="log-plus-cosine", **opts)
             forced[r, i] = time.perf_counter() - t0
     auto, forced = np.median(auto, axis=0), np.median(forced, axis=0)
-    print(f"{len(brdfs)} {corpus} test materials, {ens.n_dicts} dictionaries, "
-          f"{len(os.sched_getaffinity(0))} cores, {platform.node()}, {time.strftime('%Y-%m-%d')}, "
-          f"options: {args.options or 'defaults'}, median of {args.repeats} per material, "
-          f"load average {os.getloadavg()[0]:.1f}")
+    print(_header(f"in-process, {ens.n_dicts} dictionaries, options: "
+                  f"{args.options or 'defaults'}", len(brdfs), corpus, args,
+                  (load0, os.getloadavg()[0])))
     print(f"| mode | mean (s) | max (s) |\n|---|---|---|\n"
           f"| both transforms (auto) | {np.mean(auto):.2f} | {np.max(auto):.2f} |\n"
           f"| one transform (forced) | {np.mean(forced):.2f} | {np.max(forced):.2f} |")
     print(f"\nProjections completed per transform (of {3 * ens.n_dicts}; the rest pruned): "
           f"median {np.median(completed):.0f}, range {min(completed)}-{max(completed)}")
+
+
+def _run(code: Path | None, src: str, out: Path, extra: list[str]) -> float:
+    """Seconds of one whole ``sparse-brdf encode`` process (this checkout, or ``code``)."""
+    env = dict(os.environ)
+    if code is not None:
+        env["PYTHONPATH"] = str(code)
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "sparse_brdf.cli", "encode", src, "-o", str(out),
+                    *extra], check=True, env=env, cwd=tempfile.gettempdir(),
+                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    return time.perf_counter() - t0
+
+
+def whole(args) -> None:
+    corpus, mats = _materials(args)
+    for m in mats:
+        m.load()  # tabulate into the cache first: the commands then read it
+    codes: dict[str, Path | None] = {"this checkout": None}
+    if args.code:
+        codes["--code"] = Path(args.code).resolve()
+    cases = [(c, k) for c in codes for k in COMMANDS]
+    times = {case: np.zeros((args.repeats, len(mats))) for case in cases}
+    same, compared = 0, 0
+    load0 = os.getloadavg()[0]
+    with tempfile.TemporaryDirectory() as tmp:
+
+        def out(i: int, case: tuple) -> Path:
+            return Path(tmp) / f"{i}-{list(codes).index(case[0])}-{list(COMMANDS).index(case[1])}"
+
+        _run(None, str(mats[0].source), Path(tmp) / "warm.sbrdf", [])  # page cache
+        for r in range(args.repeats):
+            for i, m in enumerate(mats):
+                for case in cases:
+                    times[case][r, i] = _run(codes[case[0]], str(m.source),
+                                             out(i, case).with_suffix(".sbrdf"),
+                                             COMMANDS[case[1]])
+                if r == 0 and args.code:
+                    for k in COMMANDS:
+                        a, b = (out(i, (c, k)).with_suffix(".sbrdf").read_bytes()
+                                for c in codes)
+                        compared += 1
+                        same += a == b
+    load1 = os.getloadavg()[0]
+    print(_header("whole `sparse-brdf encode` processes", len(mats), corpus, args,
+                  (load0, load1)))
+    print("| code | command | mean (s) | max (s) |\n|---|---|---|---|")
+    med = {case: np.median(t, axis=0) for case, t in times.items()}
+    for (c, k), v in med.items():
+        print(f"| {c} | {k} | {np.mean(v):.2f} | {np.max(v):.2f} |")
+    if args.code:
+        print()
+        for k in COMMANDS:
+            ratio = np.median(med[("this checkout", k)] / med[("--code", k)])
+            print(f"{k}: this checkout / --code, median over materials {ratio:.2f}")
+        print(f"files byte-identical between the two: {same} of {compared}")
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--n", type=int, default=8, help="materials per corpus")
+    p.add_argument("--corpus", nargs="+", default=None,
+                   help="test splits to time (default: merl, or mitsuba without ../shared)")
+    p.add_argument("--options", default="", help="encoder options KEY=VALUE,... (as in the "
+                   "bench's sparse model specs), applied to every timed encode (in-process)")
+    p.add_argument("--repeats", type=int, default=3, help="timings per material (median)")
+    p.add_argument("--whole", action="store_true",
+                   help="time whole `sparse-brdf encode` commands (262 per channel and "
+                        "--bytes 6300), each a new process")
+    p.add_argument("--code", help="with --whole: another checkout to time interleaved "
+                                  "with this one, and to compare files with")
+    args = p.parse_args()
+    (whole if args.whole else in_process)(args)
 
 
 if __name__ == "__main__":

@@ -23,20 +23,14 @@ the table states the k it used. Bytes per material: what each model stores per m
 
 from __future__ import annotations
 
-import argparse
 import copy
-import json
-import os
-import platform
 import sys
-import time
 import warnings
-from pathlib import Path
 
 import numpy as np
+from harness import header, machine, parser, write_json
 
 from sparse_brdf.evaluation.speed import evals_per_second
-from sparse_brdf.fileio import atomic_write
 from sparse_brdf.model.baselines import PCAModel, TabulatedModel
 from sparse_brdf.model.ensemble import Ensemble
 from sparse_brdf.model.sparse_model import SparseModel
@@ -79,8 +73,7 @@ def build_cases(brdf, corpus: str, pca_train: int, ens: Ensemble) -> list[dict]:
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = parser(__doc__)
     p.add_argument("--material", default=None,
                    help="BRDF source (default: the first test-split material of --corpus)")
     p.add_argument("--corpus", default=None,
@@ -91,7 +84,6 @@ def main() -> None:
     p.add_argument("--rounds", type=int, default=3, help="measurements per model")
     p.add_argument("--pca-train", type=int, default=30,
                    help="at most this many training materials for PCA")
-    p.add_argument("--json", type=Path, default=None, help="also write the numbers here")
     args = p.parse_args()
 
     corpus = args.corpus or ("merl" if shared_data_dir() else "mitsuba")
@@ -102,6 +94,7 @@ def main() -> None:
         src = args.material
         brdf = load_brdf(src)
     ens = Ensemble.default()
+    info = machine()  # the load average as the timing starts
     cases = build_cases(brdf, corpus, args.pca_train, ens)
 
     rates: dict[str, list[float]] = {c["name"]: [] for c in cases}
@@ -117,14 +110,11 @@ def main() -> None:
     # lazy: Dr.Jit/Mitsuba load only once a benchmark runs, not on import or --help
     import drjit as dr
 
-    cores = len(os.sched_getaffinity(0))
-    header = (f"Material {src} ({brdf.name}); {args.n:,} random direction pairs per call, "
-              f"median of {args.repeats} calls, median of {args.rounds} rounds; PCA trained "
-              f"on {args.pca_train} or fewer {corpus} training materials; {cores} cores, "
-              f"Dr.Jit {dr.__version__}, LLVM "
-              f"{'.'.join(map(str, dr.detail.llvm_version()))}, {platform.node()}, "
-              f"{time.strftime('%Y-%m-%d %H:%M')}")
-    print(header)
+    llvm = ".".join(map(str, dr.detail.llvm_version()))
+    print(f"Material {src} ({brdf.name}); {args.n:,} random direction pairs per call, "
+          f"median of {args.repeats} calls, median of {args.rounds} rounds; PCA trained "
+          f"on {args.pca_train} or fewer {corpus} training materials; Dr.Jit "
+          f"{dr.__version__}, LLVM {llvm}; {header(info)}")
     print("| model | evaluated with | bytes per material | evaluations/s | vs tabulated |")
     print("|---|---|---|---|---|")
     for c in cases:
@@ -133,15 +123,14 @@ def main() -> None:
               f"{rate / 1e6:.1f} M | {rate / tab:.2f}x |")
     if args.json is not None:
         record = {"material": src, "corpus": corpus, "n": args.n, "repeats": args.repeats,
-                  "rounds": args.rounds, "pca_train_max": args.pca_train, "cores": cores,
-                  "machine": platform.node(), "date": time.strftime("%Y-%m-%d %H:%M"),
+                  "rounds": args.rounds, "pca_train_max": args.pca_train,
+                  "drjit": dr.__version__, "llvm": llvm,
                   "rows": [{"model": c["name"], "evaluator": c["evaluator"],
                             "bytes_per_material": int(c["compact"].nbytes),
                             "evals_per_s": med[c["name"]],
                             "evals_per_s_rounds": rates[c["name"]],
                             "vs_tabulated": med[c["name"]] / tab} for c in cases]}
-        with atomic_write(args.json, "w") as f:
-            json.dump(record, f, indent=1)
+        write_json(args.json, record, args, info)
         _log(f"wrote {args.json}")
 
 

@@ -19,11 +19,10 @@ predicts them.
 
 from __future__ import annotations
 
-import argparse
-import json
 import time
 
 import numpy as np
+from harness import header, machine, parser, write_json
 
 from sparse_brdf import Ensemble, encode, get_corpus
 from sparse_brdf.metrics import cosine_weighted_snr, make_render_proxy, render_proxy_error
@@ -90,16 +89,15 @@ def table(rows: list[dict]) -> str:
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = parser(__doc__)
     p.add_argument("--n", type=int, default=None, help="at most N materials per corpus")
-    p.add_argument("--json", help="write the per-material rows here")
     args = p.parse_args()
+    info = machine()  # the load average as the timing starts
     rows = measure(args.n)
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump(rows, f, indent=1)
+        write_json(args.json, rows, args, info)
     print()
+    print(header(info))
     print(table(rows))
 
 

@@ -19,16 +19,14 @@ per-round ratios. Prints a markdown table (copied into docs/benchmarks.md).
 
 from __future__ import annotations
 
-import argparse
 import gc
-import json
-import platform
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+from harness import header, machine, write_json
+from render_timing import default_material, render_cases, scene_args, swap_material, timed_render
 
 from sparse_brdf.evaluation.speed import eval_rate
 from sparse_brdf.fileio import atomic_write
@@ -36,97 +34,85 @@ from sparse_brdf.mitsuba_env import set_variant
 from sparse_brdf.model.encode import encode
 from sparse_brdf.model.ensemble import Ensemble
 from sparse_brdf.model.sbrdf import save_sbrdf
-from sparse_brdf.paths import SCENES_DIR, shared_data_dir
+from sparse_brdf.paths import SCENES_DIR
 from sparse_brdf.sources.load import load_brdf
 
+COUNTS = (32, 128, 262)
+ROW_KEYS = ("bsdf", "render_s", "vs_diffuse", "vs_tabulated", "compile_s", "memory_bytes",
+            "evals_per_s")
 
-def timed_render(scene, spp, repeats):
-    """(compile seconds of the first render, median wall seconds of the next renders).
 
-    Compile time is Dr.Jit's own (code generation + LLVM) from the kernel history of the
-    first render, with the in-memory and on-disk kernel caches bypassed.
-    """
+def _cases(src: str, files: dict[int, Path]) -> list[tuple[str, dict]]:
+    """(name, BSDF dict) of every timed case, the fast ones first (so that their renders
+    and the table's are close in time)."""
+    cases = [("native diffuse", {"type": "diffuse"}), ("native roughconductor",
+             {"type": "roughconductor", "material": "Cu", "alpha": 0.12}),
+             ("tabulated_brdf", {"type": "tabulated_brdf", "filename": src})]
+    for n in COUNTS:
+        cases.append((f"sparse_brdf grouped {n}", {"type": "sparse_brdf",
+                      "filename": str(files[n]), "decoder": "grouped"}))
+    # the grouped decoder at 262 with the other layout forced (an A/B in the same run)
+    cases.append(("sparse_brdf grouped-slots 262", {"type": "sparse_brdf", "layout": "slots",
+                  "filename": str(files[262]), "decoder": "grouped"}))
+    for n in COUNTS:
+        cases.append((f"sparse_brdf strict {n}", {"type": "sparse_brdf",
+                      "filename": str(files[n]), "decoder": "strict"}))
+    return cases
+
+
+def _rows(loaded, compile_s: dict, times: dict) -> list[tuple]:
+    """One row per case: render seconds, ratios to the first case and to the table (medians
+    of the per-round ratios), compile seconds, memory and evaluations per second."""
+    base = np.array(times[loaded[0][0]])
+    tab_t = np.array(times["tabulated_brdf"])
+    rows = []
+    for name, scene in loaded:
+        bsdf = scene.shapes()[0].bsdf()
+        t = np.array(times[name])
+        rows.append((name, float(np.median(t)), float(np.median(t / base)),
+                     float(np.median(t / tab_t)), compile_s[name],
+                     getattr(bsdf, "memory_bytes", None), eval_rate(bsdf)))
+    return rows
+
+
+def _swap_cost(scene_path: Path, first: Path, second: Path, args) -> tuple[int, float]:
+    """Kernels compiled anew when a second sparse material follows a first, and the
+    second's compile seconds."""
     # lazy: Dr.Jit/Mitsuba load only once a benchmark runs, not on import or --help
     import drjit as dr
     import mitsuba as mi
+
+    gc.collect()
+    dr.flush_kernel_cache()
+
+    def kernels():
+        return {k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT}
 
     dr.kernel_history()  # clear
-    img = mi.render(scene, spp=spp, seed=0)
-    dr.eval(img)
-    dr.sync_thread()
-    hist = dr.kernel_history()
-    compile_s = sum(k.get("codegen_time", 0) + k.get("backend_time", 0) for k in hist) / 1e3
-    times = []
-    for r in range(repeats):
-        t0 = time.perf_counter()
-        img = mi.render(scene, spp=spp, seed=r + 1)
-        dr.eval(img)
-        dr.sync_thread()
-        times.append(time.perf_counter() - t0)
-    return compile_s, float(np.median(times)) if times else float("nan")
+    s1 = mi.load_dict(swap_material(scene_path, {"type": "sparse_brdf", "filename": str(first),
+                                                 "decoder": "grouped"}, args))
+    timed_render(s1, args.spp, 0)
+    k1 = kernels()
+    s2 = mi.load_dict(swap_material(scene_path, {"type": "sparse_brdf",
+                                                 "filename": str(second),
+                                                 "decoder": "grouped"}, args))
+    first2, _ = timed_render(s2, args.spp, 0)
+    return len(kernels() - k1), first2
 
 
-def scene_args(doc: str) -> argparse.ArgumentParser:
-    """The options every render benchmark takes (material, resolution, spp, rounds)."""
-    p = argparse.ArgumentParser(description=doc,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--material", default=None,
-                   help="BRDF source (default: MERL blue-metallic-paint2 if the shared data "
-                        "is present, else mitsuba:cu-ggx-0.12)")
-    p.add_argument("--res", type=int, default=256)
-    p.add_argument("--spp", type=int, default=64)
-    p.add_argument("--repeats", type=int, default=7,
-                   help="interleaved rounds (every case rendered once per round)")
-    return p
-
-
-def default_material(src: str | None) -> str:
-    """``src``, or the benchmarks' default material."""
-    if src is not None:
-        return src
-    data = shared_data_dir()
-    return (str(data / "nbrdf" / "merl" / "blue-metallic-paint2.h5") if data
-            else "mitsuba:cu-ggx-0.12")
-
-
-def render_cases(cases, args) -> tuple[dict, list, dict]:
-    """Render every (name, bsdf dict) case on the sphere scene.
-
-    1. Per case, alone in the process: load, first render: cold compile time (Mitsuba's
-    kernels call every live BSDF instance's code, so a case loaded beside the others
-    would also compile theirs). 2. All cases loaded, then a warm-up render each (the
-    kernels compiled while a case was alone no longer apply once the others are alive),
-    then ``args.repeats`` interleaved rounds, so that the machine's slow and fast phases hit
-    every case alike. Returns (compile seconds, [(name, scene)], render seconds per
-    round) keyed by name.
-    """
-    # lazy: Dr.Jit/Mitsuba load only once a benchmark runs, not on import or --help
-    import drjit as dr
-    import mitsuba as mi
-
-    scene_path = SCENES_DIR / "sphere.xml"
-    compile_s = {}
-    for name, bsdf_dict in cases:
-        dr.flush_kernel_cache()
-        scene = mi.load_dict(_swap(scene_path, bsdf_dict, args))
-        compile_s[name], _ = timed_render(scene, args.spp, 0)
-        print(f"{name}: compiled in {compile_s[name]:.2f} s", file=sys.stderr, flush=True)
-        del scene
-        gc.collect()
-    loaded = [(name, mi.load_dict(_swap(scene_path, bsdf_dict, args)))
-              for name, bsdf_dict in cases]
-    for _, scene in loaded:  # warm-up, once every scene is alive (see above)
-        timed_render(scene, args.spp, 0)
-    times = {name: [] for name, _ in loaded}
-    for r in range(args.repeats):
-        print(f"round {r + 1}/{args.repeats}", file=sys.stderr, flush=True)
-        for name, scene in loaded:
-            t0 = time.perf_counter()
-            img = mi.render(scene, spp=args.spp, seed=r + 1)
-            dr.eval(img)
-            dr.sync_thread()
-            times[name].append(time.perf_counter() - t0)
-    return compile_s, loaded, times
+def _print_table(rows, layouts: dict, swap: tuple[int, float], src: str, args, info) -> None:
+    print(f"{args.res}x{args.res}, {args.spp} spp, sphere.xml; material {src}; "
+          f"{args.repeats} interleaved rounds; {header(info)}")
+    print("| BSDF | render (s) | vs diffuse | vs tabulated | compile (s) | memory (bytes) | "
+          "evals/s |")
+    print("|---|---|---|---|---|---|---|")
+    for name, t, rel, rel_tab, comp, mem, rate in rows:
+        print(f"| {name} | {t:.3f} | {rel:.2f}x | {rel_tab:.2f}x | {comp:.2f} | "
+              f"{'' if mem is None else f'{mem:,}'} | {rate / 1e6:.1f} M |")
+    print(f"\nSwapping to a second sparse material: {swap[0]} kernels compiled anew "
+          f"(compile {swap[1]:.2f} s).")
+    print("Grouped layouts: " + ", ".join(f"{n}: {lay} ({pk} packets per lookup)"
+                                          for n, (lay, pk) in layouts.items()))
 
 
 def main() -> None:
@@ -137,86 +123,35 @@ def main() -> None:
     args = p.parse_args()
     # lazy: Dr.Jit/Mitsuba load only once a benchmark runs, not on import or --help
     import drjit as dr
-    import mitsuba as mi
 
     set_variant("llvm_ad_rgb")
     dr.set_flag(dr.JitFlag.KernelHistory, True)
+    info = machine()  # the load average as the timing starts
 
     src = default_material(args.material)
     ens = Ensemble.default()
     brdf = load_brdf(src)
     tmp = Path(tempfile.mkdtemp())
-    files = {}
-    for n in (32, 128, 262):
-        files[n] = save_sbrdf(tmp / f"m{n}.sbrdf", encode(brdf, ens, n))
+    files = {n: save_sbrdf(tmp / f"m{n}.sbrdf", encode(brdf, ens, n)) for n in COUNTS}
     second = save_sbrdf(tmp / "other.sbrdf", encode(load_brdf("mitsuba:au-ggx-0.25"), ens, 262))
-    scene_path = SCENES_DIR / "sphere.xml"
-    cases = [("native diffuse", {"type": "diffuse"}), ("native roughconductor",
-             {"type": "roughconductor", "material": "Cu", "alpha": 0.12}),
-             ("tabulated_brdf", {"type": "tabulated_brdf", "filename": src})]
-    for n in (32, 128, 262):
-        cases.append((f"sparse_brdf grouped {n}", {"type": "sparse_brdf",
-                      "filename": str(files[n]), "decoder": "grouped"}))
-    # the grouped decoder at 262 with the other layout forced (an A/B in the same run);
-    # the fast cases first, so that their renders and the table's are close in time
-    cases.append(("sparse_brdf grouped-slots 262", {"type": "sparse_brdf", "layout": "slots",
-                  "filename": str(files[262]), "decoder": "grouped"}))
-    for n in (32, 128, 262):
-        cases.append((f"sparse_brdf strict {n}", {"type": "sparse_brdf",
-                      "filename": str(files[n]), "decoder": "strict"}))
-    compile_s, loaded, times = render_cases(cases, args)
-    loaded = [(name, scene, compile_s[name]) for name, scene in loaded]
-    base = np.array(times[loaded[0][0]])
-    tab_t = np.array(times["tabulated_brdf"])
-    rows = []
-    for name, scene, comp in loaded:
-        bsdf = scene.shapes()[0].bsdf()
-        t = np.array(times[name])
-        rows.append((name, float(np.median(t)), float(np.median(t / base)),
-                     float(np.median(t / tab_t)), comp,
-                     getattr(bsdf, "memory_bytes", None), eval_rate(bsdf)))
+    compile_s, loaded, times = render_cases(_cases(src, files), args)
+    rows = _rows(loaded, compile_s, times)
     layouts = {name.split(" ", 1)[1]: (scene.shapes()[0].bsdf().layout,
                                        scene.shapes()[0].bsdf().packets)
-               for name, scene, _ in loaded if "grouped" in name}
-    # swapping materials: a second sparse material reuses the compiled kernels
-    del loaded, scene, bsdf
-    gc.collect()
-    dr.flush_kernel_cache()
-    def kernels():
-        return {k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT}
-
-    dr.kernel_history()  # clear
-    s1 = mi.load_dict(_swap(scene_path, {"type": "sparse_brdf", "filename": str(files[262]),
-                                         "decoder": "grouped"}, args))
-    timed_render(s1, args.spp, 0)
-    k1 = kernels()
-    s2 = mi.load_dict(_swap(scene_path, {"type": "sparse_brdf", "filename": str(second),
-                                         "decoder": "grouped"}, args))
-    first2, _ = timed_render(s2, args.spp, 0)
-    compiled = kernels() - k1
-    print(f"{args.res}x{args.res}, {args.spp} spp, sphere.xml; material {src}; "
-          f"{args.repeats} interleaved rounds; {platform.node()}, {time.strftime('%Y-%m-%d')}")
-    print("| BSDF | render (s) | vs diffuse | vs tabulated | compile (s) | memory (bytes) | "
-          "evals/s |")
-    print("|---|---|---|---|---|---|---|")
-    for name, t, rel, rel_tab, comp, mem, rate in rows:
-        print(f"| {name} | {t:.3f} | {rel:.2f}x | {rel_tab:.2f}x | {comp:.2f} | "
-              f"{'' if mem is None else f'{mem:,}'} | {rate / 1e6:.1f} M |")
-    print(f"\nSwapping to a second sparse material: {len(compiled)} kernels compiled anew "
-          f"(compile {first2:.2f} s).")
-    print("Grouped layouts: " + ", ".join(f"{n}: {lay} ({pk} packets per lookup)"
-                                          for n, (lay, pk) in layouts.items()))
+               for name, scene in loaded if "grouped" in name}
+    del loaded  # swapping materials: a second sparse material reuses the compiled kernels
+    swap = _swap_cost(SCENES_DIR / "sphere.xml", files[262], second, args)
+    _print_table(rows, layouts, swap, src, args, info)
+    record = {"material": src, "res": args.res, "spp": args.spp,
+              "rounds": args.repeats, "date": time.strftime("%Y-%m-%d"),
+              "rows": [dict(zip(ROW_KEYS, r, strict=True)) for r in rows],
+              "swap_new_kernels": swap[0],
+              "grouped_layouts": {n: {"layout": lay, "packets": pk}
+                                  for n, (lay, pk) in layouts.items()}}
+    if args.json:
+        write_json(args.json, record, args, info)
     if args.out is not None:
-        keys = ("bsdf", "render_s", "vs_diffuse", "vs_tabulated", "compile_s",
-                "memory_bytes", "evals_per_s")
-        record = {"material": src, "res": args.res, "spp": args.spp,
-                  "rounds": args.repeats, "date": time.strftime("%Y-%m-%d"),
-                  "rows": [dict(zip(keys, r, strict=True)) for r in rows],
-                  "swap_new_kernels": len(compiled),
-                  "grouped_layouts": {n: {"layout": lay, "packets": pk}
-                                      for n, (lay, pk) in layouts.items()}}
-        with atomic_write(args.out / "render_speed.json", "w") as f:
-            json.dump(record, f, indent=1)
+        write_json(args.out / "render_speed.json", record, args, info)
         plot_speed_memory(record, args.out / "render_speed.png")
         print(f"wrote {args.out / 'render_speed.json'} and {args.out / 'render_speed.png'}")
 
@@ -257,7 +192,7 @@ def plot_speed_memory(record: dict, path: Path) -> None:
         ax.set_xlabel("memory per material (bytes)")
         ax.set_ylabel(label)
         ax.grid(True, which="both", alpha=0.3)
-    # the issue's goals at 262 coefficients: grouped <= 1.0x, strict <= 1.5x the table
+    # the decoders' goals at 262 coefficients: grouped <= 1.0x, strict <= 1.5x the table
     for goal, color in ((1.0, "tab:red"), (1.5, "tab:blue")):
         axes[0].axhline(goal, color=color, linestyle="--", linewidth=0.8, alpha=0.6)
     axes[0].legend(loc="upper right", fontsize=8)
@@ -267,29 +202,6 @@ def plot_speed_memory(record: dict, path: Path) -> None:
     with atomic_write(path) as f:
         fig.savefig(f, format="png", dpi=100)
     plt.close(fig)
-
-
-def _swap(scene_path, bsdf_dict, args):
-    """The sphere scene as a dict with the material replaced (Mitsuba's dict API)."""
-    # lazy: Dr.Jit/Mitsuba load only once a benchmark runs, not on import or --help
-    import mitsuba as mi
-
-    import mitsuba_plugin
-
-    mitsuba_plugin.register()
-    env = str(scene_path.parent / "envmaps" / "studio.exr")
-    return {
-        "type": "scene",
-        "integrator": {"type": "direct"},
-        "sensor": {"type": "perspective", "fov": 32,
-                   "to_world": mi.ScalarTransform4f().look_at([0, 0.9, 4], [0, 0, 0],
-                                                              [0, 1, 0]),
-                   "sampler": {"type": "independent", "sample_count": args.spp},
-                   "film": {"type": "hdrfilm", "width": args.res, "height": args.res,
-                            "rfilter": {"type": "box"}}},
-        "emitter": {"type": "envmap", "filename": env},
-        "sphere": {"type": "sphere", "bsdf": bsdf_dict},
-    }
 
 
 if __name__ == "__main__":

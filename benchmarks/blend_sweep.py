@@ -1,4 +1,5 @@
-"""A blend sweep rendered on the sphere: interpolation in coefficient space (SPEC 6).
+"""A blend sweep rendered on the sphere: interpolation in coefficient space
+(``docs/fit-scene.md``).
 
     .venv/bin/python benchmarks/blend_sweep.py A B --out docs/figures/blend.png
 
@@ -9,11 +10,11 @@ rendered with the sparse_brdf plugin.
 
 from __future__ import annotations
 
-import argparse
 import tempfile
 from pathlib import Path
 
 import numpy as np
+from harness import parser
 
 from sparse_brdf.evaluation.render import render_scene
 from sparse_brdf.model.encode import encode
@@ -25,8 +26,7 @@ from sparse_brdf.sources.load import load_brdf
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = parser(__doc__, json_option=False)
     p.add_argument("a", nargs="?", default="mitsuba:au-ggx-0.25")
     p.add_argument("b", nargs="?", default="mitsuba:plastic-blue-ggx-0.2")
     p.add_argument("--transform", default="log-plus-cosine")

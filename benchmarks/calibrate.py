@@ -11,20 +11,19 @@ sparse_brdf.evaluation.fit_scene, which targets the object-only SNR).
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import time
 from pathlib import Path
 
 import numpy as np
+from harness import parser
 
 from sparse_brdf.paths import CALIBRATION_PATH
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = parser(__doc__, json_option=False)
     p.add_argument("results", help="results.json of a bench run with renders")
     p.add_argument("--scene", default="sphere", help="the bench scene to calibrate on")
     p.add_argument("--models", nargs="+", help="only these models' cells (names as in the "

@@ -11,12 +11,12 @@ SNR form) of mean SNR against mean bytes per material, log scale.
 
 from __future__ import annotations
 
-import argparse
 import json
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
+from harness import parser
 
 FORMS = (("snr_object", "object-only"), ("snr_whole", "whole-image"))
 
@@ -80,7 +80,7 @@ def chart(rows: dict, scenes: list[str], out: Path) -> None:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = parser(__doc__, json_option=False)
     ap.add_argument("folder", type=Path)
     ap.add_argument("--out", type=Path, default=Path("front.png"))
     args = ap.parse_args()

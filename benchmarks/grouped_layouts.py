@@ -11,9 +11,9 @@ it and in the other layout, and the grouped decoder's bytes.
 
 from __future__ import annotations
 
-import argparse
 import sys
 
+from harness import header, parser, write_json
 from tqdm import tqdm
 
 from sparse_brdf.model.encode import encode
@@ -48,8 +48,7 @@ def layout_row(model, ens) -> dict:
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = parser(__doc__)
     p.add_argument("--coeffs", type=int, default=262, help="coefficients per channel")
     p.add_argument("--corpora", nargs="+", default=["merl", "rgl"])
     args = p.parse_args()
@@ -59,7 +58,7 @@ def main() -> None:
     for m in tqdm(mats, desc="encoding", file=sys.stderr):
         rows.append((m, layout_row(encode(m.load(), ens, args.coeffs), ens)))
     print(f"{args.coeffs} coefficients per channel, shipped ensemble, test splits of "
-          f"{', '.join(args.corpora)}")
+          f"{', '.join(args.corpora)}; {header()}")
     print("| material | dictionaries | grouped mode | K per channel | union | layout | "
           "packets | other layout | bytes |")
     print("|---|---|---|---|---|---|---|---|---|")
@@ -74,6 +73,9 @@ def main() -> None:
     print(f"\nOne dictionary for the three channels: {one} of {len(rows)}; union layout "
           f"chosen: {union} of {len(rows)}; packets per lookup: mean "
           f"{sum(auto) / len(rows):.1f} (slot layout only: {sum(slots) / len(rows):.1f}).")
+    if args.json:
+        write_json(args.json, [{"material": f"{m.corpus}/{m.name}", **r} for m, r in rows],
+                   args)
 
 if __name__ == "__main__":
     main()

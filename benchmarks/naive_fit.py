@@ -7,7 +7,7 @@ the whole image) and on the studio scene (``scenes/sphere.xml``), plus fit time.
 Options: ``--kwargs '{"n_iter": 30}'`` passes settings to ``NaiveModel``; ``--scenes``,
 ``--res`` (96), ``--spp`` (16), ``--seed`` (0), ``--materials`` (names; default the 14
 MERL test-split materials). Reference and model images share seed and spp, so their Monte
-Carlo noise cancels (SPEC section 8); reference images and object masks are cached under
+Carlo noise cancels (``docs/method.md``); reference images and object masks are cached under
 ``<sparse-brdf cache>/naive_fit`` (they depend only on the scene file, the material's
 source file and the render settings). Prints one line per material and scene with both
 SNR forms (whole-image, object-only) and the fit time, then mean and min per scene.
@@ -19,7 +19,6 @@ paper's count); compare with the paper's 512 spp figures using ``--spp 512``.
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
 import tempfile
@@ -28,6 +27,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+from harness import header, machine, parser, write_json
 
 from sparse_brdf.brdf import BRDF
 from sparse_brdf.evaluation.render import find_scene, object_mask, read_exr, render_scene, write_exr
@@ -126,31 +126,30 @@ def summary(rows: Sequence[dict]) -> dict[str, dict[str, float]]:
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = parser(__doc__)
     p.add_argument("--kwargs", default="{}", help="JSON settings passed to NaiveModel")
     p.add_argument("--scenes", nargs="+", default=list(SCENES))
     p.add_argument("--res", type=int, default=96)
     p.add_argument("--spp", type=int, default=16)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--materials", nargs="*", help="names (default: the MERL test split)")
-    p.add_argument("--out", help="write rows and summary as JSON here")
+    p.add_argument("--out", dest="json", type=Path, help="the same as --json")
     args = p.parse_args()
     kwargs = json.loads(args.kwargs)
     mats = get_corpus("merl").split("test")
     if args.materials:
         mats = [m for m in mats if m.name in set(args.materials)]
+    info = machine()  # the load average as the timing starts
     rows = evaluate(NaiveModel(**kwargs), mats, args.scenes, args.res, args.spp, args.seed)
     summ = summary(rows)
+    print(header(info))
     for scene, s in summ.items():
         print(f"{scene}: whole-image mean {s['whole_mean']:.2f} min {s['whole_min']:.2f} dB; "
               f"object-only mean {s['object_mean']:.2f} min {s['object_min']:.2f} dB; "
               f"fit {s['fit_s_mean']:.1f} s per material ({s['n']} materials)")
-    if args.out:
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(json.dumps(
-            {"kwargs": kwargs, "res": args.res, "spp": args.spp, "seed": args.seed,
-             "rows": rows, "summary": summ}, indent=1))
+    if args.json:
+        write_json(args.json, {"kwargs": kwargs, "res": args.res, "spp": args.spp,
+                               "seed": args.seed, "rows": rows, "summary": summ}, args, info)
 
 
 if __name__ == "__main__":

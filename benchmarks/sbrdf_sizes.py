@@ -18,11 +18,10 @@ version 2, and the cosine-weighted BRDF SNR of each (accuracy at equal bytes, BR
 
 from __future__ import annotations
 
-import argparse
-import json
 from pathlib import Path
 
 import numpy as np
+from harness import header, parser, write_json
 
 from sparse_brdf.metrics import cosine_weighted_snr
 from sparse_brdf.model.budget import encode_to_bytes
@@ -46,11 +45,10 @@ def quantisation_error(model, stored) -> float:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = parser(__doc__)
     ap.add_argument("--counts", nargs="+", type=int, default=[64, 262, 1024])
     ap.add_argument("--materials", nargs="+", default=[str(DEMO_MATERIALS_DIR)])
     ap.add_argument("--bytes", type=int, help="accuracy of v1 and v2 at this byte budget")
-    ap.add_argument("--json", help="also write the rows here")
     args = ap.parse_args()
     files = []
     for m in args.materials:
@@ -60,6 +58,7 @@ def main() -> None:
         equal_bytes(files, ens, args.bytes)
         return
     rows = []
+    print(header())
     print("| material | coefficients/channel | encoder | coefficients | v1 bytes | v2 bytes | "
           "v2 bytes/coefficient | max error / max abs | cos-SNR in memory | cos-SNR v2 file |")
     print("|---|---|---|---|---|---|---|---|---|---|")
@@ -87,7 +86,7 @@ def main() -> None:
               f"(v1 {sum(r['v1'] for r in sel) / coeffs:.2f}), SNR change max "
               f"{max(loss):+.4f} dB, mean {np.mean(loss):+.4f} dB")
     if args.json:
-        Path(args.json).write_text(json.dumps(rows, indent=1))
+        write_json(args.json, rows, args)
 
 
 def equal_bytes(files, ens, n_bytes: int) -> None:

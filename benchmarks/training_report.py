@@ -12,11 +12,11 @@ from a running (or interrupted) training's checkpoints instead.
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
 import numpy as np
+from harness import parser
 
 from sparse_brdf.model.ensemble import resolve_ensemble
 
@@ -68,8 +68,7 @@ def _plot_objective(hist: dict, meta: dict, path: Path) -> None:
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = parser(__doc__, json_option=False)
     p.add_argument("ensemble", nargs="?", help="default: the shipped ensemble")
     p.add_argument("--checkpoint-dir", help="read the histories from these checkpoints")
     p.add_argument("--out", default="docs/figures")

@@ -17,6 +17,7 @@ The per-material data the kernels read is built with numpy by
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import os
 import threading
@@ -24,6 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import drjit as dr
+import numpy as np
 
 from sparse_brdf.errors import PluginError
 from sparse_brdf.model.ensemble import resolve_ensemble
@@ -51,9 +53,11 @@ from sparse_brdf.model.layouts import (
 from sparse_brdf.model.sbrdf import decode_file, load_sbrdf
 from sparse_brdf.sources.load import load_brdf
 
+from . import differentiable as dif
 from .kernels import (
     Ops,
     Shape,
+    SpectralUpsampling,
     VariantNamespace,
     angle_coords,
     bin_weight,
@@ -305,12 +309,18 @@ def upload_strict(ops: Ops, lay) -> StrictBuffers:
     return StrictBuffers(values, packed, rows, per)
 
 
-def strict_x(ops: Ops, buf: StrictBuffers, shape: Shape, c: int, bins, lin, active):
+def strict_x(ops: Ops, buf: StrictBuffers, shape: Shape, c: int, bins, lin, active,
+             grad=None):
     """X of channel ``c``: one loop over its terms, sorted by (c, b, a), evaluating
     ``sum_c U3[k, c] sum_b U2[j, b] sum_a s U1[i, a]``; the partial sums are closed at
     the flagged ends of each b-group and c-group, so U2 and U3 are read once per group
     (numpy twin: :func:`~sparse_brdf.model.layouts.strict_eval`). At the nearest bin
-    (``bins``) or interpolated (``lin``, bins is None)."""
+    (``bins``) or interpolated (``lin``, bins is None).
+
+    ``grad`` = (values, order): instead, the derivative carrier
+    ``sum_t (s_t - detach(s_t)) U1[i, a_t] U2[j, b_t] U3[k, c_t]``, zero in value, with
+    ``s_t = values[order[t]]`` read from the differentiable values themselves (a
+    sum-style loop, which Dr.Jit differentiates in both modes)."""
     sp = buf.channels[c]
     n = shape.n
     s_buf, p_buf, r_buf = buf.values, buf.packed, buf.rows
@@ -345,6 +355,17 @@ def strict_x(ops: Ops, buf: StrictBuffers, shape: Shape, c: int, bins, lin, acti
         acc_c = dr.select(end_c, zero, acc_c)
         return acc, acc_c, acc_b
 
+    def body_grad(t, state):
+        values, order = grad
+        p = ops.gather_u(p_buf, soff + t, active)
+        s = ops.gather(values, ops.gather_u(order, t, active), active)
+        term = ((s - dr.detach(s)) * row(0, p & mask, active)
+                * row(1, (p >> PACK_BITS) & mask, active)
+                * row(2, (p >> (2 * PACK_BITS)) & mask, active))
+        return (state[0] + term,)
+
+    if grad is not None:
+        return ops.loop(sp["t"], body_grad, (zero,), sum_style=True)[0]
     return ops.loop(sp["t"], body, (zero, zero, zero))[0]
 
 
@@ -366,6 +387,8 @@ class GlossyBSDF:
         self._m.BSDF.__init__(self, props)
         self.m_flags = self._flags
         self.m_components = [self._flags]
+        if self._kind == "spectral":
+            self._upsampling()  # a missing or corrupt table fails at load, not in a render
 
     def _setup_sampling(self, sampling: str, profile, shape) -> None:
         self.sampling = sampling
@@ -376,6 +399,23 @@ class GlossyBSDF:
 
     def _rho(self, wi, wo, active):  # pragma: no cover - abstract
         raise NotImplementedError
+
+    def _colour(self, rgb, si):
+        """The variant's value of the linear-RGB BRDF value ``rgb`` (a Color3f): itself
+        in rgb variants, its luminance (``mi.luminance``) in mono ones, its spectrum at
+        ``si.wavelengths`` in spectral ones (:class:`~mitsuba_plugin.kernels.
+        SpectralUpsampling`). A Python branch at trace time: rgb kernels are unchanged."""
+        if self._kind == "rgb":
+            return rgb
+        if self._kind == "mono":
+            return self._m.UnpolarizedSpectrum(self._m.luminance(rgb))
+        return self._upsampling().spectrum(rgb, si.wavelengths)
+
+    def _out(self, value):
+        """``value`` (an UnpolarizedSpectrum) as the variant's Spectrum: in polarized
+        variants a depolarizing Mueller matrix (``mi.depolarizer``), which needs no
+        rotation between the local and world frames."""
+        return self._m.depolarizer(value) if self._polarized else value
 
     def _pdf(self, wi, wo):
         m = self._m
@@ -388,10 +428,10 @@ class GlossyBSDF:
 
     # Mitsuba interface ---------------------------------------------------------------
     def sample(self, ctx, si, sample1, sample2, active=True):
-        m, zero3 = self._m, self._zero3
+        m, zero = self._m, self._zero_s
         bs = dr.zeros(m.BSDFSample3f)
         if not ctx.is_enabled(m.BSDFFlags.GlossyReflection):
-            return bs, m.Color3f(zero3)
+            return bs, self._out(zero)
         wi = si.wi
         wo = m.warp.square_to_cosine_hemisphere(sample2)
         if self.sampling == "lobe":
@@ -406,17 +446,18 @@ class GlossyBSDF:
         bs.sampled_component = m.UInt32(0)
         co = m.Frame3f.cos_theta(wo)
         ok = active & (m.Frame3f.cos_theta(wi) > 0.0) & (co > 0.0) & (pdf > 0.0)
-        f = self._rho(wi, wo, ok)
+        f = self._colour(self._rho(wi, wo, ok), si)
         weight = f * (co / dr.maximum(pdf, 1e-30))
-        return bs, dr.select(ok, weight, zero3)
+        return bs, self._out(dr.select(ok, weight, zero))
 
     def eval(self, ctx, si, wo, active=True):
-        m, zero3 = self._m, self._zero3
+        m, zero = self._m, self._zero_s
         if not ctx.is_enabled(m.BSDFFlags.GlossyReflection):
-            return m.Color3f(zero3)
+            return self._out(zero)
         co = m.Frame3f.cos_theta(wo)
         ok = active & (m.Frame3f.cos_theta(si.wi) > 0.0) & (co > 0.0)
-        return dr.select(ok, self._rho(si.wi, wo, ok) * co, zero3)
+        f = self._colour(self._rho(si.wi, wo, ok), si)
+        return self._out(dr.select(ok, f * co, zero))
 
     def pdf(self, ctx, si, wo, active=True):
         if not ctx.is_enabled(self._m.BSDFFlags.GlossyReflection):
@@ -506,7 +547,7 @@ class TabulatedBRDF(GlossyBSDF):
         return acc
 
     def to_string(self):
-        return (f"TabulatedBRDF[filename={self.filename!r}, shape={self.shape}, "
+        return (f"{type(self).__name__}[filename={self.filename!r}, shape={self.shape}, "
                 f"sampling={self.sampling}, interpolate={self.interpolate}, "
                 f"memory_bytes={self.memory_bytes}]")
 
@@ -589,17 +630,20 @@ class SparseBSDF(GlossyBSDF):
         self._shape = Shape(ops, model.shape)
         self._use_cos = ops.f(1.0 if model.transform == "log-plus-cosine" else 0.0)
         self.layout = None
+        self._model, self._ens, self._grad, self._ad = model, ens, False, None
         if self.decoder == "grouped":
             self._build_grouped(model, ens, layout)
         else:
             self._build_strict(model, ens)
+        # the coded channels' values, as mi.traverse exposes them (``values_0`` ...)
+        self._values = [self._value_array(v) for v in model.values]
         self._setup_sampling(self.sampling, sparse_profile(model, ens), model.shape)
 
     # data ----------------------------------------------------------------------------
     def _build_grouped(self, model, ens, layout: str) -> None:
         chans = grouped_channels(model, ens)
         self.channels = chans
-        lay = grouped_layout(chans, model.shape, None if layout == "auto" else layout)
+        lay = grouped_layout(chans, model.shape, None if layout in ("auto", None) else layout)
         self.layout = lay.kind
         self._grouped = upload_grouped(self._ops, lay, chans[0])
         self.memory_bytes = (self._ops.nbytes(self._grouped.tables)
@@ -616,12 +660,71 @@ class SparseBSDF(GlossyBSDF):
             self._strict.values, self._strict.packed, self._strict.rows))
         self.distinct_atoms = tuple(tuple(r.shape[0] for r in ch.rows) for ch in chans)
 
+    # differentiable values -----------------------------------------------------------
+    def _value_array(self, v):
+        v = np.asarray(v, np.float32)
+        return self._m.Float(v) if self._ops.jit else self._m.TensorXf(v)
+
+    def traverse(self, callback):
+        """Expose the coded channels' coefficient values as ``values_0``, ``values_1``,
+        ``values_2`` (Float arrays in the file's term order, one per channel),
+        differentiable. The support (which atoms) is fixed; only the values change."""
+        for c, v in enumerate(self._values):
+            callback.put(f"values_{c}", v, self._m.ParamFlags.Differentiable)
+
+    def parameters_changed(self, keys=None):
+        """Re-derive the decoder's buffers from the (possibly updated) values: exactly as
+        from a file holding those values, plus, when a channel's values carry gradients,
+        a zero-valued Dr.Jit term through which they flow (:mod:`mitsuba_plugin.
+        differentiable`)."""
+        if keys and not any(str(k).startswith("values_") for k in keys):
+            return
+        vals = []
+        for c, (v, n) in enumerate(zip(self._values, self.n_terms, strict=True)):
+            a = np.asarray(dr.detach(v) if self._ops.jit else v, np.float32).ravel()
+            if a.size != n:
+                raise PluginError(f"{self.plugin}: {self.filename!r}: values_{c} holds "
+                                  f"{a.size} values, channel {c} has {n} terms (the "
+                                  "support is fixed)")
+            if not np.isfinite(a).all():
+                raise PluginError(f"{self.plugin}: {self.filename!r}: values_{c} holds "
+                                  "NaN or inf values")
+            vals.append(a)
+        model = dataclasses.replace(self._model, values=vals)
+        self._model = model
+        if self.decoder == "grouped":
+            self._build_grouped(model, self._ens, self.layout)
+        else:
+            self._build_strict(model, self._ens)
+        self._grad = self._ops.jit and any(dr.grad_enabled(v) for v in self._values)
+        if self._grad:
+            self._attach_gradients()
+
+    def _attach_gradients(self) -> None:
+        """Build the derivative carrier's data once (it depends on the support only): the
+        strict decoder's atom rows and packed indices, and per channel the file's term
+        index of each of its terms (:func:`mitsuba_plugin.differentiable.strict_orders`).
+        The decoders' own buffers stay detached, so the kernel's derivative flows only
+        through the values, read inside the kernel like any Mitsuba parameter."""
+        if self._ad is None:
+            chans = [strict_channel(*channel_terms(self._model, self._ens, c))
+                     for c in range(3)]
+            orders = [self._ops.uints(o if o.size else [0])
+                      for o in dif.strict_orders(self._model, self._ens)]
+            self._ad = (upload_strict(self._ops, strict_layout(chans)), orders)
+
     # lookups -------------------------------------------------------------------------
     def _x_grouped(self, bins, lin, active):
         return grouped_x(self._ops, self._grouped, bins, lin, active)
 
     def _x_strict(self, c, bins, lin, active):
         return strict_x(self._ops, self._strict, self._shape, c, bins, lin, active)
+
+    def _x_grad(self, c, bins, lin, active):
+        """The derivative carrier of channel c (zero in value), see :func:`strict_x`."""
+        buf, orders = self._ad
+        return strict_x(self._ops, buf, self._shape, c, bins, lin, active,
+                        grad=(self._values[c], orders[c]))
 
     def _rho(self, wi, wo, active):
         ops, sh = self._ops, self._shape
@@ -648,6 +751,8 @@ class SparseBSDF(GlossyBSDF):
             valid = dr.select(ok, 1.0, 0.0)
         if not grouped:
             xs = [self._x_strict(c, bins, lin, active) for c in range(3)]
+        if self._grad:  # a Python branch: only differentiated renders trace the carrier
+            xs = [x + self._x_grad(c, bins, lin, active) for c, x in enumerate(xs)]
         if self._mix is not None:  # a Python branch: rgb materials trace no mix
             xs = mix_colour(xs, self._mix)
         scale = valid * dr.rcp(w)
@@ -658,7 +763,7 @@ class SparseBSDF(GlossyBSDF):
         return self._m.Color3f(*out)
 
     def to_string(self):
-        return (f"SparseBRDF[filename={self.filename!r}, transform={self.transform}, "
+        return (f"{type(self).__name__}[filename={self.filename!r}, transform={self.transform}, "
                 f"basis={self.basis}, terms={self.n_terms}, decoder={self.decoder}, "
                 f"layout={self.layout}, sampling={self.sampling}, "
                 f"interpolate={self.interpolate}, memory_bytes={self.memory_bytes}]")
@@ -673,13 +778,70 @@ def _derive(blueprint: type, base: type, **attrs) -> type:
     return type(blueprint.__name__, (base,), {**body, **attrs})
 
 
-def make_classes(module) -> tuple[type, type]:
+#: What each kind of variant returns from ``eval``: its colour representation.
+VARIANT_KINDS = ("rgb", "mono", "spectral")
+
+
+def variant_kind(name: str) -> tuple[str, bool]:
+    """(colour kind, polarized) of the Mitsuba variant ``name``, e.g.
+    ``("spectral", True)`` for ``llvm_ad_spectral_polarized``; a :class:`PluginError`
+    naming the variant if the plugin cannot render in it."""
+    parts = name.split("_")
+    kinds = [k for k in VARIANT_KINDS if k in parts]
+    if len(kinds) != 1 or (parts[0] not in ("scalar", "llvm", "cuda")):
+        raise PluginError(f"mitsuba_plugin: the Mitsuba variant {name!r} is not supported "
+                          f"(expected a scalar, llvm or cuda variant of "
+                          f"{', '.join(VARIANT_KINDS)} colours)")
+    return kinds[0], "polarized" in parts
+
+
+def srgb_coeff_path() -> Path:
+    """Mitsuba's RGB-to-spectrum table, ``data/srgb.coeff`` (Mitsuba's file resolver,
+    else the installed package's folder)."""
+    import mitsuba as mi  # lazy: `import mitsuba_plugin` does not load Mitsuba
+
+    try:
+        p = Path(str(mi.file_resolver().resolve("data/srgb.coeff")))
+        if p.is_file():
+            return p
+    except Exception:  # noqa: BLE001 - fall back to the package folder
+        pass
+    return Path(mi.__file__).parent / "data" / "srgb.coeff"
+
+
+def _upsampling_loader(name: str, ops: Ops):
+    """A function returning the variant's :class:`SpectralUpsampling`, read once."""
+    box: list = []
+    lock = threading.Lock()
+
+    def get(_self=None):
+        with lock:
+            if not box:
+                path = srgb_coeff_path()
+                try:
+                    box.append(SpectralUpsampling(ops, path))
+                except (OSError, ValueError) as exc:
+                    raise PluginError(f"mitsuba_plugin: variant {name}: cannot read "
+                                      f"Mitsuba's spectral upsampling table {path}: "
+                                      f"{exc}") from exc
+        return box[0]
+
+    return get
+
+
+def make_classes(module, name: str | None = None) -> tuple[type, type]:
     """(TabulatedBRDF, SparseBSDF) of variant module ``module`` (e.g.
-    ``mitsuba.llvm_ad_rgb``): the classes above on that variant's ``mi.BSDF``."""
+    ``mitsuba.llvm_ad_rgb``, whose variant is ``name``, default: the module's own name):
+    the classes above on that variant's ``mi.BSDF``."""
     m = VariantNamespace(module)
+    name = name or m.name
+    kind, polarized = variant_kind(name)
+    ops = Ops(m)
     flags = m.BSDFFlags.GlossyReflection | m.BSDFFlags.FrontSide
-    base = _derive(GlossyBSDF, m.BSDF, _m=m, _ops=Ops(m), _flags=flags,
-                   _glossy=int(+m.BSDFFlags.GlossyReflection), _zero3=m.Color3f(0.0))
+    base = _derive(GlossyBSDF, m.BSDF, _m=m, _ops=ops, _flags=flags,
+                   _glossy=int(+m.BSDFFlags.GlossyReflection), _zero3=m.Color3f(0.0),
+                   _zero_s=m.UnpolarizedSpectrum(0.0), _kind=kind, _polarized=polarized,
+                   _upsampling=_upsampling_loader(name, ops))
     return _derive(TabulatedBRDF, base), _derive(SparseBSDF, base)
 
 
@@ -692,7 +854,8 @@ def _current_variant(variant: str | None = None) -> str:
 
     name = variant or mi.variant()
     if name is None:
-        raise RuntimeError("no Mitsuba variant is set: call mi.set_variant(...) first")
+        raise PluginError("mitsuba_plugin: no Mitsuba variant is set: call "
+                          "mi.set_variant(...) first")
     return name
 
 
@@ -700,7 +863,13 @@ def classes(variant: str | None = None) -> tuple[type, type]:
     """(TabulatedBRDF, SparseBSDF) classes of ``variant`` (default: the current one)."""
     name = _current_variant(variant)
     if name not in _CLASSES:
-        _CLASSES[name] = make_classes(importlib.import_module(f"mitsuba.{name}"))
+        variant_kind(name)  # an unsupported variant: one line naming it
+        try:
+            module = importlib.import_module(f"mitsuba.{name}")
+        except ImportError as exc:
+            raise PluginError(f"mitsuba_plugin: the Mitsuba variant {name!r} is not "
+                              f"available in this installation: {exc}") from exc
+        _CLASSES[name] = make_classes(module, name)
     return _CLASSES[name]
 
 

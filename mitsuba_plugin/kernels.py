@@ -11,6 +11,7 @@ and per-material numbers only as buffers or ``dr.opaque`` scalars (see :meth:`Op
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import drjit as dr
 
@@ -107,14 +108,19 @@ class Ops:
             return dr.select(cond, a, b)
         return a if cond else b
 
-    def loop(self, n, body, init):
+    def loop(self, n, body, init, sum_style: bool = False):
         """acc = init; for g in range(n): acc = body(g, acc) -- a Dr.Jit loop over an
-        opaque count, so one kernel serves any n."""
+        opaque count, so one kernel serves any n. ``sum_style``: the body only adds to
+        ``acc`` terms that do not depend on it, which lets Dr.Jit differentiate the loop
+        in reverse mode without storing its trajectory (set only when differentiating,
+        so undifferentiated kernels are unchanged)."""
         m = self.m
+        extra = {"max_iterations": -1} if sum_style else {}
         _, acc = dr.while_loop(
             state=(m.UInt32(0), init),
             cond=lambda g, acc: g < n,
             body=lambda g, acc: (g + 1, body(g, acc)),
+            **extra,
         )
         return acc
 
@@ -284,3 +290,112 @@ def lobe_pdf(ops: Ops, wi, wo, exponent):
     d = dr.abs(dr.dot(wo, h))
     p = power_cosine_pdf(h.z, exponent) * dr.rcp(4.0 * dr.maximum(d, 1e-12))
     return dr.select((d > 0.0) & (h.z > 0.0), p, 0.0)
+
+
+# ------------------------------------------------------------- spectral upsampling
+
+
+def read_srgb_coeff(path):
+    """(res, scale (res,), coefficients (3, res, res, res, 3)) of an RGB-to-spectrum
+    table file in the RGB2Spec format of Jakob and Hanika 2019 (Mitsuba ships one as
+    ``data/srgb.coeff``): the magic ``SPEC``, the resolution as uint32, ``res`` float32
+    samples of the largest component, then the coefficient grid, float32, indexed by
+    (largest component, its sample, the next component, the one after, coefficient).
+    Anything past the grid (newer files add a forward model) is not needed here."""
+    import numpy as np  # lazy: only spectral variants read the table
+
+    raw = Path(path).read_bytes()
+    if raw[:4] != b"SPEC" or len(raw) < 8:
+        raise ValueError("not an RGB2Spec coefficient table (no 'SPEC' header)")
+    res = int(np.frombuffer(raw, "<u4", 1, 4)[0])
+    n_grid = 3 * res ** 3 * 3
+    if not 2 <= res <= 1024 or len(raw) < 8 + 4 * (res + n_grid):
+        raise ValueError(f"truncated RGB2Spec table (resolution {res}, {len(raw)} bytes)")
+    scale = np.frombuffer(raw, "<f4", res, 8).astype(np.float32)
+    data = np.frombuffer(raw, "<f4", n_grid, 8 + 4 * res).astype(np.float32)
+    return res, scale, data.reshape(3, res, res, res, 3)
+
+
+class SpectralUpsampling:
+    """Linear RGB -> spectrum at given wavelengths, as Mitsuba's own textures and emitters
+    upsample unbounded RGB in spectral variants: the colour is divided by twice its
+    largest component (a reflectance whose largest component is 1/2), its three
+    coefficients are looked up in the RGB2Spec table (trilinear, as ``rgb2spec_fetch``:
+    greys in closed form), the sigmoid polynomial is evaluated with
+    ``mi.srgb_model_eval`` at the wavelengths, and the factor is multiplied back. Unlike
+    ``mi.srgb_model_fetch`` (one scalar colour at a time) the lookup runs vectorised in
+    the kernel, per BRDF value.
+    """
+
+    def __init__(self, ops: Ops, path) -> None:
+        res, scale, data = read_srgb_coeff(path)
+        self.ops = ops
+        self.res = res
+        self.path = str(path)
+        self._scale = ops.floats(scale)
+        self._data = ops.floats(data)  # flat: 3 floats per grid point
+        # binary-search steps over the scale samples (powers of two below res - 1)
+        self._steps = [1 << b for b in reversed(range(max(res - 2, 1).bit_length()))]
+
+    def _interval(self, z):
+        """The largest k in [0, res - 2] with scale[k] <= z (scale increases)."""
+        ops = self.ops
+        lo = ops.m.UInt32(0) if ops.jit else 0
+        top = self.res - 2
+        for step in self._steps:
+            cand = lo + step
+            ok_c = cand <= top
+            c_safe = ops.where(ok_c, cand, top)
+            take = ok_c & (ops.gather(self._scale, c_safe) <= z)
+            lo = ops.where(take, cand, lo)
+        return lo
+
+    def coefficients(self, r, g, b):
+        """The three sigmoid-polynomial coefficients of the colour (r, g, b), each
+        clamped to [0, 1], as ``rgb2spec_fetch`` computes them."""
+        ops = self.ops
+        res = self.res
+        r, g, b = (dr.clip(x, 0.0, 1.0) for x in (r, g, b))
+        # the largest component i (ties: the later one) and the two after it, cyclically
+        gi = g >= r
+        zrg = ops.where(gi, g, r)
+        bi = b >= zrg
+        z = ops.where(bi, b, zrg)
+        x = ops.where(bi, r, ops.where(gi, b, g))
+        y = ops.where(bi, g, ops.where(gi, r, b))
+        i = ops.where(bi, 2, ops.where(gi, 1, 0))
+        zs = ops.where(z > 0.0, z, 1.0)
+        sc = (res - 1) / zs
+        xf, yf = x * sc, y * sc
+        xi = dr.minimum(ops.to_u(xf), res - 2)
+        yi = dr.minimum(ops.to_u(yf), res - 2)
+        zi = self._interval(z)
+        s0 = ops.gather(self._scale, zi)
+        s1 = ops.gather(self._scale, zi + 1)
+        x1, y1 = xf - xi, yf - yi
+        z1 = (z - s0) / (s1 - s0)
+        base = ((i * res + zi) * res + yi) * res + xi
+        acc = None
+        for dz, wz in ((0, 1.0 - z1), (res * res, z1)):
+            for dy, wy in ((0, 1.0 - y1), (res, y1)):
+                for dx, wx in ((0, 1.0 - x1), (1, x1)):
+                    v = ops.gather3(self._data, base + (dz + dy + dx))
+                    w = wz * wy * wx
+                    acc = v * w if acc is None else acc + v * w
+        # greys in closed form: (0, 0, (v - 1/2) / sqrt(v (1 - v))), black/white -/+ 8192
+        grey = (r == g) & (g == b)
+        v = dr.clip(r, 1e-30, 1.0 - 1e-7)
+        cg = (v - 0.5) * dr.rsqrt(v * (1.0 - v))
+        cg = ops.where(r <= 0.0, -8192.0, ops.where(r >= 1.0, 8192.0, cg))
+        # (black is a grey, so z > 0 wherever the table is used)
+        return [ops.where(grey, 0.0, acc[0]), ops.where(grey, 0.0, acc[1]),
+                ops.where(grey, cg, acc[2])]
+
+    def spectrum(self, rgb, wavelengths):
+        """The spectrum of unbounded linear RGB ``rgb`` (>= 0) at ``wavelengths`` (nm), an
+        ``UnpolarizedSpectrum`` of the variant."""
+        m = self.ops.m
+        factor = 2.0 * dr.maximum(dr.maximum(rgb[0], rgb[1]), rgb[2])
+        inv = dr.rcp(dr.maximum(factor, 1e-8))
+        coeff = m.Color3f(*self.coefficients(rgb[0] * inv, rgb[1] * inv, rgb[2] * inv))
+        return m.srgb_model_eval(coeff, wavelengths) * factor

@@ -24,6 +24,15 @@ class BRDF:
         Short material name (e.g. ``"gold-metallic-paint"``).
     source : str
         Where it came from (a path, or ``mitsuba:<name>``).
+    meta : dict
+        Free-form provenance kept with the material (e.g. a tabulation's settings).
+
+    Raises
+    ------
+    InvalidBRDFError
+        On construction, if ``values`` is not (n_h, n_d, n_p, 3), ``valid`` does not
+        match it, or the valid bins hold NaN, inf or negative values, or none is valid.
+        Values on invalid bins are set to 0 and stored as float32.
     """
 
     values: np.ndarray
@@ -64,21 +73,41 @@ class BRDF:
         return tuple(self.values.shape[:3])  # type: ignore[return-value]
 
     def channel_first(self) -> np.ndarray:
-        """Values as a contiguous float32 array of shape (3, n_h, n_d, n_p)."""
+        """The values channel-first.
+
+        Returns
+        -------
+        numpy.ndarray
+            A contiguous float32 copy of shape (3, n_h, n_d, n_p) (the layout the
+            transforms and the encoder work in).
+        """
         return np.ascontiguousarray(np.moveaxis(self.values, -1, 0))
 
     def albedo(self) -> np.ndarray:
-        """Directional albedo estimate, RGB, averaged over incident directions.
+        """Albedo estimate: rho cos(theta_o) integrated over the outgoing hemisphere,
+        averaged (cosine-weighted) over the incident one.
 
-        Integrates rho * cos(theta_o) over the outgoing hemisphere for each incident
-        direction with the grid's own quadrature (Jacobian of the half/difference
-        parameterisation: sin(theta_d) sin(theta_h) cos(theta_h)), then averages over
-        the incident hemisphere (cosine-weighted). A lossless white Lambertian gives ~1.
+        The integral uses the grid's own quadrature in half/difference angles
+        (:func:`hemispherical_albedo`, bins evaluated at their centres).
+
+        Returns
+        -------
+        numpy.ndarray
+            float64, shape (3,): the RGB albedo (dimensionless); a lossless white
+            Lambertian surface gives about 1.
         """
         return hemispherical_albedo(self.values, self.valid)
 
     def summary(self) -> dict:
-        """Shape, valid bins, per-channel value range and an albedo estimate."""
+        """A JSON-ready description (what ``sparse-brdf info`` prints).
+
+        Returns
+        -------
+        dict
+            ``name``, ``source``, ``shape`` ([n_h, n_d, n_p]), ``valid_bins``,
+            ``total_bins``, and per RGB channel over the valid bins ``min``, ``max`` and
+            ``mean`` (1/sr) and ``albedo`` (see :meth:`albedo`).
+        """
         v = self.values[self.valid]
         return {
             "name": self.name,
@@ -94,12 +123,24 @@ class BRDF:
 
 
 def hemispherical_albedo(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """Bi-hemispherical albedo (RGB) of tabulated values (n_h, n_d, n_p, 3).
+    """Bi-hemispherical albedo of tabulated values.
 
     (1/pi) * integral over wi, wo of rho cos_i cos_o, written in half/difference angles:
     d(wi) d(wo) = 4 cos(theta_d) sin(theta_h) sin(theta_d) d(theta_h) d(phi_h)
     d(theta_d) d(phi_d). phi_h integrates to 2 pi, and phi_d covers [0, pi) of [0, 2 pi)
     (reciprocity), so a factor 2. Bins are evaluated at their centres in each angle.
+
+    Parameters
+    ----------
+    values : numpy.ndarray
+        Linear BRDF values (n_h, n_d, n_p, 3), 1/sr.
+    valid : numpy.ndarray
+        Bool (n_h, n_d, n_p): the bins integrated over.
+
+    Returns
+    -------
+    numpy.ndarray
+        Shape (3,): the RGB albedo (dimensionless).
     """
     shape = values.shape[:3]
     n_h, n_d, n_p = shape

@@ -26,7 +26,7 @@ from .errors import (
     UsageError,
     one_line,
 )
-from .evaluation.batch import encode_batch, is_batch
+from .evaluation.batch import encode_batch, encode_file, is_batch
 from .evaluation.bench import Bench, BenchConfig, check_config
 from .evaluation.fit_scene import fit_scene
 from .evaluation.render import (
@@ -47,7 +47,13 @@ from .model import budget as budget_module
 from .model import encode as encode_module
 from .model import train as train_module
 from .model.budget import encode_to_bytes
-from .model.encode import DEFAULT_FILL_ITERS, DEFAULT_N_COEFFS, PAPER_OPTIONS, encode
+from .model.encode import (
+    DEFAULT_FILL_ITERS,
+    DEFAULT_N_COEFFS,
+    PAPER_OPTIONS,
+    check_n_coeffs,
+    encode,
+)
 from .model.ensemble import Ensemble, resolve_ensemble
 from .model.interpolate import PARAMETERS as INTERPOLATE
 from .model.interpolate import interpolate
@@ -188,27 +194,24 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 def cmd_encode(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
-    options = {"selector": args.selector, "fill": args.fill, "basis": args.basis}
+    options = {"max_error": args.max_error, "transform": args.transform,
+               "fill_iters": args.fill_iters, "budget": args.budget,
+               "selector": args.selector, "fill": args.fill, "basis": args.basis}
     if args.paper:
         options.update(PAPER_OPTIONS)
     if is_batch(args.source):
         if args.bytes is not None:
             raise UsageError("--bytes: byte budgets encode one material at a time (not a "
                              "batch yet); give --coeffs for a batch")
-        return _encode_batch(args, options)
-    _check_outputs([args.output], [args.source, args.ensemble])
-    ens = resolve_ensemble(args.ensemble)
-    args.coeffs = _cap_coeffs(args, ens)
-    if args.bytes is not None:
-        model = encode_to_bytes(load_brdf(args.source), ens, args.bytes,
-                                max_error=args.max_error, transform=args.transform,
-                                fill_iters=args.fill_iters, budget=args.budget, **options)
-    else:
-        model = encode(load_brdf(args.source), ens, args.coeffs,
-                       args.max_error, args.transform, fill_iters=args.fill_iters,
-                       budget=args.budget, **options)
+        with executor(args.workers, args.scheduler) as ex:
+            summary = encode_batch(args.source, args.output, args.ensemble,
+                                   {"n_coeffs": args.coeffs, **options}, ex)
+        _note_capped(args, summary["grid"])
+        return _report_batch(args, summary)
+    path, model = encode_file(args.source, args.output, args.ensemble, args.coeffs,
+                              args.bytes, **options)
+    _note_capped(args, model.shape)
     seconds = time.perf_counter() - t0
-    path = save_sbrdf(args.output, model)
     info = {"output": str(path), "bytes": path.stat().st_size, "seconds": seconds,
             "transform": model.transform, "coefficients": model.n_coeffs.tolist(),
             "dictionaries": model.dict_index.tolist(), **model.stats}
@@ -222,15 +225,8 @@ def cmd_encode(args: argparse.Namespace) -> int:
     return 0
 
 
-def _encode_batch(args: argparse.Namespace, options: dict) -> int:
-    """``encode DIR_OR_GLOB -o OUT_DIR``: exit status 1 if any material failed."""
-    options = {"n_coeffs": args.coeffs, "max_error": args.max_error,
-               "transform": args.transform, "fill_iters": args.fill_iters,
-               "budget": args.budget, **options}
-    ens = resolve_ensemble(args.ensemble)
-    options["n_coeffs"] = _cap_coeffs(args, ens)
-    with executor(args.workers, args.scheduler) as ex:
-        summary = encode_batch(args.source, args.output, ens, options, ex)
+def _report_batch(args: argparse.Namespace, summary: dict) -> int:
+    """Print a batch's summary; exit status 1 if any material failed."""
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
@@ -253,15 +249,14 @@ def _add_where(p: argparse.ArgumentParser, what: str) -> None:
                    help=f"run {what} on an existing Dask cluster (e.g. tcp://host:8786)")
 
 
-def _cap_coeffs(args: argparse.Namespace, ens: Ensemble) -> int:
-    """``--coeffs`` capped to the entries of a channel of the ensemble's grid (the option is
-    a maximum): silently for the default, with a note on stderr when the user gave it."""
-    most = math.prod(ens.shape)
-    if args.coeffs > most and args.coeffs_given:
+def _note_capped(args: argparse.Namespace, shape: tuple[int, ...]) -> None:
+    """``--coeffs`` is a maximum: the library caps it at a channel's entries. Say so on
+    stderr when the user gave a number beyond the grid; the default stays silent."""
+    most = math.prod(shape)
+    if args.coeffs_given and args.coeffs > most:
         print(f"sparse-brdf: note: --coeffs {args.coeffs}: a channel of the "
-              f"{'x'.join(map(str, ens.shape))} grid holds {most} coefficients; encoding "
-              f"at most {most}", file=sys.stderr)
-    return min(args.coeffs, most)
+              f"{'x'.join(map(str, shape))} grid holds {most} coefficients; encoded at "
+              f"most {most}", file=sys.stderr)
 
 
 class _Given(argparse.Action):
@@ -270,13 +265,6 @@ class _Given(argparse.Action):
     def __call__(self, parser, namespace, values, option_string=None):
         setattr(namespace, self.dest, values)
         setattr(namespace, f"{self.dest}_given", True)
-
-
-def _check_coeffs(n: int | None, ens: Ensemble) -> None:
-    """Refuse ``--coeffs`` beyond the entries of the ensemble's grid."""
-    if n is not None and n > math.prod(ens.shape):
-        raise UsageError(f"--coeffs {n}: a channel of the {'x'.join(map(str, ens.shape))} "
-                         f"grid holds at most {math.prod(ens.shape)} coefficients")
 
 
 def cmd_decode(args: argparse.Namespace) -> int:
@@ -296,12 +284,12 @@ def cmd_blend(args: argparse.Namespace) -> int:
         ens = resolve_ensemble(args.ensemble, for_id=load_sbrdf(args.a).ensemble_id)
     except EnsembleMismatchError as exc:
         raise EnsembleMismatchError(f"{args.a}: {exc}") from exc
-    _check_coeffs(args.coeffs, ens)
+    n = None if args.coeffs is None else check_n_coeffs(args.coeffs, ens)
     a, b = load_sbrdf(args.a, ens), load_sbrdf(args.b, ens)
     if a.transform != b.transform:
         raise UsageError(f"cannot blend {args.a} ({a.transform}) with {args.b} "
                          f"({b.transform}): encode both with the same --transform")
-    out = save_sbrdf(args.output, interpolate(a, b, args.alpha, ens, args.coeffs))
+    out = save_sbrdf(args.output, interpolate(a, b, args.alpha, ens, n))
     print(f"wrote {out}")
     return 0
 

@@ -100,6 +100,12 @@ class MitsubaSetupError(SparseBRDFError, RuntimeError):
     """Mitsuba or its LLVM back-end is missing or unusable."""
 
 
+class WorkerLostError(SparseBRDFError, RuntimeError):
+    """A Dask worker died (killed, out of memory, its machine gone) holding work that
+    cannot be redone elsewhere, such as the trainer's shards of tensors; the run stops and
+    a second run resumes from what was saved (checkpoints, finished outputs)."""
+
+
 class Interrupted(KeyboardInterrupt):
     """Not an error: SIGTERM or SIGHUP arrived (raised by the handler that
     :func:`sparse_brdf.fileio.cleanup_on_signals` installs, after removing temporaries)."""

@@ -20,14 +20,27 @@ OBJECT_ONLY = "object-only"
 
 
 class SNRForms(NamedTuple):
-    """Rendering SNR (dB) in both forms: ``whole`` over every pixel (background included,
-    as the paper computed it) and ``object`` over the pixels whose camera rays hit the
-    object (the strict form)."""
+    """Rendering SNR in both forms, as returned by :func:`snr_forms`.
+
+    Attributes
+    ----------
+    whole : float
+        SNR in dB over every pixel, background included (the paper's form).
+    object : float
+        SNR in dB over the pixels whose camera rays hit the object (the strict form).
+    """
 
     whole: float
     object: float
 
     def as_dict(self) -> dict[str, float]:
+        """The two forms under the keys the bench records.
+
+        Returns
+        -------
+        dict of str to float
+            ``{"snr_whole": whole, "snr_object": object}``, in dB.
+        """
         return {"snr_whole": self.whole, "snr_object": self.object}
 
     def __str__(self) -> str:
@@ -37,11 +50,25 @@ class SNRForms(NamedTuple):
 def render_snr(ref: np.ndarray, img: np.ndarray, mask: np.ndarray | None = None) -> float:
     """Rendering SNR in dB: 10 log10(sum ref^2 / sum (ref - img)^2).
 
-    ``ref``/``img``: linear images (H, W, C); ``mask``: bool (H, W) selecting the pixels
-    summed over (None: every pixel, the whole-image form). Identical images give ``inf``;
-    a zero reference with a nonzero image gives ``-inf``. Raises
-    :class:`~sparse_brdf.errors.ImageFileError` (a ValueError) on a shape mismatch,
-    non-finite pixels or an empty mask.
+    Parameters
+    ----------
+    ref, img : numpy.ndarray
+        Linear images of equal shape (H, W, C), the reference and the rendering to score.
+    mask : numpy.ndarray, optional
+        Bool (H, W): the pixels summed over (the object-only form). None: every pixel
+        (the whole-image form).
+
+    Returns
+    -------
+    float
+        The SNR in dB; ``inf`` for identical images, ``-inf`` for a zero reference with a
+        nonzero image.
+
+    Raises
+    ------
+    ImageFileError
+        (a ValueError) On a shape mismatch, NaN or inf pixels, or a mask that selects no
+        pixel.
     """
     ref = np.asarray(ref, dtype=np.float64)
     img = np.asarray(img, dtype=np.float64)
@@ -68,16 +95,51 @@ def render_snr(ref: np.ndarray, img: np.ndarray, mask: np.ndarray | None = None)
 
 
 def snr_forms(ref: np.ndarray, img: np.ndarray, mask: np.ndarray) -> SNRForms:
-    """Both rendering-SNR forms of ``img`` against ``ref``; ``mask``: the object pixels,
-    bool (H, W), e.g. from :func:`sparse_brdf.render.object_mask`."""
+    """Both rendering-SNR forms of ``img`` against ``ref``.
+
+    Parameters
+    ----------
+    ref, img : numpy.ndarray
+        Linear images of equal shape (H, W, C).
+    mask : numpy.ndarray
+        Bool (H, W): the object pixels, e.g. from
+        :func:`sparse_brdf.evaluation.render.object_mask`.
+
+    Returns
+    -------
+    SNRForms
+        ``whole`` (every pixel) and ``object`` (the masked pixels), in dB.
+
+    Raises
+    ------
+    ValueError
+        As :func:`render_snr`.
+    """
     return SNRForms(render_snr(ref, img), render_snr(ref, img, mask))
 
 
 def rae(ref: np.ndarray, rec: np.ndarray, valid: np.ndarray | None = None) -> float:
     """Relative absolute error sum |ref - rec| / sum |ref| over valid bins.
 
-    ``ref``/``rec``: linear BRDF values of equal shape, e.g. (n_h, n_d, n_p, 3);
-    ``valid``: bool mask over the leading grid axes (broadcast over channels).
+    Parameters
+    ----------
+    ref, rec : numpy.ndarray
+        Linear BRDF values of equal shape, e.g. (n_h, n_d, n_p, 3): the reference and the
+        reconstruction.
+    valid : numpy.ndarray, optional
+        Bool mask over the leading grid axes, e.g. (n_h, n_d, n_p), broadcast over the
+        channels; None: every bin.
+
+    Returns
+    -------
+    float
+        The error (dimensionless; 0 is exact). With an all-zero reference: 0.0 if ``rec``
+        is zero too, else 1.0.
+
+    Raises
+    ------
+    ValueError
+        If the shapes differ.
     """
     ref, rec = _masked(ref, rec, valid)
     den = float(np.sum(np.abs(ref), dtype=np.float64))
@@ -87,7 +149,29 @@ def rae(ref: np.ndarray, rec: np.ndarray, valid: np.ndarray | None = None) -> fl
 
 def gamma_mse(ref: np.ndarray, rec: np.ndarray, valid: np.ndarray | None = None,
               gamma: float = GAMMA) -> float:
-    """MSE of x ** (1 / gamma) of linear BRDF values over valid bins (gamma = 2)."""
+    """Mean squared error of x ** (1 / gamma) over valid bins (the paper's selector).
+
+    Parameters
+    ----------
+    ref, rec : numpy.ndarray
+        Linear BRDF values of equal shape, e.g. (n_h, n_d, n_p, 3); negative values count
+        as 0.
+    valid : numpy.ndarray, optional
+        Bool mask over the leading grid axes (broadcast over the channels); None: every
+        bin.
+    gamma : float
+        The mapping's exponent is 1 / ``gamma`` (default 2: square roots).
+
+    Returns
+    -------
+    float
+        The mean over the selected entries, or NaN if none is selected.
+
+    Raises
+    ------
+    ValueError
+        If the shapes differ.
+    """
     ref, rec = _masked(ref, rec, valid)
     if ref.size == 0:
         return float("nan")
@@ -100,7 +184,20 @@ def gamma_mse(ref: np.ndarray, rec: np.ndarray, valid: np.ndarray | None = None,
 
 
 def mse(ref: np.ndarray, rec: np.ndarray, valid: np.ndarray | None = None) -> float:
-    """Plain MSE of linear BRDF values over valid bins."""
+    """Plain mean squared error of linear BRDF values over valid bins.
+
+    Parameters
+    ----------
+    ref, rec : numpy.ndarray
+        Linear BRDF values of equal shape.
+    valid : numpy.ndarray, optional
+        Bool mask over the leading grid axes; None: every bin.
+
+    Returns
+    -------
+    float
+        The mean over the selected entries, or NaN if none is selected.
+    """
     ref, rec = _masked(ref, rec, valid)
     if ref.size == 0:
         return float("nan")
@@ -109,7 +206,27 @@ def mse(ref: np.ndarray, rec: np.ndarray, valid: np.ndarray | None = None) -> fl
 
 
 def cosine_weighted_snr(ref: np.ndarray, rec: np.ndarray, valid: np.ndarray) -> float:
-    """BRDF-space SNR (dB) of rho * cos_i * cos_o over valid bins, arrays (n_h, n_d, n_p, 3)."""
+    """BRDF-space SNR of rho * cos_i * cos_o over valid bins.
+
+    Parameters
+    ----------
+    ref, rec : numpy.ndarray
+        Linear BRDF values (n_h, n_d, n_p, 3) on the MERL-style grid: the reference and
+        the reconstruction.
+    valid : numpy.ndarray
+        Bool (n_h, n_d, n_p): the bins counted.
+
+    Returns
+    -------
+    float
+        10 log10(sum (rho_ref c)^2 / sum ((rho_ref - rho_rec) c)^2) in dB, with
+        c = max(cos_i cos_o, 0) at each bin; ``inf`` if exact.
+
+    Raises
+    ------
+    ValueError
+        If the shapes differ.
+    """
     c = np.clip(cosine_product(ref.shape[:3]), 0, None)[..., None]
     ref, rec = _masked(ref * c, rec * c, valid)
     return render_snr(ref, rec)

@@ -43,7 +43,29 @@ def _weight(name: str, shape: tuple[int, int, int]) -> np.ndarray | float:
 
 
 def forward(rho: np.ndarray, name: str, valid: np.ndarray | None = None) -> np.ndarray:
-    """Transform linear BRDF values ``rho`` (..., n_h, n_d, n_p) -> float32 array."""
+    """Transform linear BRDF values into the domain the dictionaries code.
+
+    Parameters
+    ----------
+    rho : numpy.ndarray
+        Linear BRDF values (1/sr), channel-first: shape (..., n_h, n_d, n_p).
+    name : str
+        ``"log-plus"`` (t = ln(rho + 1)) or ``"log-plus-cosine"``
+        (t = ln(rho c + 1), c = clip(cos_i cos_o, 0.01, 1) at each bin).
+    valid : numpy.ndarray, optional
+        Bool (n_h, n_d, n_p), broadcast over the leading axes: invalid bins are set to
+        rho = 0 first. None: every bin as given.
+
+    Returns
+    -------
+    numpy.ndarray
+        float32, the shape of ``rho``.
+
+    Raises
+    ------
+    ValueError
+        If ``name`` is not one of :data:`TRANSFORMS`.
+    """
     rho = np.asarray(rho, dtype=np.float32)
     if valid is not None:
         rho = np.where(valid, rho, np.float32(0))
@@ -51,7 +73,25 @@ def forward(rho: np.ndarray, name: str, valid: np.ndarray | None = None) -> np.n
 
 
 def inverse(t: np.ndarray, name: str) -> np.ndarray:
-    """Inverse transform: (..., n_h, n_d, n_p) -> linear BRDF values, clamped to >= 0."""
+    """Inverse of :func:`forward`: transformed values back to linear BRDF values.
+
+    Parameters
+    ----------
+    t : numpy.ndarray
+        Transformed values, channel-first: shape (..., n_h, n_d, n_p).
+    name : str
+        The transform they are in: ``"log-plus"`` or ``"log-plus-cosine"``.
+
+    Returns
+    -------
+    numpy.ndarray
+        Linear BRDF values (1/sr), the shape of ``t``, clamped to >= 0.
+
+    Raises
+    ------
+    ValueError
+        If ``name`` is not one of :data:`TRANSFORMS`.
+    """
     t = np.asarray(t)
     return _inverse(t, _weight(name, t.shape[-3:]))
 

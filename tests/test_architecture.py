@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import ast
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -165,24 +166,85 @@ def test_lazy_imports_are_deliberate_and_explained():
     assert bad == []
 
 
+# The one module that starts threads, thread or process pools, Dask clients or BLAS
+# thread limits (docs/architecture.md, "Rules").
+PARALLEL = "sparse_brdf.parallel"
+POOL_MODULES = ("concurrent.futures", "multiprocessing", "threadpoolctl", "dask",
+                "distributed", "joblib")
+POOL_NAMES = {"Thread", "Timer", "ThreadPoolExecutor", "ProcessPoolExecutor", "Pool",
+              "ThreadpoolController", "threadpool_limits", "LocalCluster", "Client"}
+
+
+def _pool_makers(path: Path) -> list[str]:
+    """Where a file imports a pool module, or names a thread or pool class."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    hits = [f"{line}: imports {name}" for name, _, line in _imports(path)
+            if any(name == m or name.startswith(m + ".") for m in POOL_MODULES)]
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute) and node.attr in POOL_NAMES:
+            hits.append(f"{node.lineno}: uses .{node.attr}")
+        elif isinstance(node, ast.ImportFrom) and node.module == "threading":
+            hits += [f"{node.lineno}: imports threading.{a.name}" for a in node.names
+                     if a.name in POOL_NAMES]
+    return hits
+
+
+def test_only_parallel_creates_threads_and_pools():
+    """Thread pools, threads, process pools, Dask clusters and BLAS thread limits are made
+    in ``sparse_brdf/parallel.py`` alone; everything else maps through it."""
+    bad = [f"{p.relative_to(ROOT)}:{hit}" for pkg in PACKAGES for p in (ROOT / pkg).rglob("*.py")
+           if _module_name(p) != PARALLEL for hit in _pool_makers(p)]
+    assert bad == []
+    # and the check can fail: parallel.py itself makes a pool and limits BLAS
+    assert any("ThreadPoolExecutor" in h for h in _pool_makers(ROOT / "sparse_brdf/parallel.py"))
+    assert any("threadpoolctl" in h for h in _pool_makers(ROOT / "sparse_brdf/parallel.py"))
+
+
 def test_functions_stay_short():
-    """No function over 80 lines, unless its first line carries a ``# long:`` reason."""
+    """No function over 80 lines, in the packages and in benchmarks/, unless its first
+    line carries a ``# long:`` reason."""
     long = []
-    for pkg in PACKAGES:
-        for p in (ROOT / pkg).rglob("*.py"):
-            lines = p.read_text().splitlines()
-            for node in ast.walk(ast.parse("\n".join(lines))):
-                if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
-                    n = node.end_lineno - node.lineno + 1
-                    if n > 80 and "# long:" not in lines[node.lineno - 1]:
-                        long.append(f"{p.relative_to(ROOT)}:{node.lineno} {node.name}: {n} lines")
+    files = [p for d in (*PACKAGES, "benchmarks") for p in (ROOT / d).rglob("*.py")]
+    for p in files:
+        lines = p.read_text().splitlines()
+        for node in ast.walk(ast.parse("\n".join(lines))):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                n = node.end_lineno - node.lineno + 1
+                if n > 80 and "# long:" not in lines[node.lineno - 1]:
+                    long.append(f"{p.relative_to(ROOT)}:{node.lineno} {node.name}: {n} lines")
     assert long == []
 
 
+# A pointer to a text the reader does not have: a SPEC section, an issue number ("issue 14",
+# "issue #14", "#14"). Cite the paper or docs/ instead.
+POINTER = re.compile(r"\bSPEC\b|\b[Ii]ssues?\s+#?\d+|(?<![\w&#/])#\d{1,4}\b")
+
+
+def _texts_for_readers() -> list[Path]:
+    """Code, tests, benchmarks, scenes, the README and docs/: everything a reader opens."""
+    files = [p for d in (*PACKAGES, "tests", "benchmarks") for p in (ROOT / d).rglob("*.py")]
+    files += [p for d in (*PACKAGES, "scenes") for ext in ("toml", "xml", "json")
+              for p in (ROOT / d).rglob(f"*.{ext}")]
+    files += [ROOT / "README.md", ROOT / "Makefile", ROOT / "pyproject.toml",
+              *(ROOT / "docs").rglob("*.md"), *(ROOT / "benchmarks").rglob("*.md")]
+    return [p for p in files if p.is_file() and p != Path(__file__).resolve()]
+
+
 def test_no_pointer_to_files_outside_the_repository():
-    hits = [f"{p.relative_to(ROOT)}:{i}" for pkg in PACKAGES for p in (ROOT / pkg).rglob("*.py")
-            for i, line in enumerate(p.read_text().splitlines(), 1) if "SPEC" in line]
+    files = _texts_for_readers()
+    assert ROOT / "README.md" in files and any(p.parent.name == "docs" for p in files)
+    hits = [f"{p.relative_to(ROOT)}:{i}: {line.strip()[:80]}" for p in files
+            for i, line in enumerate(p.read_text(errors="replace").splitlines(), 1)
+            if POINTER.search(line)]
     assert hits == []
+
+
+def test_pointer_pattern_catches_what_it_should():
+    for text in ("SPEC section 7", "(issue 14)", "issue #13", "see #13.", "Issues 3 and 4"):
+        assert POINTER.search(text), text
+    for text in ("a SPECTRUM", "spec = 8.0", "issues about 800 gathers", "colour #1f77b4",
+                 "# long: why", "## Heading", "&#10;", "the paper's section 6"):
+        assert not POINTER.search(text), text
 
 
 def test_import_stays_light():

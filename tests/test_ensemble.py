@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from sparse_brdf.errors import BRDFFileError
-from sparse_brdf.model import train as train_mod
+from sparse_brdf.model import shards as shards_mod
 from sparse_brdf.model.ensemble import Ensemble, resolve_ensemble, shipped_ids
 from sparse_brdf.model.train import train_dictionaries, train_ensemble
 
@@ -96,7 +96,7 @@ def test_partial_product_cache_changes_nothing(small_training, monkeypatch):
     x = small_training
     kw = dict(tau=12, n_dicts=3, n_iter=4, reassign_every=2, seed=5, progress=False)
     cached = train_dictionaries(x, **kw)
-    monkeypatch.setattr(train_mod, "MAX_CACHE_BYTES", 0)
+    monkeypatch.setattr(shards_mod, "MAX_CACHE_BYTES", 0)
     plain = train_dictionaries(x, **kw)
     for name in ("u1", "u2", "u3", "labels", "codes_idx", "codes_val", "errors"):
         np.testing.assert_array_equal(getattr(cached, name), getattr(plain, name), name)

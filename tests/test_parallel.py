@@ -16,7 +16,7 @@ from conftest import SMALL
 from sparse_brdf.cli import main
 from sparse_brdf.evaluation.batch import batch_sources, encode_batch, is_batch
 from sparse_brdf.evaluation.bench import Bench, BenchConfig
-from sparse_brdf.model import train as train_mod
+from sparse_brdf.model import shards as shards_mod
 from sparse_brdf.model.sbrdf import load_sbrdf
 from sparse_brdf.model.train import train_dictionaries
 from sparse_brdf.parallel import InProcess, executor, start_executor
@@ -169,7 +169,7 @@ def test_training_is_bit_identical_on_workers(small_training, cluster, tmp_path,
     """Masked, seeded training of 40 tensors in 3 shards: the same dictionaries, codes and
     objectives in-process and on 2 workers; a run resumed on the cluster from an
     in-process checkpoint ends where an uninterrupted run does."""
-    monkeypatch.setattr(train_mod, "SHARD_TENSORS", 16)  # shards are cut here, not there
+    monkeypatch.setattr(shards_mod, "SHARD_TENSORS", 16)  # shards are cut here, not there
     x = small_training[:40]
     kw = dict(tau=12, n_dicts=3, tol=0, seed=4, progress=False, reassign_every=2)
     here = train_dictionaries(x, n_iter=3, **kw)

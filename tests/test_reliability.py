@@ -1,6 +1,6 @@
-"""Hostile input never crashes, never destroys, always explains (issue #15).
+"""Hostile input never crashes, never destroys, always explains.
 
-Every CLI error path of the issue: the exit status, exactly one line on stderr, and the
+Every CLI error path: the exit status, exactly one line on stderr, and the
 file or option it names; inputs are never overwritten, outputs never left partial;
 valid-but-unusual materials work. Small grids and a random orthonormal ensemble keep it
 fast; the few renders are marked ``render``.

@@ -14,6 +14,7 @@ from sparse_brdf.coords import geometric_valid, grid_angles
 from sparse_brdf.model import train as train_mod
 from sparse_brdf.model.encode import encode
 from sparse_brdf.model.ensemble import Ensemble
+from sparse_brdf.model.tensor_store import TensorStore
 from sparse_brdf.model.train import _converged, train_dictionaries, train_ensemble
 from sparse_brdf.sources.corpora import get_corpus
 from sparse_brdf.sources.dataset import training_data, training_tensors
@@ -195,7 +196,7 @@ def test_pruned_clustering_matches_full_search(small_training, monkeypatch):
         out = {}
         for prune in (True, False):
             monkeypatch.setattr(train_mod, "PRUNE", prune)
-            data = train_mod._Tensors(small_training, masked=False)
+            data = TensorStore(small_training, masked=False)
             out[prune] = train_mod._assign_all(data, u, 16, False, known)
         np.testing.assert_array_equal(out[True][0], out[False][0])
         # errors are ||X||^2 - kept energy: both searches agree to float32 rounding of ||X||^2
@@ -203,7 +204,7 @@ def test_pruned_clustering_matches_full_search(small_training, monkeypatch):
         same = [set(a) == set(b) for a, b in zip(out[True][1], out[False][1], strict=True)]
         assert np.mean(same) > 0.95
     stats = {}
-    data = train_mod._Tensors(small_training, masked=False)
+    data = TensorStore(small_training, masked=False)
     d = train_mod._Dicts.of(*u)
     for i in range(len(small_training)):
         train_mod._search_codes(data[i], data.norms[i], [0, 1, 2, 3], d, 16, stats=stats)

@@ -1,4 +1,9 @@
-"""Batch encoding: a folder or glob of materials to a folder of ``.sbrdf`` files.
+"""Encoding files: one material to a ``.sbrdf`` file, or a folder or glob to a folder.
+
+``sparse-brdf encode SOURCE -o OUT.sbrdf`` (:func:`encode_file`) loads one material,
+encodes it (at a coefficient count, or to a byte budget) and writes its file atomically;
+it checks its inputs first (the output is neither a folder nor one of the inputs, the
+count fits the ensemble's grid) and resolves the ensemble once.
 
 ``sparse-brdf encode DIR_OR_GLOB -o OUT_DIR`` (:func:`encode_batch`) encodes every
 material it finds (``.binary`` and ``.h5``; a glob may also match ``.sbrdf`` files) to
@@ -35,11 +40,13 @@ import time
 from pathlib import Path
 
 from ..errors import BRDFFileError, EnsembleMismatchError, MissingFileError, OutputError, UsageError
-from ..fileio import atomic_write
+from ..fileio import atomic_write, check_output
 from ..metrics import cosine_weighted_snr
-from ..model.encode import encode
+from ..model.budget import encode_to_bytes
+from ..model.encode import DEFAULT_N_COEFFS, check_n_coeffs, encode
 from ..model.ensemble import Ensemble, resolve_ensemble
 from ..model.sbrdf import load_sbrdf, save_sbrdf
+from ..model.sparse import SparseBRDF
 from ..parallel import Executor, InProcess
 from ..sources.load import SUFFIXES, load_brdf
 
@@ -51,6 +58,44 @@ SUMMARY_EVERY_S = 5.0
 SUMMARY_FIELDS = ("material", "source", "output", "status", "snr_proxy_db", "bytes",
                   "transform", "coefficients", "load_s", "seconds", "error")
 SUMMARY_JSON, SUMMARY_CSV = "summary.json", "summary.csv"
+
+
+def encode_file(source: str | os.PathLike, output: str | os.PathLike,
+                ensemble: Ensemble | str | os.PathLike | None = None,
+                n_coeffs: int = DEFAULT_N_COEFFS, n_bytes: int | None = None,
+                **options) -> tuple[Path, SparseBRDF]:
+    """Encode one material ``source`` (any BRDF source, ``sources.load``) into the
+    ``.sbrdf`` file ``output`` (written atomically).
+
+    Parameters
+    ----------
+    source : path or ``mitsuba:<name>``
+        The material.
+    output : path
+        The ``.sbrdf`` file; refused if it is a folder or one of the inputs.
+    ensemble : Ensemble, path or id, optional
+        Resolved once (``model.ensemble.resolve_ensemble``; default: the shipped one).
+    n_coeffs : int
+        Coefficients per channel, at most (checked against the ensemble's grid).
+    n_bytes : int, optional
+        A byte budget for the whole file (``model.budget.encode_to_bytes``) instead of
+        ``n_coeffs``.
+    **options
+        The other keyword arguments of :func:`~sparse_brdf.model.encode.encode`
+        (``max_error``, ``transform``, ``selector``, ...).
+
+    Returns
+    -------
+    (Path, SparseBRDF)
+        The file written and the model it holds (with the encoder's ``stats``).
+    """
+    out = check_output(output, [source, None if isinstance(ensemble, Ensemble) else ensemble])
+    ens = resolve_ensemble(ensemble)
+    n_coeffs = check_n_coeffs(n_coeffs, ens)
+    brdf = load_brdf(source)
+    model = (encode_to_bytes(brdf, ens, n_bytes, **options) if n_bytes is not None
+             else encode(brdf, ens, n_coeffs, **options))
+    return save_sbrdf(out, model), model
 
 
 def is_batch(source: str | os.PathLike) -> bool:
@@ -164,7 +209,8 @@ def encode_batch(pattern: str | os.PathLike, out_dir: str | os.PathLike,
     ``options``: keyword arguments of :func:`~sparse_brdf.model.encode.encode`
     (``n_coeffs``, ``transform``, ``selector``, ...). ``ex``: where the work runs
     (default in-process). Returns the summary (``summary.json``'s content): ``rows`` in
-    input order, and the counts ``encoded``, ``skipped``, ``failed``.
+    input order, and the counts ``encoded``, ``skipped``, ``failed``. The ensemble is
+    resolved once, and the options checked before any material is read.
     """
     from tqdm.auto import tqdm  # lazy: tqdm.auto adds ~40 ms to `sparse-brdf --help`
 
@@ -173,6 +219,8 @@ def encode_batch(pattern: str | os.PathLike, out_dir: str | os.PathLike,
     files = batch_sources(pattern)
     ens = resolve_ensemble(ensemble)
     options = dict(options or {})
+    if options.get("n_coeffs") is not None:
+        options["n_coeffs"] = check_n_coeffs(options["n_coeffs"], ens)
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise OutputError(f"{out}: a batch's output must be a folder, not a file")
@@ -187,7 +235,8 @@ def encode_batch(pattern: str | os.PathLike, out_dir: str | os.PathLike,
             rows[i] = {"material": src.stem, **_skipped_row(src, path, ens, before.get(src.stem))}
         else:
             todo.append(i)
-    meta = {**key, "pattern": os.fspath(pattern), "where": ex.describe()}
+    meta = {**key, "pattern": os.fspath(pattern), "where": ex.describe(),
+            "grid": list(ens.shape)}
     handle = ex.scatter(ens)
     write_summary(out, rows, {**meta, "seconds": 0.0})
     bar = tqdm(total=len(todo), desc="encode", unit="material", disable=not progress)

@@ -94,15 +94,41 @@ def check_budget(name: str, n_bytes: int, version: int = VERSION) -> None:
 
 def encode_to_bytes(brdf: BRDF, ensemble: Ensemble | None = None, n_bytes: int | None = None,
                     version: int = VERSION, **encode_options) -> SparseBRDF:
-    """Encode ``brdf`` so that its ``.sbrdf`` file of ``version`` holds at most ``n_bytes``
-    (see the module doc). ``encode_options``: any keyword of
-    :func:`~sparse_brdf.model.encode.encode` but ``n_coeffs`` (``max_error``,
-    ``transform``, ``selector``, ``fill``, ``fill_iters``, ``basis``, ``budget``).
+    """Encode ``brdf`` so that its ``.sbrdf`` file holds at most ``n_bytes``.
 
-    Returns the model as the file holds it (values quantised for version 2), so that
-    ``save_sbrdf(path, result, version)`` writes at most ``n_bytes``. ``stats`` are the
-    encoder's, with the chosen transform's errors recomputed for the kept coefficients and
-    ``stats["byte_budget"]``: the budget, the file's size, the counts encoded and kept, passes.
+    The largest encoding whose file fits, the coefficients kept the largest over the
+    channels (see the module doc for the search).
+
+    Parameters
+    ----------
+    brdf : BRDF
+        The material, on the ensemble's grid.
+    ensemble : Ensemble, optional
+        Default: the shipped default ensemble.
+    n_bytes : int
+        The budget: the whole file in bytes, header and name included (required; more
+        than a file of this name without coefficients takes).
+    version : int
+        The ``.sbrdf`` version whose bytes are counted: 2 (default) or 1.
+    **encode_options
+        Any keyword of :func:`~sparse_brdf.model.encode.encode` but ``n_coeffs``
+        (``max_error``, ``transform``, ``selector``, ``fill``, ``fill_iters``, ``basis``,
+        ``budget``).
+
+    Returns
+    -------
+    SparseBRDF
+        The model as the file holds it (values quantised for version 2), so that
+        ``save_sbrdf(path, result, version)`` writes at most ``n_bytes``. ``stats`` are
+        the encoder's, with the chosen transform's errors recomputed for the kept
+        coefficients, and ``stats["byte_budget"]``: the budget, the file's size, the
+        counts encoded and kept, and the passes.
+
+    Raises
+    ------
+    UsageError
+        Without ``n_bytes``, with ``n_coeffs``, for an unknown version, or for a budget
+        too small to hold a coefficient.
     """
     if "n_coeffs" in encode_options or n_bytes is None:
         raise UsageError("encode_to_bytes: give a byte budget n_bytes (and no n_coeffs)")

@@ -18,8 +18,7 @@ basis with a joint budget of 3 ``n_coeffs``. ``PAPER_OPTIONS`` gives the paper's
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -34,6 +33,7 @@ from ..metrics import (
     rae,
     render_proxy_error,
 )
+from ..parallel import parallel_map
 from ..params import Interval, check, check_choice
 from ..transforms import (
     COLOUR_BASES,
@@ -45,15 +45,9 @@ from ..transforms import (
     to_basis,
 )
 from .ensemble import Ensemble, resolve_ensemble
+from .pruning import PrunedSearch, slice_order
 from .sparse import SparseBRDF
-from .tensor import (
-    n_threads,
-    parallel_map,
-    phi_major_to_flat,
-    project,
-    project_phi_major,
-    top_k,
-)
+from .tensor import phi_major_to_flat, project, project_phi_major, top_k
 
 DEFAULT_N_COEFFS = 262
 
@@ -152,71 +146,17 @@ def project_all(brdf: BRDF, ens: Ensemble, transform: str, max_coeffs: int,
         norms=norms)
 
 
-#: Cumulative numbers of phi_d slices (rows of U3^T, taken in order of decreasing energy
-#: of the tensor along them) projected in the rounds of :func:`project_pruned`; after the
-#: last round every surviving dictionary is completed.
-PRUNE_ROUNDS = (12, 36, 90)
-
-#: Safety margin of the pruning bounds, relative to ||Y||^2: far above float32 rounding
-#: of the energies (about 1e-6), far below the gaps between dictionaries (about 1e-4).
-PRUNE_SLACK = 1e-5
-
-
-@dataclass
-class _PruneSearch:
-    """The state of :func:`project_pruned`'s search. The dicts are keyed by (channel,
-    dictionary) pairs, all of them present from the start (:meth:`start`)."""
-
-    n_dicts: int
-    n3: int  # phi_d slices of a tensor
-    n: int  # coefficients wanted per channel
-    max_error: float | None
-    done: dict[tuple[int, int], int] = field(default_factory=dict)  # slices projected
-    energy: dict[tuple[int, int], float] = field(default_factory=dict)  # their energy
-    #: flat indices and values of the n largest coefficients computed so far
-    top: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
-    alive: dict[tuple[int, int], bool] = field(default_factory=dict)  # may still win
-
-    @classmethod
-    def start(cls, n_dicts: int, n3: int, n: int, max_error: float | None) -> _PruneSearch:
-        search = cls(n_dicts, n3, n, max_error)
-        for p in search.pairs:
-            search.done[p], search.energy[p] = 0, 0.0
-            search.top[p] = (np.zeros(0, np.int64), np.zeros(0, np.float32))
-            search.alive[p] = True
-        return search
-
-    @property
-    def pairs(self) -> list[tuple[int, int]]:
-        return [(c, k) for c in range(3) for k in range(self.n_dicts)]
-
-    def add(self, p: tuple[int, int], hi: int, idx: np.ndarray, val: np.ndarray,
-            energy: float) -> None:
-        """Merge the coefficients of pair ``p``'s slices up to ``hi`` (their total energy
-        ``energy``) into what is known of it."""
-        old_idx, old_val = self.top[p]
-        idx = np.concatenate([old_idx, idx])
-        val = np.concatenate([old_val, val])
-        keep = top_k(val * val, self.n)
-        self.top[p] = (idx[keep], val[keep])
-        self.energy[p] += energy
-        self.done[p] = hi
-
-
 def project_pruned(brdf: BRDF, ens: Ensemble, transform: str, n_coeffs: int,
                    max_error: float | None = None,
                    y: np.ndarray | None = None) -> Projections:
     """:func:`project_all`, skipping dictionaries that provably cannot be selected.
 
     Gives the selection of the full search (:func:`select` with the same ``n_coeffs`` and
-    ``max_error``) at a fraction of its cost. Each channel's tensor is projected slice by
-    slice along phi_d, the slices of largest energy first (energies from one Gram matrix
-    per channel). After each round, the coefficients computed so far bound every
-    dictionary's outcome: the kept energy after m coefficients lies between the m largest
-    computed ones (L) and L plus all energy not yet computed. A dictionary whose best case
-    needs more coefficients than another's worst case, or at equal count leaves more
-    residual, is dropped (with a margin of ``PRUNE_SLACK`` ||Y||^2 against rounding);
-    the survivors are completed, so their coefficients are exact.
+    ``max_error``) at a fraction of its cost: each channel's tensor is projected slice by
+    slice along phi_d, the slices of largest energy first, and a dictionary is dropped
+    once the coefficients computed so far prove it cannot be selected (the pruned
+    projection, :mod:`~sparse_brdf.model.pruning`); the survivors are completed, so their
+    coefficients are exact.
     """
     if y is None:
         y = forward(brdf.channel_first(), check_transform(transform), brdf.valid)
@@ -229,83 +169,38 @@ def project_pruned(brdf: BRDF, ens: Ensemble, transform: str, n_coeffs: int,
     u3t = [np.ascontiguousarray(ens.u3[k].T) for k in range(n_dicts)]
 
     # slice order per (channel, dictionary): energy of Y along each row of U3^T
-    def slice_order(c):  # on the workers: small products on threaded BLAS stall under load
+    def slice_orders(c):  # on the workers: small products on threaded BLAS stall under load
         g = yt[c] @ yt[c].T
-        return [np.argsort(-np.einsum("ij,ij->j", g @ ens.u3[k], ens.u3[k]), kind="stable")
-                for k in range(n_dicts)]
+        return [slice_order(g, ens.u3[k]) for k in range(n_dicts)]
 
-    order = list(parallel_map(slice_order, range(3)))
+    order = list(parallel_map(slice_orders, range(3)))
 
-    search = _PruneSearch.start(n_dicts, n3, n, max_error)
-    pairs, done, alive = search.pairs, search.done, search.alive
-
-    def chunk(task):
-        (c, k), hi = task
-        rows = order[c][k][done[(c, k)]:hi]
+    def chunk(key, lo, hi):
+        c, k = key
+        rows = order[c][k][lo:hi]
         t = (u3t[k][rows] @ yt[c]).reshape(rows.size, n1, n2)
         sv = np.matmul(np.matmul(u1t[k], t), ens.u2[k]).ravel()
         e = sv * sv
         loc = top_k(e, n)
         slot, ab = np.divmod(loc, n1 * n2)
-        return (c, k), hi, ab * n3 + rows[slot], sv[loc], float(e.sum(dtype=np.float64))
+        return ab * n3 + rows[slot], sv[loc], float(e.sum(dtype=np.float64))
 
-    for hi_round in (*PRUNE_ROUNDS, n3):
-        hi = min(hi_round, n3)
-        tasks = [(p, hi) for p in pairs if alive[p] and done[p] < hi]
-        for p, hi_, idx, val, en in parallel_map(chunk, tasks):
-            search.add(p, hi_, idx, val, en)
-        for c in range(3):
-            _prune(search, c, norms[c])
-        if all(done[p] == n3 for p in pairs if alive[p]):
-            break
+    pairs = [(c, k) for c in range(3) for k in range(n_dicts)]
+    search = PrunedSearch.start(pairs, n3, n, max_error).run(
+        [([(c, k) for k in range(n_dicts)], norms[c], np.inf) for c in range(3)], chunk,
+        mapper=parallel_map)
 
     k_keep = min(n, n1 * n2 * n3)
     residual = np.full((3, n_dicts, k_keep), np.inf)
     idx_out = [[np.zeros(0, np.int64) for _ in range(n_dicts)] for _ in range(3)]
     val_out = [[np.zeros(0, np.float32) for _ in range(n_dicts)] for _ in range(3)]
-    for (c, k), ok in alive.items():
-        if not ok:
-            continue
+    for c, k in search.survivors():
         idx, val = search.top[(c, k)]
         e = val.astype(np.float32) ** 2
         idx_out[c][k], val_out[c][k] = idx, val
         residual[c, k, :idx.size] = norms[c] - np.cumsum(e, dtype=np.float64)
     return Projections(transform, brdf.shape, ens.id, idx=idx_out, val=val_out,
                        residual=residual, norms=norms, exact_for=(n_coeffs, max_error))
-
-
-def _prune(search: _PruneSearch, c: int, norm: float) -> None:
-    """Drop channel ``c``'s dictionaries that cannot win (see :func:`project_pruned`);
-    ``norm``: the channel's ||Y||^2."""
-    n, n3 = search.n, search.n3
-    ks = [k for k in range(search.n_dicts) if search.alive[(c, k)]]
-    if len(ks) <= 1 or norm <= 0:
-        return
-    lower = np.empty((len(ks), n))  # L(m): kept energy of the m largest computed
-    gap = np.empty(len(ks))  # energy not computed yet
-    for r, k in enumerate(ks):
-        _, val = search.top[(c, k)]
-        cum = np.cumsum(val.astype(np.float32) ** 2, dtype=np.float64)
-        lower[r, :cum.size] = cum
-        lower[r, cum.size:] = cum[-1] if cum.size else 0.0
-        gap[r] = 0.0 if search.done[(c, k)] == n3 else max(norm - search.energy[(c, k)], 0.0)
-    upper = lower + (gap + PRUNE_SLACK * norm)[:, None]
-    if search.max_error is None:
-        need_hi = need_lo = np.full(len(ks), n)
-    else:
-        thr = (1.0 - search.max_error) * norm
-
-        def first(a):
-            hit = a >= thr
-            return np.where(hit.any(axis=1), hit.argmax(axis=1) + 1, n)
-
-        need_hi, need_lo = first(lower), first(upper)
-    n_star = int(need_hi.min())
-    best = lower[need_hi == n_star, n_star - 1].max()
-    drop = (need_lo > n_star) | ((need_lo == n_star) & (upper[:, n_star - 1] < best))
-    for r, k in enumerate(ks):
-        if drop[r]:
-            search.alive[(c, k)] = False
 
 
 def select(p: Projections, n_coeffs: int, max_error: float | None = None,
@@ -396,8 +291,8 @@ def choose_transform(brdf: BRDF, models: dict[str, SparseBRDF], ens: Ensemble,
         return {k: metric[k]() for k in keys}
 
     names = list(models)
-    with ThreadPoolExecutor(max(1, min(len(names), n_threads()))) as ex:
-        sel = dict(zip(names, ex.map(lambda t: errors(t, (key,)), names), strict=True))
+    sel = dict(zip(names, parallel_map(lambda t: errors(t, (key,)), names, limit_blas=False),
+                   strict=True))
     chosen = pick_transform(sel, selector)
     rest = tuple(k for k in SELECTOR_KEYS.values() if k != key) + ("mse", "rae")
     stats = {t: {**sel[t], **(errors(t, rest) if t == chosen else {}),
@@ -424,46 +319,68 @@ def encode(
     basis: str = ENCODE_OPTIONS["basis"],
     budget: str | None = None,
 ) -> SparseBRDF:
-    """Encode ``brdf`` as a :class:`SparseBRDF` over ``ensemble`` (default: shipped one).
+    """Encode ``brdf`` as a :class:`SparseBRDF` over ``ensemble``.
 
     Parameters
     ----------
-    n_coeffs : at most this many coefficients per channel (default DEFAULT_N_COEFFS = 262,
-        the paper's); with a joint budget, at most 3 ``n_coeffs`` over the three channels.
-    max_error : optional relative squared residual in the transformed domain at which
-        coding stops adding coefficients (e.g. 1e-4); None keeps ``n_coeffs``. Per
-        channel, relative to the channel's ||Y_c||^2; with a joint budget, the total
-        residual relative to the total ||Y||^2 (the basis is orthonormal, so that is the
+    brdf : BRDF
+        The material: linear RGB values (n1, n2, n3, 3) on the ensemble's grid.
+    ensemble : Ensemble, optional
+        The dictionaries; default: the shipped default ensemble.
+    n_coeffs : int
+        At most this many coefficients per channel (default DEFAULT_N_COEFFS = 262, the
+        paper's); with a joint budget, at most 3 ``n_coeffs`` over the three channels.
+    max_error : float, optional
+        Relative squared residual in the transformed domain at which coding stops adding
+        coefficients (e.g. 1e-4), in [0, 1); None keeps ``n_coeffs``. Per channel,
+        relative to the channel's ||Y_c||^2; with a joint budget, the total residual
+        relative to the total ||Y||^2 (the basis is orthonormal, so that is the
         transformed R, G, B energy in either basis).
-    transform : "auto" (``selector`` picks), "log-plus" or "log-plus-cosine".
-    fill_iters : rounds of filling (see ``fill``); None: ``DEFAULT_FILL_ITERS[fill]``
-        (3 for either); 0 disables filling (the paper fits every invalid bin as zero).
-    selector : how "auto" picks the transform (``SELECTORS``): "render", the smaller
-        :func:`~sparse_brdf.metrics.render_proxy_error` (the default), or "gamma-mse",
-        the smaller gamma-mapped MSE (the paper's).
-    fill : which bins are filled from the model instead of being fitted as zeros
-        (``FILLS``). "missing" (the paper's, plus filling): unmeasured bins above the
-        horizon (negative entries in a MERL file), each round re-running the full
+    transform : str
+        ``"auto"`` (``selector`` picks), ``"log-plus"`` or ``"log-plus-cosine"``.
+    fill_iters : int, optional
+        Rounds of filling (see ``fill``); None: ``DEFAULT_FILL_ITERS[fill]`` (3 for
+        either); 0 disables filling (the paper fits every invalid bin as zero).
+    selector : str
+        How "auto" picks the transform (``SELECTORS``): ``"render"``, the smaller
+        :func:`~sparse_brdf.metrics.render_proxy_error` (the default), or
+        ``"gamma-mse"``, the smaller gamma-mapped MSE (the paper's).
+    fill : str
+        Which bins are filled from the model instead of being fitted as zeros
+        (``FILLS``). ``"missing"`` (the paper's, plus filling): unmeasured bins above
+        the horizon (negative entries in a MERL file), each round re-running the full
         dictionary search; a BRDF without such bins is encoded as in the paper.
-        "invalid" (the default): every invalid bin (below the horizon too) is a free
-        value; one dictionary search, then ``fill_iters``
-        least-squares fits to the valid bins on the chosen dictionaries, each followed
-        by a new support from the filled channels (:func:`_fill_invalid`), fewer if
-        the support repeats.
-    basis : colour basis of the coded channels (``transforms.COLOUR_BASES``): "opponent"
-        (the default: luminance / red-green / yellow-blue of the transformed channels)
-        or "rgb" (the paper's).
-    budget : "channel" (``n_coeffs`` per channel) or "joint" (3 ``n_coeffs`` over the
+        ``"invalid"`` (the default): every invalid bin (below the horizon too) is a free
+        value; one dictionary search, then ``fill_iters`` least-squares fits to the
+        valid bins on the chosen dictionaries, each followed by a new support from the
+        filled channels (:func:`_fill_invalid`), fewer if the support repeats.
+    basis : str
+        Colour basis of the coded channels (``transforms.COLOUR_BASES``):
+        ``"opponent"`` (the default: luminance / red-green / yellow-blue of the
+        transformed channels) or ``"rgb"`` (the paper's).
+    budget : str, optional
+        ``"channel"`` (``n_coeffs`` per channel) or ``"joint"`` (3 ``n_coeffs`` over the
         three channels, largest |s| first across the channels' chosen dictionaries);
         None: "joint" for the opponent basis, "channel" for rgb (``BUDGETS``).
 
-    ``result.stats`` holds, per transform tried: gamma-mapped MSE, plain MSE, RAE, the
-    render-proxy error, the relative residual per channel, how many of the 3 K (channel,
-    dictionary) projections were completed (the others were pruned, see
-    :func:`project_pruned`), ``budget`` (coefficients per channel and the coded
-    channels' share of the energy) and, when filling, ``fill`` (rounds; for "invalid"
-    the fits run and the valid-bin residual after each, and before the first). Beside
-    them: ``chosen``, ``selector`` and ``options`` (every option, defaults resolved).
+    Returns
+    -------
+    SparseBRDF
+        The encoding. ``result.stats`` holds, per transform tried: gamma-mapped MSE,
+        plain MSE, RAE, the render-proxy error, the relative residual per channel, how
+        many of the 3 K (channel, dictionary) projections were completed (the others
+        were pruned, see :func:`project_pruned`), ``budget`` (coefficients per channel
+        and the coded channels' share of the energy) and, when filling, ``fill``
+        (rounds; for "invalid" the fits run and the valid-bin residual after each, and
+        before the first). Beside them: ``chosen``, ``selector`` and ``options`` (every
+        option, defaults resolved).
+
+    Raises
+    ------
+    EnsembleMismatchError
+        If the BRDF's grid is not the ensemble's.
+    UsageError
+        For an option out of its range or choices.
     """
     ens = resolve_ensemble(ensemble)
     if brdf.shape != ens.shape:
@@ -485,6 +402,19 @@ def encode(
     model = choose_transform(brdf, models, ens, selector)
     model.stats["options"] = kw
     return model
+
+
+def check_n_coeffs(n_coeffs: int, ensemble: Ensemble) -> int:
+    """``n_coeffs``, a maximum per channel, capped at the coefficients of one channel on
+    the ensemble's grid (:func:`encode` keeps no more than a channel holds either).
+
+    Raises
+    ------
+    UsageError
+        If ``n_coeffs`` is below 1 (naming ``--coeffs``).
+    """
+    check("--coeffs", n_coeffs, PARAMETERS["n_coeffs"])
+    return min(int(n_coeffs), int(np.prod(ensemble.shape)))
 
 
 def check_options(**options) -> dict:

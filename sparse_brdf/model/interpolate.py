@@ -38,14 +38,38 @@ def interpolate(
     ensemble: Ensemble | None = None,
     n_coeffs: int | None = None,
 ) -> SparseBRDF:
-    """Blend ``a`` and ``b`` (same ensemble and transform; any colour bases) at
-    ``alpha`` in [0, 1]; the result is in ``a``'s basis.
+    """Blend two encoded materials in coefficient space.
 
-    ``n_coeffs``: coefficients per channel of the result. Default: per channel the larger
-    of the two inputs' counts (if ``b``'s basis differs, its mean count per channel
-    stands for its count). In the "opponent" basis the budget is joint, as encoded: the
-    largest |s| over the three channels, 3 ``n_coeffs`` in all (default: the sum of the
-    per-channel defaults).
+    Parameters
+    ----------
+    a, b : SparseBRDF
+        The two materials, encoded over the same ensemble with the same transform (their
+        colour bases may differ). The result uses ``a``'s dictionaries, transform and
+        colour basis.
+    alpha : float
+        The blend weight in [0, 1]: 0 gives ``a``, 1 gives ``b`` (in ``a``'s dictionaries).
+    ensemble : Ensemble, optional
+        The ensemble both were encoded with; default: the shipped default
+        (:meth:`Ensemble.default`).
+    n_coeffs : int, optional
+        Coefficients per channel of the result, in [1, grid entries]. Default: per channel
+        the larger of the two inputs' counts (if ``b``'s basis differs, its mean count per
+        channel stands for its count). In the "opponent" basis the budget is joint, as
+        encoded: the largest |s| over the three channels, 3 ``n_coeffs`` in all (default:
+        the sum of the per-channel defaults).
+
+    Returns
+    -------
+    SparseBRDF
+        The blend, named ``"<a>+<b>@<alpha>"``.
+
+    Raises
+    ------
+    UsageError
+        If the transforms differ, ``alpha`` is outside [0, 1] or ``n_coeffs`` is out of
+        range.
+    EnsembleMismatchError
+        If either material was encoded over another ensemble.
     """
     ens = resolve_ensemble(ensemble)
     a.check_ensemble(ens)

@@ -339,8 +339,30 @@ def as_stored(model: SparseBRDF, version: int = VERSION) -> SparseBRDF:
 
 
 def save_sbrdf(path: str | os.PathLike, model: SparseBRDF, version: int = VERSION) -> Path:
-    """Write ``model`` to ``path`` as a file of ``version`` (default 2) atomically
-    (temporary name, then rename)."""
+    """Write ``model`` as a ``.sbrdf`` file, atomically (a temporary name, then a rename).
+
+    Parameters
+    ----------
+    path : str or path-like
+        The file to write; an existing file is replaced only once the new one is
+        complete.
+    model : SparseBRDF
+        The encoded material (its ensemble id, transform, basis, dictionaries and
+        coefficients are stored; ``docs/file-format.md``).
+    version : int
+        2 (the default: quantised values, compressed locations, about 2 bytes per
+        coefficient) or 1 (float32 values and int32 locations, 8 bytes per coefficient).
+
+    Returns
+    -------
+    pathlib.Path
+        The file written.
+
+    Raises
+    ------
+    ValueError
+        For an unknown version or a grid too large for the format.
+    """
     path = Path(path)
     data = to_bytes(model, version)
     with atomic_write(path) as f:
@@ -349,7 +371,30 @@ def save_sbrdf(path: str | os.PathLike, model: SparseBRDF, version: int = VERSIO
 
 
 def load_sbrdf(path: str | os.PathLike, ensemble: Ensemble | None = None) -> SparseBRDF:
-    """Read a ``.sbrdf`` file; with ``ensemble``, refuse it unless it is the encoding one."""
+    """Read a ``.sbrdf`` file (either version).
+
+    Parameters
+    ----------
+    path : str or path-like
+        The file.
+    ensemble : Ensemble, optional
+        If given, the file must have been encoded over it.
+
+    Returns
+    -------
+    SparseBRDF
+        The model as stored (version 2's values dequantised to float32).
+
+    Raises
+    ------
+    FileNotFoundError
+        If the file is missing.
+    BRDFFileError
+        For a file that is truncated, corrupt (checksum), of an unknown version or not a
+        ``.sbrdf`` file; the message names the file.
+    EnsembleMismatchError
+        If ``ensemble`` is given and is not the one the file names.
+    """
     path = require_file(path, ".sbrdf file")
     model = from_bytes(path.read_bytes(), str(path))
     if ensemble is not None:
@@ -361,8 +406,28 @@ def load_sbrdf(path: str | os.PathLike, ensemble: Ensemble | None = None) -> Spa
 
 
 def decode_file(path: str | os.PathLike, ensemble: Ensemble | None = None) -> BRDF:
-    """Load a ``.sbrdf`` file and decode the full tensor (default: the shipped ensemble the
-    file names)."""
+    """Read a ``.sbrdf`` file and decode it to the full tabulated BRDF.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The file.
+    ensemble : Ensemble, optional
+        The ensemble to decode with; default: the shipped ensemble the file names.
+
+    Returns
+    -------
+    BRDF
+        Linear RGB values (n_h, n_d, n_p, 3) in 1/sr, with the grid's geometric validity;
+        ``source`` is the file's path.
+
+    Raises
+    ------
+    FileNotFoundError, BRDFFileError
+        As :func:`load_sbrdf`.
+    EnsembleMismatchError
+        If the file names an ensemble that is neither ``ensemble`` nor shipped.
+    """
     model = load_sbrdf(path)
     try:
         ens = resolve_ensemble(ensemble, for_id=model.ensemble_id)

@@ -9,9 +9,10 @@ import numpy as np
 from ..brdf import BRDF
 from ..coords import dirs_to_bins, geometric_valid
 from ..errors import EnsembleMismatchError, InvalidBRDFError, short
+from ..parallel import parallel_map
 from ..transforms import check_basis, check_transform, from_basis, inverse, inverse_at_bins
 from .ensemble import Ensemble
-from .tensor import parallel_map, reconstruct_sparse
+from .tensor import reconstruct_sparse
 
 #: The largest transformed value of a float32 BRDF, ln(1 + float32 max) (both transforms;
 #: cos_i cos_o <= 1). The coded channels are orthonormal maps of the transformed R, G, B
@@ -27,19 +28,34 @@ class SparseBRDF:
 
     Attributes
     ----------
-    transform : "log-plus" or "log-plus-cosine"
-    shape : grid shape (n1, n2, n3)
-    ensemble_id : content hash of the ensemble the coefficients refer to
+    transform : str
+        ``"log-plus"`` or ``"log-plus-cosine"``: the domain the coefficients code.
+    shape : tuple of int
+        The grid (n1, n2, n3), e.g. (90, 90, 180).
+    ensemble_id : str
+        Content hash of the ensemble the coefficients refer to.
     dict_index : ndarray of shape (3,), int
-        Dictionary of each colour channel (R, G, B).
+        Dictionary of each coded channel.
     locations : list of 3 int64 arrays of shape (T_c,)
         Flat coefficient indices a * n2 * n3 + b * n3 + c, sorted by decreasing |value|.
     values : list of 3 float32 arrays of shape (T_c,)
-    name : material name
-    basis : colour basis of the coded channels, "rgb" (channels are R, G, B) or
-        "opponent" (channels are ``transforms.colour_matrix("opponent")`` times the
-        transformed R, G, B; decoding mixes them back before the inverse transform)
-    stats : encoding statistics (errors per transform); not stored in files
+        The coefficients, in the transformed domain.
+    name : str
+        The material's name.
+    stats : dict
+        Encoding statistics (errors per transform, budget, options); not stored in files.
+    basis : str
+        Colour basis of the coded channels: ``"rgb"`` (channels are R, G, B) or
+        ``"opponent"`` (channels are ``transforms.colour_matrix("opponent")`` times the
+        transformed R, G, B; decoding mixes them back before the inverse transform).
+
+    Raises
+    ------
+    InvalidBRDFError
+        On construction, for locations outside the grid, mismatched locations and values,
+        NaN/inf coefficients or coefficients larger than any finite BRDF's.
+    ValueError
+        For an unknown transform or colour basis.
     """
 
     transform: str
@@ -86,11 +102,35 @@ class SparseBRDF:
         return np.array([a.size for a in self.locations])
 
     def modes(self, c: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Per-mode atom indices (a_t, b_t, c_t) of channel c's coefficients."""
+        """Per-mode atom indices of one channel's coefficients.
+
+        Parameters
+        ----------
+        c : int
+            The coded channel, 0, 1 or 2.
+
+        Returns
+        -------
+        tuple of 3 numpy.ndarray
+            (a_t, b_t, c_t), each of shape (T_c,): the atoms of modes 1, 2 and 3 of
+            every coefficient, in the order of ``locations[c]``.
+        """
         return np.unravel_index(self.locations[c], self.shape)
 
     def check_ensemble(self, ensemble: Ensemble) -> None:
-        """Raise :class:`EnsembleMismatchError` unless ``ensemble`` is the encoding one."""
+        """Check that ``ensemble`` is the one these coefficients were encoded over.
+
+        Parameters
+        ----------
+        ensemble : Ensemble
+            The ensemble to decode with.
+
+        Raises
+        ------
+        EnsembleMismatchError
+            If its id differs from :attr:`ensemble_id`, a dictionary index is out of its
+            range, or its grid differs from :attr:`shape`.
+        """
         if ensemble.id != self.ensemble_id:
             raise EnsembleMismatchError(
                 f"{self.name}: encoded with ensemble {self.ensemble_id}, "
@@ -104,7 +144,24 @@ class SparseBRDF:
                 f"{'x'.join(map(str, ensemble.shape))}")
 
     def coded(self, ensemble: Ensemble) -> np.ndarray:
-        """The coded channels (in :attr:`basis`), shape (3, n1, n2, n3), float32."""
+        """Reconstruct the coded channels, as the dictionaries see them.
+
+        Parameters
+        ----------
+        ensemble : Ensemble
+            The encoding ensemble.
+
+        Returns
+        -------
+        numpy.ndarray
+            float32, shape (3, n1, n2, n3): the channels in :attr:`basis`, transformed
+            domain.
+
+        Raises
+        ------
+        EnsembleMismatchError
+            As :meth:`check_ensemble`.
+        """
         self.check_ensemble(ensemble)
 
         def channel(c):
@@ -114,22 +171,77 @@ class SparseBRDF:
         return np.stack(list(parallel_map(channel, range(3))))
 
     def transformed(self, ensemble: Ensemble) -> np.ndarray:
-        """The transformed R, G, B tensor, shape (3, n1, n2, n3), float32 (full decode)."""
+        """Reconstruct the transformed R, G, B tensor (a full decode, before the inverse
+        transform).
+
+        Parameters
+        ----------
+        ensemble : Ensemble
+            The encoding ensemble.
+
+        Returns
+        -------
+        numpy.ndarray
+            float32, shape (3, n1, n2, n3), in the domain of :attr:`transform`.
+
+        Raises
+        ------
+        EnsembleMismatchError
+            As :meth:`check_ensemble`.
+        """
         return from_basis(self.coded(ensemble), self.basis)
 
     def decode(self, ensemble: Ensemble, valid: np.ndarray | None = None) -> BRDF:
-        """Full linear-RGB BRDF on the grid (invalid bins: geometric, or ``valid``)."""
+        """Decode to the full tabulated BRDF.
+
+        Parameters
+        ----------
+        ensemble : Ensemble
+            The encoding ensemble.
+        valid : numpy.ndarray, optional
+            Bool (n1, n2, n3): the bins the result marks valid (its other bins are 0);
+            default: the grid's geometric validity (both directions above the horizon).
+
+        Returns
+        -------
+        BRDF
+            Linear RGB values (n1, n2, n3, 3) in 1/sr, clamped to >= 0.
+
+        Raises
+        ------
+        EnsembleMismatchError
+            As :meth:`check_ensemble`.
+        """
         rho = inverse(self.transformed(ensemble), self.transform)
         mask = geometric_valid(self.shape) if valid is None else valid
         return BRDF(np.moveaxis(rho, 0, -1), mask, name=self.name, source="sparse")
 
     def eval(self, ensemble: Ensemble, wi: np.ndarray, wo: np.ndarray,
              chunk: int = 8192) -> np.ndarray:
-        """BRDF values (1/sr) at direction pairs wi, wo of shape (N, 3); returns (N, 3).
+        """BRDF values at direction pairs, from the nonzero terms only.
 
-        Evaluates sum_t s_t U1[i, a_t] U2[j, b_t] U3[k, c_t] from the nonzero terms only,
-        at the bins of the pairs (the same lookup as the tabulated BRDF); pairs with a
-        direction below the horizon, or in a bin whose lower-edge angles are, give 0.
+        Evaluates sum_t s_t U1[i, a_t] U2[j, b_t] U3[k, c_t] at the bins of the pairs (the
+        same lookup as the tabulated BRDF), without building the tensor.
+
+        Parameters
+        ----------
+        ensemble : Ensemble
+            The encoding ensemble.
+        wi, wo : numpy.ndarray
+            Unit directions in the local shading frame (z up), shape (N, 3).
+        chunk : int
+            Pairs evaluated at a time (bounds the memory used).
+
+        Returns
+        -------
+        numpy.ndarray
+            float32, shape (N, 3): linear RGB values in 1/sr; 0 for pairs with a
+            direction below the horizon, or in a bin whose lower-edge angles are.
+
+        Raises
+        ------
+        EnsembleMismatchError
+            As :meth:`check_ensemble`.
         """
         self.check_ensemble(ensemble)
         wi = np.asarray(wi, np.float64).reshape(-1, 3)

@@ -4,82 +4,13 @@ Every BRDF channel is a 3-way tensor X of shape (n1, n2, n3). A dictionary is th
 orthonormal mode matrices (U1, U2, U3) of shapes (n1, n1), (n2, n2), (n3, n3);
 the coefficients are S = X x1 U1^T x2 U2^T x3 U3^T and X = S x1 U1 x2 U2 x3 U3.
 
-Batches of tensors are processed one tensor per task on a small thread pool with BLAS
-limited to one thread per task: measured here (2 cores, float32, 90x90x180) this is
-3.5x faster than letting OpenBLAS thread each of the small mode products.
+Batches of tensors are processed one tensor per task on the package's thread pool
+(``parallel.parallel_map``).
 """
 
 from __future__ import annotations
 
-import os
-import threading
-from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import ThreadPoolExecutor
-from typing import TypeVar
-
 import numpy as np
-from threadpoolctl import ThreadpoolController
-
-T = TypeVar("T")
-R = TypeVar("R")
-
-
-def n_threads() -> int:
-    """Worker threads: ``$SPARSE_BRDF_THREADS`` or the number of usable cores."""
-    env = os.environ.get("SPARSE_BRDF_THREADS")
-    if env:
-        return max(1, int(env))
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # pragma: no cover - not Linux
-        return os.cpu_count() or 1
-
-
-# One pool of worker threads and one BLAS controller per process, made on first use: an
-# encode runs about 400 small maps, and a new pool plus a fresh scan of the loaded BLAS
-# libraries per map cost 0.18 s of a 2 s encode (2 cores, measured 2026-12-02).
-_POOL: ThreadPoolExecutor | None = None
-_POOL_KEY: tuple[int, int] = (0, 0)  # (process id, workers) the pool was made for
-_POOL_LOCK = threading.Lock()
-_CONTROLLER: ThreadpoolController | None = None
-_IN_WORKER = threading.local()
-
-
-def _pool(workers: int) -> ThreadPoolExecutor:
-    """The shared pool of ``workers`` threads (a new one after a fork or a new count)."""
-    global _POOL, _POOL_KEY
-    with _POOL_LOCK:
-        if _POOL is None or _POOL_KEY != (os.getpid(), workers):
-            _POOL = ThreadPoolExecutor(workers, thread_name_prefix="sparse-brdf")
-            _POOL_KEY = (os.getpid(), workers)
-        return _POOL
-
-
-def _blas_single_thread():
-    """A context limiting BLAS to one thread (the controller is built once)."""
-    global _CONTROLLER
-    if _CONTROLLER is None:
-        _CONTROLLER = ThreadpoolController()
-    return _CONTROLLER.limit(limits=1, user_api="blas")
-
-
-def parallel_map(fn: Callable[[T], R], items: Iterable[T]) -> Iterator[R]:
-    """``map(fn, items)`` on worker threads, results in input order, BLAS single-threaded.
-    Called from inside one of its own tasks, it maps in that thread (no pool deadlock)."""
-    workers = n_threads()
-    with _blas_single_thread():
-        if workers == 1 or getattr(_IN_WORKER, "active", False):
-            yield from map(fn, items)
-            return
-
-        def task(item: T) -> R:
-            _IN_WORKER.active = True
-            try:
-                return fn(item)
-            finally:
-                _IN_WORKER.active = False
-
-        yield from _pool(workers).map(task, items)
 
 
 def project(x: np.ndarray, u1: np.ndarray, u2: np.ndarray, u3: np.ndarray) -> np.ndarray:

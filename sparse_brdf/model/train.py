@@ -18,41 +18,40 @@ each tensor is coded they are set to its reconstruction (expectation-maximisatio
 the norm above runs over valid bins only and still cannot increase.
 
 Where it runs: the per-tensor work of each step (sparse coding, clustering, the partial
-Procrustes sums) runs on shards of the tensors (:class:`_Shards`) through an executor
+Procrustes sums) runs on shards of the tensors (:class:`Shards`) through an executor
 (``parallel.py``): in this process by default, or on Dask workers, with the same results
 bit for bit (``docs/scale-out.md``).
 """
 
 from __future__ import annotations
 
-import hashlib
-import json
 import os
-import threading
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
-from ..coords import geometric_valid
-from ..errors import BRDFFileError, UsageError
-from ..fileio import atomic_write
-from ..parallel import Executor, InProcess
+from ..errors import UsageError
+from ..parallel import Executor, InProcess, blas_single_thread, parallel_map
 from ..parallel import executor as open_executor
 from ..params import SEED, Interval, check, check_choice
+from .checkpoint import TrainState, fingerprint, load_checkpoint, run_options, save_checkpoint
 from .ensemble import Ensemble
-from .tensor import (
-    hosvd_factors,
-    mode_grams,
-    parallel_map,
-    procrustes,
-    project,
-    reconstruct_sparse,
-    top_k,
+from .pruning import PrunedSearch, slice_order
+from .shards import (
+    Shards,
+    cat,
+    shard_gram,
+    shard_gram_sums,
+    shard_grams,
+    shard_partials,
+    shard_refill,
+    shard_set_fill,
 )
+from .tensor import hosvd_factors, mode_grams, procrustes, project, top_k
+from .tensor_store import TensorStore
 
 DEFAULT_TAUS: tuple[int, ...] = (32, 64, 128, 256)
 DEFAULT_N_DICTS = 8
@@ -76,26 +75,6 @@ PARAMETERS = {
 }
 
 
-@dataclass
-class TrainState:
-    """What one sparsity's training has learned so far (checkpointed every iteration)."""
-
-    u1: np.ndarray  # (K, n1, n1)
-    u2: np.ndarray
-    u3: np.ndarray
-    labels: np.ndarray  # (N,) cluster of each tensor
-    codes_idx: np.ndarray  # (N, tau) flat coefficient indices, int32
-    codes_val: np.ndarray  # (N, tau) coefficient values, float32
-    errors: np.ndarray  # (N,) squared error of each tensor under its dictionary
-    iteration: int = 0
-    history: list = field(default_factory=list)
-    init_seconds: float = 0.0  # time taken by the initialisation
-
-
-def _sq_norms(x: np.ndarray) -> np.ndarray:
-    return np.array([float(np.dot(t.ravel(), t.ravel())) for t in x])
-
-
 def _keep_largest(s: np.ndarray, tau: int) -> tuple[np.ndarray, np.ndarray, float]:
     """The ``tau`` largest |s| of a projection: (flat indices, values, kept energy)."""
     flat = s.ravel()
@@ -104,96 +83,7 @@ def _keep_largest(s: np.ndarray, tau: int) -> tuple[np.ndarray, np.ndarray, floa
     return idx.astype(np.int32), flat[idx].astype(np.float32), float(e[idx].sum(dtype=np.float64))
 
 
-def _sq64(v: np.ndarray) -> float:
-    """Squared norm accumulated in float64."""
-    return float(np.sum(np.square(v, dtype=np.float64)))
-
-
-class _Tensors:
-    """The training tensors as the trainer sees them (``docs/method.md``, Training).
-
-    Unmasked: the tensors as given. Masked: each tensor's free bins -- below the horizon
-    (one index set shared by every tensor) plus, rarely, its material's unmeasured bins --
-    hold the reconstruction from the tensor's latest code (zero before the first).
-    Only those values are stored (N x 24 % of the grid, float32); ``x`` is never
-    written, so the caller's array is unchanged and a read-only memory map works.
-    ``norms[i]`` is ||X~_i||^2 of the filled tensor, ``energy[i]`` its valid part.
-    """
-
-    def __init__(self, x: np.ndarray, masked: bool, missing: dict | None = None):
-        self.x, self.masked = x, masked
-        self.shape = tuple(int(n) for n in x.shape[1:])
-        self.grams: list | None = None  # mode Gram matrices, during the initialisation
-        self.cache: dict[int, np.ndarray] = {}  # mode-3 products (_shard_partials)
-        self.raw_norms = _sq_norms(x)  # of x as given (the checkpoint fingerprint)
-        self.extra: dict[int, np.ndarray] = {}
-        if not masked:
-            self.free = np.zeros(0, np.int64)
-            self.energy = self.raw_norms
-            self.norms = self.raw_norms
-            return
-        geo = geometric_valid(self.shape).reshape(-1)
-        self.free = np.flatnonzero(~geo)
-        by_mask: dict[int, np.ndarray] = {}  # a material's channels share one mask object
-        for i, m in (missing or {}).items():
-            if id(m) not in by_mask:
-                mask = np.asarray(m, bool)
-                if mask.shape != self.shape:
-                    raise ValueError(f"missing-bin mask of tensor {i} has shape {mask.shape}, "
-                                     f"expected {self.shape}")
-                by_mask[id(m)] = np.flatnonzero(mask.reshape(-1) & geo)
-            if by_mask[id(m)].size:
-                self.extra[int(i)] = by_mask[id(m)]
-        self.fill = np.zeros((len(x), self.free.size), np.float32)
-        self.fill_extra = {i: np.zeros(e.size, np.float32) for i, e in self.extra.items()}
-
-        def valid_energy(i):  # independent of what x holds in free bins
-            flat = np.asarray(x[i], np.float32).reshape(-1)
-            if i not in self.extra:
-                return _sq64(flat[geo])
-            keep = geo.copy()
-            keep[self.extra[i]] = False
-            return _sq64(flat[keep])
-
-        self.energy = np.array(list(parallel_map(valid_energy, range(len(x)))))
-        self.norms = self.energy.copy()
-
-    def __len__(self) -> int:
-        return len(self.x)
-
-    def __getitem__(self, i: int) -> np.ndarray:
-        """X~_i: tensor i with its free bins filled (a copy when masked)."""
-        if not self.masked:
-            return self.x[i]
-        y = np.array(self.x[i], np.float32)
-        flat = y.reshape(-1)
-        flat[self.free] = self.fill[i]
-        if i in self.extra:
-            flat[self.extra[i]] = self.fill_extra[i]
-        return y
-
-    def reconstruct_free(self, i, idx, val, u) -> tuple[tuple, float]:
-        """The free-bin values of the reconstruction of tensor i from the code (idx, val)
-        in dictionary u, and their squared distance to the values held now."""
-        rec = reconstruct_sparse(idx, val, self.shape, *u).reshape(-1)
-        new = rec[self.free]
-        change = _sq64(new - self.fill[i])
-        new_extra = None
-        if i in self.extra:
-            new_extra = rec[self.extra[i]]
-            change += _sq64(new_extra - self.fill_extra[i])
-        return (new, new_extra), change
-
-    def set_fill(self, i: int, fill: tuple) -> None:
-        new, new_extra = fill
-        self.fill[i] = new
-        self.norms[i] = self.energy[i] + _sq64(new)
-        if new_extra is not None:
-            self.fill_extra[i] = new_extra
-            self.norms[i] += _sq64(new_extra)
-
-
-def _code_tensor(data: _Tensors, i: int, s: np.ndarray, tau: int, u) -> tuple:
+def _code_tensor(data: TensorStore, i: int, s: np.ndarray, tau: int, u) -> tuple:
     """Code tensor i from its coefficients ``s`` in dictionary ``u``.
 
     Returns (idx, val, error, fill): error is the squared error over the tensor's valid
@@ -207,13 +97,6 @@ def _code_tensor(data: _Tensors, i: int, s: np.ndarray, tau: int, u) -> tuple:
     return idx, val, max(err - change, 0.0), fill
 
 
-#: Cumulative mode-3 atoms (phi_d slices of the coefficients) computed per dictionary in
-#: the rounds of :func:`_search_codes`; the dictionaries still in the running are then
-#: completed.
-PRUNE_ROUNDS = (12, 36, 90)
-#: Safety margin of the pruning bounds, relative to ||X||^2 (float32 rounding of the
-#: energies is about 1e-6).
-PRUNE_SLACK = 1e-5
 #: Clustering searches with pruning (False: every tensor projected on every dictionary in
 #: full, the reference the tests compare it with).
 PRUNE = True
@@ -240,60 +123,43 @@ def _search_codes(xi: np.ndarray, norm: float, cands: list[int], d: _Dicts, tau:
     """The tau-sparse codes of tensor ``xi`` on the dictionaries of ``cands`` that may give
     it the least error, or an error below ``floor``: {k: (idx, val, error)}, exact.
 
-    As the encoder's pruned search (``docs/benchmarks.md``): the coefficients are computed
-    one phi_d slice (mode-3 atom) at a time, the slices of most energy first (from one
-    n3 x n3 Gram matrix). After each round the kept energy of a dictionary lies between
-    the tau largest coefficients computed (L) and L plus the energy not computed yet; a
-    dictionary whose best case loses to another's worst case, or cannot beat ``floor``,
-    is dropped (margin ``PRUNE_SLACK`` ||X||^2); the others are completed. ``gram``: the
-    tensor's mode-3 Gram matrix if known; ``stats``, if given, counts the slices computed
-    (``"slices"``) against a full search's (``"full"``). ``upto``: stop after that many
-    slices of every candidate, without pruning: the codes are then the tau largest
-    coefficients of those slices and the errors upper bounds of the exact ones.
+    The pruned projection (:mod:`~sparse_brdf.model.pruning`), shared with the encoder:
+    a dictionary that provably cannot win, or cannot beat ``floor``, is not completed.
+    ``gram``: the tensor's mode-3 Gram matrix if known; ``stats``, if given, counts the
+    slices computed (``"slices"``) against a full search's (``"full"``). ``upto``: stop
+    after that many slices of every candidate, without pruning: the codes are then the
+    tau largest coefficients of those slices and the errors upper bounds of the exact ones.
     """
     n1, n2, n3 = xi.shape
     x3 = xi.reshape(n1 * n2, n3)
     if gram is None:
         gram = x3.T @ x3
-    order = {k: np.argsort(-np.einsum("ij,ij->j", gram @ d.u3[k], d.u3[k]), kind="stable")
-             for k in cands}
-    done = dict.fromkeys(cands, 0)
-    energy = dict.fromkeys(cands, 0.0)
-    top = {k: (np.zeros(0, np.int64), np.zeros(0, np.float32)) for k in cands}
-    alive = list(cands)
-    kept: dict[int, float] = {}
-    rounds = (min(upto, n3),) if upto else (*[r for r in PRUNE_ROUNDS if r < n3], n3)
-    for hi in rounds:
-        if not alive:
-            break
-        for k in alive:
-            rows = order[k][done[k]:hi]
-            r = rows.size
-            t = d.u1t[k] @ (x3 @ d.u3t[k][rows].T).reshape(n1, n2 * r)
-            # (n1, r, n2): coefficient (a, b, rows[slot]) at [a, slot, b]
-            sv = np.tensordot(t.reshape(n1, n2, r), d.u2[k], axes=([1], [0])).reshape(-1)
-            e = sv * sv
-            loc = top_k(e, tau)
-            a, slot, b = np.unravel_index(loc, (n1, r, n2))
-            idx = np.concatenate([top[k][0], (a * n2 + b) * n3 + rows[slot]])
-            val = np.concatenate([top[k][1], sv[loc]])
-            keep = top_k(val * val, tau)
-            top[k], done[k] = (idx[keep], val[keep]), hi
-            energy[k] += float(e.sum(dtype=np.float64))
-            if stats is not None:
-                stats["slices"] = stats.get("slices", 0) + rows.size
-        kept = {k: float(np.sum(np.square(top[k][1], dtype=np.float64))) for k in alive}
-        if hi == rounds[-1]:
-            break
-        bar = max(max(kept.values()), norm - floor)  # kept energy a winner must reach
-        alive = [k for k in alive
-                 if kept[k] + max(norm - energy[k], 0.0) + PRUNE_SLACK * norm >= bar]
+    order = {k: slice_order(gram, d.u3[k]) for k in cands}
+
+    def chunk(k, lo, hi):
+        rows = order[k][lo:hi]
+        r = rows.size
+        t = d.u1t[k] @ (x3 @ d.u3t[k][rows].T).reshape(n1, n2 * r)
+        # (n1, r, n2): coefficient (a, b, rows[slot]) at [a, slot, b]
+        sv = np.tensordot(t.reshape(n1, n2, r), d.u2[k], axes=([1], [0])).reshape(-1)
+        e = sv * sv
+        loc = top_k(e, tau)
+        a, slot, b = np.unravel_index(loc, (n1, r, n2))
+        return (a * n2 + b) * n3 + rows[slot], sv[loc], float(e.sum(dtype=np.float64))
+
+    search = PrunedSearch.start(cands, n3, tau).run([(cands, norm, floor)], chunk, upto=upto)
     if stats is not None:
+        stats["slices"] = stats.get("slices", 0) + search.slices
         stats["full"] = stats.get("full", 0) + len(cands) * n3
-    return {k: (top[k][0].astype(np.int32), top[k][1], norm - kept[k]) for k in alive}
+    out = {}
+    for k in search.survivors():
+        idx, val = search.top[k]
+        kept = float(np.sum(np.square(val, dtype=np.float64)))
+        out[k] = (idx.astype(np.int32), val, norm - kept)
+    return out
 
 
-def _assign_all(data: _Tensors, state_u, tau, progress, known=None) -> tuple[np.ndarray, ...]:
+def _assign_all(data: TensorStore, state_u, tau, progress, known=None) -> tuple[np.ndarray, ...]:
     """Cluster every tensor: its least-error dictionary, codes and errors.
 
     ``known``: optional (labels, codes_idx, codes_val, errors) already computed with the
@@ -304,6 +170,8 @@ def _assign_all(data: _Tensors, state_u, tau, progress, known=None) -> tuple[np.
     there is below its current error, so masked training's objective cannot increase.
     Masked, the free bins of every tensor whose code changed are refilled.
     """
+    from tqdm.auto import tqdm  # lazy: tqdm.auto adds ~40 ms to `import sparse_brdf`
+
     u1, u2, u3 = state_u
     k = u1.shape[0]
     n = len(data)
@@ -340,37 +208,20 @@ def _assign_all(data: _Tensors, state_u, tau, progress, known=None) -> tuple[np.
     idx_all, val_all = np.zeros((n, tau), np.int32), np.zeros((n, tau), np.float32)
     errors, all_err = np.zeros(n), np.zeros((n, k))
     for i, (j, idx, val, err, fill, errs) in enumerate(
-            _progress(parallel_map(one, range(n)), n, progress, "assign")):
+            tqdm(parallel_map(one, range(n)), total=n, desc="assign", unit="tensor",
+                 leave=False, disable=not progress)):
         labels[i], idx_all[i], val_all[i], errors[i], all_err[i] = j, idx, val, err, errs
         if fill is not None:
             data.set_fill(i, fill)
     return labels, idx_all, val_all, errors, all_err
 
 
-# ------------------------------------------------------------ shards (docs/scale-out.md)
-#: Tensors per shard (:class:`_Shards`). Fixed, not derived from the number of workers,
-#: so that every sum over tensors is summed per shard and then over the shards in the
-#: same order wherever the shards run: results are the same bit for bit in-process and
-#: on any cluster.
-SHARD_TENSORS = 32
-#: Bytes of mode-3 partial products the dictionary update may keep, in one process,
-#: between its first two passes (:func:`_shard_partials`); beyond this they are
-#: recomputed instead (same results).
-MAX_CACHE_BYTES = 3 * 1024**3
-_cache_lock = threading.Lock()
-_cache_used = [0]  # bytes of partial products cached in this process
-
-
-def _shard_info(sh: _Tensors) -> tuple:
-    return sh.raw_norms, sh.energy, sh.extra
-
-
-def _shard_assign(sh: _Tensors, known, tau, u1, u2, u3) -> tuple:
+def _shard_assign(sh: TensorStore, known, tau, u1, u2, u3) -> tuple:
     """Cluster the shard's tensors (:func:`_assign_all`), without the error matrix."""
     return _assign_all(sh, (u1, u2, u3), tau, False, known)[:4]
 
 
-def _shard_code(sh: _Tensors, labels, tau, u1, u2, u3) -> tuple:
+def _shard_code(sh: TensorStore, labels, tau, u1, u2, u3) -> tuple:
     """Sparse-code each tensor of the shard in its own cluster's dictionary; masked, then
     refill its free bins from the new code. Returns the codes and errors."""
 
@@ -388,106 +239,7 @@ def _shard_code(sh: _Tensors, labels, tau, u1, u2, u3) -> tuple:
     return idx, val, err
 
 
-def _shard_refill(sh: _Tensors, labels, idx, val, u1, u2, u3) -> None:
-    """Masked: set every tensor's free bins from its code (on resuming, to restore the
-    filled tensors the checkpointed iteration ended with)."""
-    if not sh.masked:
-        return
-
-    def one(i):
-        j = labels[i]
-        return sh.reconstruct_free(i, idx[i], val[i], (u1[j], u2[j], u3[j]))[0]
-
-    for i, fill in enumerate(parallel_map(one, range(len(sh)))):
-        sh.set_fill(i, fill)
-
-
-def _drop_cache(sh: _Tensors) -> None:
-    with _cache_lock:
-        _cache_used[0] -= sum(a.nbytes for a in sh.cache.values())
-    sh.cache = {}
-
-
-def _shard_partials(sh: _Tensors, labels, codes_idx, codes_val, mode, n_dicts,
-                    u1, u2, u3) -> list:
-    """The shard's part of each cluster's Procrustes product Z for ``mode`` (0, 1, 2):
-    a float64 (n, n) sum over the cluster's tensors in the shard, None for none.
-
-    The passes for U1 and U2 both start from A = X x3 U3^T with the same U3, so A is
-    kept from the first pass for the second (up to ``MAX_CACHE_BYTES`` per process);
-    the results are the same as recomputing it.
-    """
-    n1, n2, n3 = shape = sh.shape
-
-    def onehot(pos, val, n):
-        m = np.zeros((len(pos), n), np.float32)
-        np.add.at(m, (np.arange(len(pos)), pos), val)
-        return m
-
-    def mode3_product(i, u3j):
-        """A = X_i x3 U3^T as an (n1 n2, n3) matrix, from the cache when there."""
-        if i in sh.cache:
-            a = sh.cache.pop(i)
-            with _cache_lock:
-                _cache_used[0] -= a.nbytes
-            return a
-        a = sh[i].reshape(n1 * n2, n3) @ u3j
-        if mode == 0:
-            with _cache_lock:
-                keep = _cache_used[0] + a.nbytes <= MAX_CACHE_BYTES
-                _cache_used[0] += a.nbytes if keep else 0
-            if keep:
-                sh.cache[i] = a
-        return a
-
-    def contrib(i):
-        j = labels[i]
-        a, b, c = np.unravel_index(codes_idx[i], shape)
-        s = codes_val[i]
-        if mode == 0:  # W1 = X x2 U2^T x3 U3^T, Z1[:, a_t] += s_t W1[:, b_t, c_t]
-            w = np.matmul(u2[j].T, mode3_product(i, u3[j]).reshape(n1, n2, n3))
-            return w[:, b, c] @ onehot(a, s, n1)
-        if mode == 1:  # W2 = X x1 U1^T x3 U3^T, Z2[:, b_t] += s_t W2[a_t, :, c_t]
-            w = (u1[j].T @ mode3_product(i, u3[j]).reshape(n1, n2 * n3)).reshape(n1, n2, n3)
-            return w[a, :, c].T @ onehot(b, s, n2)
-        # W3 = X x1 U1^T x2 U2^T, Z3[:, c_t] += s_t W3[a_t, b_t, :]
-        w = np.matmul(u2[j].T, (u1[j].T @ sh[i].reshape(n1, n2 * n3)).reshape(n1, n2, n3))
-        return w[a, b, :].T @ onehot(c, s, n3)
-
-    if mode == 0:
-        _drop_cache(sh)
-    z: list = [None] * n_dicts
-    order = np.argsort(labels, kind="stable")  # by cluster, then by tensor
-    for i, part in zip(order, parallel_map(contrib, order), strict=True):
-        j = labels[i]  # each cluster's sum in the order of its members, wherever it runs
-        z[j] = part.astype(np.float64) if z[j] is None else z[j] + part
-    if mode > 0:
-        _drop_cache(sh)
-    return z
-
-
-def _shard_grams(sh: _Tensors) -> None:
-    """Keep the mode Gram matrices of the shard's tensors (for the initialisation)."""
-    sh.grams = list(parallel_map(lambda i: mode_grams(sh[i]), range(len(sh))))
-
-
-def _shard_gram(sh: _Tensors, i: int) -> tuple:
-    return sh.grams[i]
-
-
-def _shard_gram_sums(sh: _Tensors, labels, n_dicts) -> list:
-    """Per cluster, the sums of the Gram matrices of its tensors in the shard (float64);
-    then forget the Gram matrices."""
-    n1, n2, n3 = sh.shape
-    sums = [[np.zeros((m, m)) for m in (n1, n2, n3)] for _ in range(n_dicts)]
-    for i, g in enumerate(sh.grams):
-        for m in range(3):
-            sums[labels[i]][m] += g[m]
-    sh.grams = None
-    return sums
-
-
-def _shard_seed_errors(sh: _Tensors, err, tau, upto, f1, f2, f3) -> np.ndarray:
+def _shard_seed_errors(sh: TensorStore, err, tau, upto, f1, f2, f3) -> np.ndarray:
     """Each tensor's error under a seed dictionary (f1, f2, f3), or inf when it cannot
     beat ``err`` (:func:`_seed_labels`)."""
     d = _Dicts.of(f1[None], f2[None], f3[None])
@@ -500,102 +252,31 @@ def _shard_seed_errors(sh: _Tensors, err, tau, upto, f1, f2, f3) -> np.ndarray:
     return np.array(list(parallel_map(seed_error, range(len(sh)))), np.float64)
 
 
-def _shard_reseed(sh: _Tensors, i: int, tau) -> tuple:
+def _shard_reseed(sh: TensorStore, i: int, tau) -> tuple:
     """Tensor i's own HOSVD dictionary and its code there (for an empty cluster)."""
-    with threadpool_limits(limits=1, user_api="blas"):  # the same bits in any process
+    with blas_single_thread():  # the same bits in any process
         xi = sh[i]
         f = hosvd_factors(mode_grams(xi))
         return f, *_code_tensor(sh, i, project(xi, *f), tau, f)
 
 
-def _shard_set_fill(sh: _Tensors, i: int, fill) -> None:
-    sh.set_fill(i, fill)
-
-
-class _Shards:
-    """The training tensors as shards of ``SHARD_TENSORS`` consecutive tensors, each a
-    :class:`_Tensors` kept where the executor runs it (``parallel.py``: here, or on one
-    worker for the whole run, so the tensors and their free-bin values travel once).
-
-    Each step of an iteration runs a shard function on every shard, with the shard's
-    slice of the labels and codes and the dictionaries it needs (scattered once per
-    step to each worker, not sent per tensor or per shard), and returns the per-tensor
-    results in order; sums over tensors come back as one partial sum per shard, added
-    here in shard order.
-    """
-
-    def __init__(self, x: np.ndarray, masked: bool, missing: dict | None, ex,
-                 progress: bool):
-        self.ex, self.masked, self.progress = ex, masked, progress
-        self.shape = tuple(int(n) for n in x.shape[1:])
-        self.n = n = len(x)
-        self.bounds = [(lo, min(lo + SHARD_TENSORS, n)) for lo in range(0, n, SHARD_TENSORS)]
-        args = []
-        for lo, hi in self.bounds:
-            part = np.ascontiguousarray(x[lo:hi]) if ex.distributed else x[lo:hi]
-            local = {int(i) - lo: m for i, m in (missing or {}).items() if lo <= int(i) < hi}
-            args.append((part, masked, local))
-        self.handles = ex.place(_Tensors, args)
-        info = self.run(_shard_info, None)
-        self.raw_norms = np.concatenate([r[0] for r in info])
-        self.energy = np.concatenate([r[1] for r in info])
-        self.extra = {lo + i: e for (lo, _), r in zip(self.bounds, info, strict=True)
-                      for i, e in r[2].items()}
-
-    def __len__(self) -> int:
-        return self.n
-
-    def slices(self, *arrays) -> list[tuple]:
-        """Each shard's slice of per-tensor ``arrays``."""
-        return [tuple(a[lo:hi] for a in arrays) for lo, hi in self.bounds]
-
-    def run(self, fn, arg_lists, *shared, desc: str | None = None) -> list:
-        """``fn(shard, *args, *shared)`` on every shard (:meth:`InProcess.run_on`)."""
-        bar = _bar(self.n, bool(self.progress and desc), desc, unit="tensor", leave=False)
-        out = self.ex.run_on(self.handles, fn, arg_lists, *shared,
-                             tick=lambda k: bar.update(self.bounds[k][1] - self.bounds[k][0]))
-        bar.close()
-        return out
-
-    def run_one(self, i: int, fn, *args):
-        """``fn(shard, local index of tensor i, *args)`` on the shard holding tensor i."""
-        k = i // SHARD_TENSORS
-        return self.ex.run_on([self.handles[k]], fn, [(i - self.bounds[k][0], *args)])[0]
-
-    def scatter(self, *arrays) -> list:
-        return [self.ex.scatter(a) for a in arrays]
-
-    def release(self, handles) -> None:
-        self.ex.release([h for h in handles if h is not None])
-
-    def __enter__(self) -> _Shards:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.ex.release(self.handles)
-
-
-def _cat(parts: list, k: int) -> np.ndarray:
-    return np.concatenate([p[k] for p in parts])
-
-
-def _code_own(data: _Shards, state: TrainState, tau, hs) -> None:
+def _code_own(data: Shards, state: TrainState, tau, hs) -> None:
     """Sparse-code each tensor in its own cluster's dictionary (``hs``: the scattered
     mode matrices); masked, its free bins are then refilled from the new code."""
     out = data.run(_shard_code, data.slices(state.labels), tau, *hs, desc="code")
-    state.codes_idx, state.codes_val, state.errors = (_cat(out, k) for k in range(3))
+    state.codes_idx, state.codes_val, state.errors = (cat(out, k) for k in range(3))
 
 
-def _refill_all(data: _Shards, state: TrainState) -> None:
+def _refill_all(data: Shards, state: TrainState) -> None:
     """Masked: set every tensor's free bins from its code in ``state`` (on resuming)."""
     if data.masked:
         hs = data.scatter(state.u1, state.u2, state.u3)
-        data.run(_shard_refill, data.slices(state.labels, state.codes_idx, state.codes_val),
+        data.run(shard_refill, data.slices(state.labels, state.codes_idx, state.codes_val),
                  *hs)
         data.release(hs)
 
 
-def _update_dictionaries(data: _Shards, state: TrainState, hs: list, n_dicts) -> list:
+def _update_dictionaries(data: Shards, state: TrainState, hs: list, n_dicts) -> list:
     """Gauss-Seidel Procrustes update of the three modes of every dictionary with members.
 
     Each mode's product Z of every cluster is summed over the shards (a map-reduce); its
@@ -604,7 +285,7 @@ def _update_dictionaries(data: _Shards, state: TrainState, hs: list, n_dicts) ->
     """
     stacks = (state.u1, state.u2, state.u3)
     for mode in range(3):
-        parts = data.run(_shard_partials,
+        parts = data.run(shard_partials,
                          data.slices(state.labels, state.codes_idx, state.codes_val),
                          mode, n_dicts, *hs, desc=f"update mode {mode + 1}")
         for j in range(n_dicts):
@@ -619,7 +300,7 @@ def _update_dictionaries(data: _Shards, state: TrainState, hs: list, n_dicts) ->
     return hs
 
 
-def _reseed_empty(data: _Shards, state: TrainState, tau) -> int:
+def _reseed_empty(data: Shards, state: TrainState, tau) -> int:
     """Give every empty cluster the worst-represented tensor of a cluster with >= 2 members."""
     k = state.u1.shape[0]
     reseeded = 0
@@ -638,17 +319,17 @@ def _reseed_empty(data: _Shards, state: TrainState, tau) -> int:
             state.codes_idx[i], state.codes_val[i] = idx, val
             state.errors[i] = err
             if fill is not None:
-                data.run_one(i, _shard_set_fill, fill)
+                data.run_one(i, shard_set_fill, fill)
         reseeded += 1
     return reseeded
 
 
-def _init_state(data: _Shards, tau, n_dicts, rng, init: str = "random") -> TrainState:
+def _init_state(data: Shards, tau, n_dicts, rng, init: str = "random") -> TrainState:
     """The first clusters, each initialised with its HOSVD: random balanced clusters
     (``random``) or :func:`_seed_labels` (``seeded``)."""
     n = len(data)
     n1, n2, n3 = data.shape
-    data.run(_shard_grams, None, desc="init")
+    data.run(shard_grams, None, desc="init")
     if init == "random":
         labels = rng.permutation(np.arange(n) % n_dicts)
     elif init == "seeded":
@@ -656,7 +337,7 @@ def _init_state(data: _Shards, tau, n_dicts, rng, init: str = "random") -> Train
     else:
         check_choice("init", init, INITS)
     sums = [[np.zeros((m, m)) for m in (n1, n2, n3)] for _ in range(n_dicts)]
-    for part in data.run(_shard_gram_sums, data.slices(labels), n_dicts):  # shard order
+    for part in data.run(shard_gram_sums, data.slices(labels), n_dicts):  # shard order
         for j in range(n_dicts):
             for m in range(3):
                 sums[j][m] += part[j][m]
@@ -677,7 +358,7 @@ def _init_state(data: _Shards, tau, n_dicts, rng, init: str = "random") -> Train
 SEED_FRACTION: float | None = 0.2
 
 
-def _seed_labels(data: _Shards, tau, n_dicts, rng) -> np.ndarray:
+def _seed_labels(data: Shards, tau, n_dicts, rng) -> np.ndarray:
     """k-means++ seeding in the training error itself.
 
     The first seed is drawn with probability proportional to tensor energy, each further
@@ -696,7 +377,7 @@ def _seed_labels(data: _Shards, tau, n_dicts, rng) -> np.ndarray:
     for j in range(n_dicts):
         p = weights / weights.sum() if weights.sum() > 0 else None
         s = int(rng.choice(n, p=p))
-        hs = data.scatter(*hosvd_factors(data.run_one(s, _shard_gram)))
+        hs = data.scatter(*hosvd_factors(data.run_one(s, shard_gram)))
         e = np.concatenate(data.run(_shard_seed_errors, data.slices(err), tau, upto, *hs,
                                     desc=f"seed {j + 1}"))
         data.release(hs)
@@ -721,7 +402,7 @@ def _check_training_args(x, tau: int, n_dicts: int, init: str = DEFAULT_INIT,
     return x
 
 
-def _recluster(data: _Shards, state: TrainState, tau, hs) -> int:
+def _recluster(data: Shards, state: TrainState, tau, hs) -> int:
     """Cluster every tensor against every dictionary (in place); return how many moved."""
     old = state.labels.copy()
     # after the first iteration the state's codes belong to the current dictionaries
@@ -729,11 +410,11 @@ def _recluster(data: _Shards, state: TrainState, tau, hs) -> int:
              if state.iteration > 0 else [None] * len(data.bounds))
     out = data.run(_shard_assign, [(k,) for k in known], tau, *hs, desc="assign")
     state.labels, state.codes_idx, state.codes_val, state.errors = (
-        _cat(out, k) for k in range(4))
+        cat(out, k) for k in range(4))
     return int(np.sum(old != state.labels))
 
 
-def _iterate(data: _Shards, total: float, state: TrainState, tau, n_dicts,
+def _iterate(data: Shards, total: float, state: TrainState, tau, n_dicts,
              reassign_every) -> dict:
     """One training iteration (clustering or not, reseeding, dictionary updates, re-coding)
     on ``state`` in place; returns its history record. The dictionaries are scattered to
@@ -812,9 +493,15 @@ def train_dictionaries(
         Training tensors (transformed BRDF channels); may be a memory map. Never written.
     tau : int
         Coefficients kept per tensor in sparse coding.
-    n_iter, tol, max_moved : stop after ``n_iter`` iterations, or earlier once the latest
-        clustering moved at most a fraction ``max_moved`` of the tensors and an iteration
-        lowered the objective by less than ``tol`` (relative).
+    n_dicts : int
+        Dictionaries to learn (K).
+    n_iter, tol, max_moved : int, float, float
+        Stop after ``n_iter`` iterations, or earlier once the latest clustering moved at
+        most a fraction ``max_moved`` of the tensors and an iteration lowered the
+        objective by less than ``tol`` (relative).
+    seed : int
+        Seed of the initial clustering; the same seed, data, options and thread count
+        give the same dictionaries.
     reassign_every : int
         Clustering against every dictionary (K projections per tensor, the dominant cost)
         happens at every ``reassign_every``-th iteration, starting with the first;
@@ -824,7 +511,10 @@ def train_dictionaries(
     checkpoint : path, optional
         ``.npz`` written after every iteration; if it exists and matches the run's
         fingerprint, training resumes from it (a larger ``n_iter`` continues a run).
-    callback : called with the state after every iteration; returning True stops.
+    progress : bool
+        Show a tqdm progress bar per iteration.
+    callback : callable, optional
+        Called with the state after every iteration; returning True stops.
     masked : bool
         Fit valid bins only: bins below the horizon (``coords.geometric_valid``) and the
         bins in ``missing`` are free values, refilled from each tensor's reconstruction
@@ -833,39 +523,62 @@ def train_dictionaries(
     missing : {tensor index: bool array (n1, n2, n3)}, optional
         Unmeasured bins of the tensors that have any (``sources.dataset.training_data``);
         the channels of one material may share one array. Used only when masked.
-    init : ``"seeded"`` or ``"random"`` (:func:`_init_state`).
-    executor : where the per-tensor work runs (``parallel.executor``; default: here).
+    init : str
+        ``"seeded"`` or ``"random"`` initial clusters (:func:`_init_state`).
+    executor : Executor, optional
+        Where the per-tensor work runs (``parallel.executor``; default: here).
 
-    Returns the final :class:`TrainState`; ``state.history`` has one dict per iteration
-    (objective -- squared error over valid bins when masked --, relative objective,
-    tensors moved and their fraction, seconds).
+    Returns
+    -------
+    TrainState
+        The final state: the mode matrices, each tensor's dictionary and code, and
+        ``state.history``, one dict per iteration (objective -- squared error over valid
+        bins when masked --, relative objective, tensors moved and their fraction,
+        seconds).
+
+    Raises
+    ------
+    UsageError
+        For arguments out of range (``tau``, ``n_dicts``, ``init``, ``reassign_every``,
+        the tensors' shape), or a checkpoint of another training run.
+    BRDFFileError
+        For a checkpoint file that cannot be read.
     """
+    from tqdm.auto import tqdm  # lazy: tqdm.auto adds ~40 ms to `import sparse_brdf`
+
     x = _check_training_args(x, tau, n_dicts, init, reassign_every)
-    with _Shards(x, masked, missing, executor or InProcess(), progress) as data:
+    with Shards(x, masked, missing, executor or InProcess(), progress) as data:
         total = float(data.energy.sum())
-        fingerprint = _fingerprint(x, data.raw_norms, tau, n_dicts, seed,
-                                   _run_options(data, masked, init))
-        state = _load_checkpoint(checkpoint, fingerprint) if checkpoint else None
-        if state is None:
-            t0 = time.perf_counter()
-            state = _init_state(data, tau, n_dicts, np.random.default_rng(seed), init)
-            state.init_seconds = time.perf_counter() - t0
-        else:
-            _refill_all(data, state)
-        bar = _bar(n_iter, progress, f"tau={tau}")
-        bar.update(state.iteration)
+        run = fingerprint(x, data.raw_norms, tau, n_dicts, seed,
+                          run_options(data.extra, masked, init))
+        state = _start(data, checkpoint, run, tau, n_dicts, seed, init)
+        bar = tqdm(total=n_iter, initial=state.iteration, desc=f"tau={tau}", unit="it",
+                   disable=not progress)
         while state.iteration < n_iter and not _converged(state.history, tol, max_moved,
                                                           len(x)):
             record = _iterate(data, total, state, tau, n_dicts, reassign_every)
             state.history.append(record)
             state.iteration += 1
             if checkpoint:
-                _save_checkpoint(checkpoint, state, fingerprint)
+                save_checkpoint(checkpoint, state, run)
             bar.set_postfix(rel_err=f"{record['objective'] / total:.3e}", moved=record["moved"])
             bar.update(1)
             if callback is not None and callback(state):
                 break
         bar.close()
+    return state
+
+
+def _start(data: Shards, checkpoint, run: str, tau, n_dicts, seed, init) -> TrainState:
+    """The state a run starts from: its checkpoint (the tensors' fills restored), or a
+    new initialisation."""
+    state = load_checkpoint(checkpoint, run) if checkpoint else None
+    if state is None:
+        t0 = time.perf_counter()
+        state = _init_state(data, tau, n_dicts, np.random.default_rng(seed), init)
+        state.init_seconds = time.perf_counter() - t0
+    else:
+        _refill_all(data, state)
     return state
 
 
@@ -885,11 +598,45 @@ def train_ensemble(
     """Train ``n_dicts`` dictionaries per sparsity in ``taus`` and unite them.
 
     The sparsities are trained one after another, each with its own seed derived from
-    ``seed``; with ``checkpoint_dir`` each writes ``tau-<tau>.npz`` there and resumes.
-    ``kwargs`` go to :func:`train_dictionaries` (``masked``, ``missing``, ``init``,
-    ``reassign_every``, ``tol``, ``max_moved``). ``meta`` is stored in the ensemble with
-    the training options, history and time taken. ``workers``/``scheduler``: where the
-    per-tensor work runs (``parallel.executor``; default: in this process).
+    ``seed``.
+
+    Parameters
+    ----------
+    x : ndarray of shape (N, n1, n2, n3), float32
+        Training tensors (transformed BRDF channels, e.g. from
+        ``sources.dataset.training_tensors``); may be a memory map. Never written.
+    taus : sequence of int
+        The training sparsities (coefficients per tensor), default (32, 64, 128, 256).
+    n_dicts : int
+        Dictionaries per sparsity.
+    n_iter : int
+        Iterations per sparsity (at most; see :func:`train_dictionaries`).
+    seed : int
+        The base seed.
+    checkpoint_dir : path, optional
+        Each sparsity writes ``tau-<tau>.npz`` there after every iteration and resumes
+        from it.
+    progress : bool
+        Show tqdm progress bars.
+    meta : dict, optional
+        Stored in the ensemble's ``meta`` with the training options, history and time
+        taken.
+    workers, scheduler : int, str, optional
+        Where the per-tensor work runs (``parallel.executor``: N local Dask workers, or a
+        scheduler's address; default: in this process).
+    **kwargs
+        Passed to :func:`train_dictionaries` (``masked``, ``missing``, ``init``,
+        ``reassign_every``, ``tol``, ``max_moved``).
+
+    Returns
+    -------
+    Ensemble
+        ``len(taus) * n_dicts`` dictionaries, sparsity by sparsity.
+
+    Raises
+    ------
+    UsageError, BRDFFileError
+        As :func:`train_dictionaries`.
     """
     seeds = np.random.SeedSequence(seed).generate_state(len(taus))
     parts, histories, init_seconds = [], {}, {}
@@ -921,10 +668,12 @@ def train_ensemble(
 
 def hosvd_ensemble(x: np.ndarray, progress: bool = True) -> Ensemble:
     """One dictionary: the HOSVD of all tensors ``x`` (N, n1, n2, n3) (a baseline)."""
+    from tqdm.auto import tqdm  # lazy: tqdm.auto adds ~40 ms to `import sparse_brdf`
+
     n1, n2, n3 = x.shape[1:]
     grams = [np.zeros((m, m)) for m in (n1, n2, n3)]
-    for g in _progress(parallel_map(lambda i: mode_grams(x[i]), range(len(x))), len(x),
-                       progress, "hosvd"):
+    for g in tqdm(parallel_map(lambda i: mode_grams(x[i]), range(len(x))), total=len(x),
+                  desc="hosvd", unit="tensor", leave=False, disable=not progress):
         for m in range(3):
             grams[m] += g[m]
     f = hosvd_factors(tuple(grams))
@@ -935,78 +684,3 @@ def hosvd_ensemble(x: np.ndarray, progress: bool = True) -> Ensemble:
 # ----------------------------------------------------------------------- helpers
 
 
-def _run_options(data: _Tensors, masked: bool, init: str) -> dict | None:
-    """What besides data, tau, K and seed defines a run (None: the first trainer's
-    options, whose checkpoints keep their fingerprints)."""
-    if not masked and init == "random":
-        return None
-    h = hashlib.sha256()
-    for i in sorted(data.extra):
-        h.update(np.asarray([i], "<i8").tobytes())
-        h.update(np.asarray(data.extra[i], "<i8").tobytes())
-    return {"masked": masked, "init": init, "missing": h.hexdigest()}
-
-
-def _fingerprint(x, norms, tau, n_dicts, seed, options: dict | None = None) -> str:
-    h = hashlib.sha256(json.dumps([list(x.shape), tau, n_dicts, seed]).encode())
-    h.update(np.asarray(norms, "<f8").tobytes())
-    if options is not None:
-        h.update(json.dumps(options, sort_keys=True).encode())
-    return h.hexdigest()
-
-
-def _save_checkpoint(path, state: TrainState, fingerprint: str) -> None:
-    with atomic_write(path) as f:
-        np.savez(f, u1=state.u1, u2=state.u2, u3=state.u3, labels=state.labels,
-                 codes_idx=state.codes_idx, codes_val=state.codes_val, errors=state.errors,
-                 iteration=state.iteration, history=json.dumps(state.history),
-                 init_seconds=state.init_seconds, fingerprint=fingerprint)
-
-
-def _load_checkpoint(path, fingerprint: str) -> TrainState | None:
-    path = Path(path)
-    if not path.is_file():
-        return None
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            stored = str(z["fingerprint"])
-            state = None if stored != fingerprint else TrainState(
-                z["u1"], z["u2"], z["u3"], z["labels"], z["codes_idx"], z["codes_val"],
-                z["errors"], int(z["iteration"]), json.loads(str(z["history"])),
-                float(z["init_seconds"]) if "init_seconds" in z else 0.0)
-    except Exception as exc:  # noqa: BLE001 - numpy and zipfile raise many kinds
-        raise BRDFFileError(f"{path}: not a readable training checkpoint "
-                            f"({type(exc).__name__}: {exc}); delete it to redo its "
-                            "sparsity") from exc
-    if state is None:
-        raise UsageError(f"{path}: checkpoint belongs to another training run "
-                         "(different data, tau, K, seed, masking or initialisation); "
-                         "delete it or use another folder")
-    return state
-
-
-class _NoBar:
-    def update(self, n=1):
-        pass
-
-    def set_postfix(self, **kw):
-        pass
-
-    def close(self):
-        pass
-
-
-def _bar(total, enabled, desc, unit="it", leave=True):
-    if not enabled:
-        return _NoBar()
-    from tqdm.auto import tqdm  # lazy: tqdm.auto adds ~40 ms to `import sparse_brdf`
-
-    return tqdm(total=total, desc=desc, unit=unit, leave=leave)
-
-
-def _progress(it, total, enabled, desc):
-    if not enabled:
-        return it
-    from tqdm.auto import tqdm  # lazy: tqdm.auto adds ~40 ms to `import sparse_brdf`
-
-    return tqdm(it, total=total, desc=desc, leave=False, unit="tensor")

@@ -73,5 +73,13 @@ def _diffuse() -> dict[str, dict]:
 
 
 def mitsuba_catalog() -> dict[str, dict]:
-    """Name -> ``mi.load_dict`` dictionary of every built-in material (>= 40)."""
+    """Every built-in analytic material (the ``mitsuba`` corpus).
+
+    Returns
+    -------
+    dict of str to dict
+        Name (e.g. ``"au-ggx-0.25"``) -> the Mitsuba 3 BSDF dictionary for ``mi.load_dict``:
+        rough conductors, rough plastics, principled materials and diffuse surfaces (at
+        least 40). ``load_brdf("mitsuba:<name>")`` tabulates one.
+    """
     return {**_conductors(), **_plastics(), **_principled(), **_diffuse()}

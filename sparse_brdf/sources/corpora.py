@@ -31,13 +31,35 @@ TEST_FRACTION = 0.15
 
 @dataclass(frozen=True)
 class Material:
-    """One named material of a corpus; ``load()`` tabulates it (cached)."""
+    """One named material of a corpus.
+
+    Attributes
+    ----------
+    name : str
+        The material's name within its corpus (e.g. ``"blue-acrylic"``).
+    corpus : str
+        The corpus it belongs to (e.g. ``"merl"``); ``"<corpus>/<name>"`` is its key.
+    source : str
+        What :func:`~sparse_brdf.load_brdf` reads: a file path or ``"mitsuba:<name>"``.
+    """
 
     name: str
     corpus: str
     source: str  # a file path or "mitsuba:<name>"
 
     def load(self, shape: tuple[int, int, int] = MERL_SHAPE) -> BRDF:
+        """Tabulate the material (cached on disk, see :func:`~sparse_brdf.load_brdf`).
+
+        Parameters
+        ----------
+        shape : tuple of int
+            The grid (n_h, n_d, n_p); default the MERL grid (90, 90, 180).
+
+        Returns
+        -------
+        BRDF
+            Its values on that grid, named :attr:`name`.
+        """
         brdf = load_brdf(self.source, shape=shape)
         brdf.name = self.name
         return brdf
@@ -51,6 +73,21 @@ TRAINING_CORPORA: tuple[str, ...] = ("merl", "rgl", "mitsuba")
 
 @dataclass(frozen=True)
 class Corpus:
+    """A named set of materials with a fixed train/test split (:func:`get_corpus`).
+
+    Attributes
+    ----------
+    name : str
+        The corpus's name (``"mitsuba"``, ``"merl"``, ...), or a folder's name.
+    description : str
+        One line saying what it holds (as ``sparse-brdf corpus list`` prints it).
+    materials : tuple of Material
+        Every material, in name order.
+    test_only : bool
+        Every material is unseen (the split's train part is empty), e.g. the shipped
+        demo materials.
+    """
+
     name: str
     description: str
     materials: tuple[Material, ...]
@@ -90,7 +127,14 @@ def _demo_corpus() -> Corpus:
 
 
 def list_corpora() -> dict[str, str]:
-    """Name -> description of every corpus available on this machine."""
+    """Every corpus this machine knows.
+
+    Returns
+    -------
+    dict of str to str
+        Corpus name -> a one-line description; corpora whose data are absent (e.g.
+        ``merl`` without ``../shared/data``) are listed as unavailable.
+    """
     out = {"mitsuba": f"built-in: {len(mitsuba_catalog())} Mitsuba 3 BSDFs tabulated on the grid",
            "merl-demo": f"built-in: {len(list(DEMO_MATERIALS_DIR.glob('*.h5')))} measured MERL "
                         "materials (Neural-BRDF fits, merl test split), shipped for the demo"}
@@ -105,7 +149,29 @@ def list_corpora() -> dict[str, str]:
 
 
 def get_corpus(name: str) -> Corpus:
-    """A corpus by name (``mitsuba``, ``merl``, ``rgl``) or by folder path."""
+    """A corpus by name or by folder.
+
+    Parameters
+    ----------
+    name : str
+        A name from :func:`list_corpora` (``"mitsuba"``, ``"merl-demo"``, ``"merl"``,
+        ``"rgl"``, ...), or the path of a folder of ``.binary`` (MERL/DTU) and ``.h5``
+        (Neural-BRDF) files.
+
+    Returns
+    -------
+    Corpus
+        Its materials, with the split by name hash (``Corpus.split("test")``).
+
+    Raises
+    ------
+    MissingDataError
+        For a corpus whose data are not on this machine (``../shared/data``).
+    MissingFileError
+        (a FileNotFoundError) For a folder without material files.
+    UsageError
+        For an unknown or empty name.
+    """
     if not isinstance(name, str) or not name.strip():
         raise UsageError(f"corpus {name!r}: give mitsuba, merl, rgl or a folder path")
     if name == "mitsuba":

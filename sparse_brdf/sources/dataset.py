@@ -54,13 +54,10 @@ def training_data(
     labels: list[str] = []
     missing: dict[int, np.ndarray] = {}
     above = geometric_valid(shape)
-    it = materials
-    if progress:
-        from tqdm.auto import tqdm  # lazy: tqdm.auto adds ~40 ms to `import sparse_brdf`
+    from tqdm.auto import tqdm  # lazy: tqdm.auto adds ~40 ms to `import sparse_brdf`
 
-        it = tqdm(materials, desc="load", unit="brdf")
     i = 0
-    for m in it:
+    for m in tqdm(materials, desc="load", unit="brdf", disable=not progress):
         brdf = m.load(shape)
         rho = brdf.channel_first()
         holes = above & ~brdf.valid

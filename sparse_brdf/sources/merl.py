@@ -27,10 +27,30 @@ _MAX_VALUE = float(np.finfo(np.float32).max)
 
 
 def read_merl(path: str | os.PathLike, name: str | None = None) -> BRDF:
-    """Read a MERL ``.binary`` file into a :class:`BRDF` (float32 linear RGB).
+    """Read a MERL ``.binary`` file into a :class:`BRDF`.
 
-    Raises FileNotFoundError for a missing file and :class:`BRDFFileError` for a wrong
-    header, a wrong or truncated size, or NaN/inf values, each naming the file.
+    Parameters
+    ----------
+    path : str or path-like
+        The file: a header of three int32 dimensions (n_h, n_d, n_p), then
+        3 n_h n_d n_p float64 values, channel-major, in MERL's scaled units.
+    name : str, optional
+        The material's name; default: the file name without ``.binary``.
+
+    Returns
+    -------
+    BRDF
+        float32 linear RGB values (n_h, n_d, n_p, 3) in 1/sr (MERL's channel scales
+        applied), 0 on invalid bins; ``valid`` marks the measured bins above the horizon
+        (negative stored values mean unmeasured).
+
+    Raises
+    ------
+    FileNotFoundError
+        If the file is missing.
+    BRDFFileError
+        For a wrong header, a wrong or truncated size, NaN/inf values, values beyond
+        float32's range, or no valid bin; the message names the file.
     """
     path = require_file(path, "MERL file")
     raw = path.read_bytes()
@@ -65,7 +85,20 @@ def read_merl(path: str | os.PathLike, name: str | None = None) -> BRDF:
 
 
 def write_merl(path: str | os.PathLike, brdf: BRDF) -> Path:
-    """Write ``brdf`` as a MERL ``.binary`` file (invalid bins as -1), atomically."""
+    """Write ``brdf`` as a MERL ``.binary`` file, atomically.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The file to write (replaced only once it is complete).
+    brdf : BRDF
+        Linear RGB values (n_h, n_d, n_p, 3); invalid bins are stored as -1.
+
+    Returns
+    -------
+    pathlib.Path
+        The file written; :func:`read_merl` reads it back exactly.
+    """
     path = Path(path)
     stored = np.moveaxis(brdf.values.astype(np.float64), -1, 0) / MERL_SCALE[:, None, None, None]
     stored = np.where(brdf.valid[None], stored, -1.0)

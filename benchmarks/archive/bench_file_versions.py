@@ -1,6 +1,6 @@
-"""Render speed of one material stored as file version 1 and version 2 (issue 14).
+"""Render speed of one material stored as file version 1 and version 2.
 
-    .venv/bin/python benchmarks/bench_file_versions.py [--material mitsuba:cu-ggx-0.12]
+    .venv/bin/python benchmarks/archive/bench_file_versions.py [--material mitsuba:cu-ggx-0.12]
         [--rounds 5] [--res 128] [--spp 16]
 
 Encodes the material once (default encoder, 262 coefficients per channel), writes it as

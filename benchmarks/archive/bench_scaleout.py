@@ -1,12 +1,12 @@
-"""Scale-out on Dask (issue 17): in-process against ``--workers N`` for batch encoding, a
+"""Scale-out on Dask: in-process against ``--workers N`` for batch encoding, a
 bench and one training iteration; encode cost against the number of materials; bytes
 moved per training iteration. Results go to docs/benchmarks.md ("Scale-out on Dask").
 
-    .venv/bin/python benchmarks/bench_scaleout.py encode --n 10            # both ways
-    .venv/bin/python benchmarks/bench_scaleout.py encode --n 50 --only workers
-    .venv/bin/python benchmarks/bench_scaleout.py encode --n 136 --only workers
-    .venv/bin/python benchmarks/bench_scaleout.py bench
-    .venv/bin/python benchmarks/bench_scaleout.py train --materials 8
+    .venv/bin/python benchmarks/archive/bench_scaleout.py encode --n 10            # both ways
+    .venv/bin/python benchmarks/archive/bench_scaleout.py encode --n 50 --only workers
+    .venv/bin/python benchmarks/archive/bench_scaleout.py encode --n 136 --only workers
+    .venv/bin/python benchmarks/archive/bench_scaleout.py bench
+    .venv/bin/python benchmarks/archive/bench_scaleout.py train --materials 8
 
 Materials for ``encode``: the shared Neural-BRDF networks, MERL's then RGL's, sorted by
 name (136 in all); their tabulations are cached after the first run, so run once before

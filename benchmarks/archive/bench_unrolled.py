@@ -9,10 +9,10 @@ per mode, and the terms are traced as straight-line multiply-adds nested as
 sum_c U3[k, c] sum_b U2[j, b] sum_a s U1[i, a], with the coefficients s as kernel inputs
 (``dr.opaque``). Same memory as the strict decoder, but a new kernel (and a cold LLVM
 compile) for every material whose atom structure differs. Not offered by the plugin:
-this benchmark answers whether dropping the one-kernel rule would reach the issue's
-strict-decoder goal (<= 1.5x ``tabulated_brdf``).
+this benchmark answers whether dropping the one-kernel rule would reach the
+strict decoder's goal (<= 1.5x ``tabulated_brdf``).
 
-    HOME=$(mktemp -d) .venv/bin/python benchmarks/bench_unrolled.py [--material SOURCE]
+    HOME=$(mktemp -d) .venv/bin/python benchmarks/archive/bench_unrolled.py [--material SOURCE]
 
 (a fresh HOME empties Dr.Jit's on-disk kernel cache, so compile times are cold). Prints
 a markdown table: render time (median of interleaved rounds, ratio to tabulated_brdf as
@@ -25,12 +25,12 @@ from __future__ import annotations
 
 import importlib
 import platform
+import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
-from bench_render import default_material, render_cases, scene_args
 
 from sparse_brdf.evaluation.speed import eval_rate, random_directions
 from sparse_brdf.mitsuba_env import set_variant
@@ -39,6 +39,9 @@ from sparse_brdf.model.ensemble import Ensemble
 from sparse_brdf.model.layouts import channel_terms
 from sparse_brdf.model.sbrdf import save_sbrdf
 from sparse_brdf.sources.load import load_brdf
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # render_timing.py is one up
+from render_timing import default_material, render_cases, scene_args  # noqa: E402
 
 
 def unrolled_data(model, ensemble, packet: int = 8):
@@ -140,7 +143,7 @@ def max_rel_diff(a, b) -> float:
 
 
 def main() -> None:
-    args = scene_args(__doc__).parse_args()
+    args = scene_args(__doc__, json_option=False).parse_args()
     # lazy: Dr.Jit/Mitsuba load only once a benchmark runs, not on import or --help
     import drjit as dr
     import mitsuba as mi

@@ -1,13 +1,13 @@
-"""Memory-read costs behind the plugin decoders' speed (issue 4), on Dr.Jit's LLVM backend.
+"""Memory-read costs behind the plugin decoders' speed, on Dr.Jit's LLVM backend.
 
-    .venv/bin/python benchmarks/bench_gathers.py
+    .venv/bin/python benchmarks/archive/bench_gathers.py
 
 Times 2^22 random lookups (2^20 for the term loops) on all cores and prints lookups/s:
 one float from a 16 KB / 0.5 MB / 15 MB table, a 16-float packet from the same tables
 (what the grouped decoder reads per row), and a 262-term loop as the strict decoder runs
 it: per-term reads of the coefficient, its atom index and the atom value, against the
 same loop reading the atom values from Dr.Jit local memory filled once per lookup.
-Then two variants tried for issue 4: the grouped decoder's loop (5 packets of 8 floats
+Then two variants tried for the decoders: the grouped decoder's loop (5 packets of 8 floats
 from a table row and from a row of atom values) with float32 against float16 table rows,
 and the strict decoder's sorted terms run as one flat loop (group ends flagged) against
 nested loops over c groups, (c, b) groups and terms.
@@ -15,11 +15,16 @@ nested loops over c groups, (c, b) groups and terms.
 
 from __future__ import annotations
 
+import sys
 import time
+from pathlib import Path
 
 import drjit as dr
 import numpy as np
 from drjit.llvm import ArrayXf, ArrayXf16, Float, Float16, UInt32
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # harness.py is one up
+from harness import parser  # noqa: E402
 
 
 def rate(f, n: int, make_index, repeats: int = 5) -> float:
@@ -38,6 +43,7 @@ def rate(f, n: int, make_index, repeats: int = 5) -> float:
 
 
 def main() -> None:
+    parser(__doc__, json_option=False).parse_args()  # --help
     rng = np.random.default_rng(0)
     n = 1 << 22
     print("| read | table | lookups/s |\n|---|---|---|")

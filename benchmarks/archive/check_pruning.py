@@ -1,6 +1,6 @@
-"""Does the pruned projection select what the full search selects? (issue 3)
+"""Does the pruned projection select what the full search selects?
 
-    .venv/bin/python benchmarks/check_pruning.py
+    .venv/bin/python benchmarks/archive/check_pruning.py
 
 On the first 5 MERL and 3 RGL-EPFL test materials, both transforms, and (coefficients,
 max error) in (262, -), (64, -), (1024, -), (262, 1e-4): encodes with `project_all` (every
@@ -11,7 +11,9 @@ chosen dictionaries and coefficients agree, the two times and how many of the 96
 
 from __future__ import annotations
 
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -20,6 +22,9 @@ from sparse_brdf.model.encode import DEFAULT_N_COEFFS, project_all, project_prun
 from sparse_brdf.transforms import TRANSFORMS, forward
 
 CASES = ((DEFAULT_N_COEFFS, None), (64, None), (1024, None), (DEFAULT_N_COEFFS, 1e-4))
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # harness.py is one up
+from harness import parser  # noqa: E402
 
 
 def same(a, b) -> bool:
@@ -36,6 +41,7 @@ def same(a, b) -> bool:
 
 
 def main() -> None:
+    parser(__doc__, json_option=False).parse_args()  # --help
     ens = Ensemble.default()
     mats = get_corpus("merl").split("test")[:5] + get_corpus("rgl").split("test")[:3]
     agree = 0

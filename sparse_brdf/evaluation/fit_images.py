@@ -1,0 +1,372 @@
+"""Fit a material's coefficient values to images: inverse rendering on a fixed support.
+
+:func:`fit_images` takes a scene, reference images of a material in that scene under
+known lighting and views (:class:`View`: an image and the scene defaults it was taken
+with, e.g. ``{"envrot": "90"}``), and a starting ``.sbrdf``. It keeps the starting
+file's support (its dictionaries and atoms) and optimises the coefficient values of the
+three coded channels with Mitsuba's Adam (``mi.ad.Adam``), differentiating the renders
+through the ``sparse_brdf`` plugin's ``values_0`` .. ``values_2`` parameters
+(``docs/fit-images.md``). The loss is the mean over views of the relative squared error
+``sum (img - ref)^2 / sum ref^2``, so its ``-10 log10`` is the views' mean whole-image
+rendering SNR.
+
+Each value is optimised as ``scale * u`` with ``scale`` its starting magnitude (floored at
+1e-3 of its channel's largest): Adam's steps are then relative, the same for the large
+low-order coefficients and the small high-order ones. The primal renders use the
+references' seed (the same sample paths when the references were rendered by Mitsuba
+with that seed); each gradient pass uses a fresh seed, as Mitsuba requires.
+
+Mitsuba and Dr.Jit are imported inside the functions, so importing this module stays
+fast; the scenes are loaded through :func:`sparse_brdf.evaluation.render.load_scene`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ImageFileError, RenderError, UsageError
+from ..fileio import atomic_path
+from ..mitsuba_env import DEFAULT_VARIANT
+from ..model.ensemble import Ensemble, resolve_ensemble
+from ..model.sbrdf import load_sbrdf, save_sbrdf
+from ..model.sparse import SparseBRDF
+from .render import load_scene
+
+#: Keys under which the plugin exposes the coded channels' values (``mi.traverse``).
+VALUE_KEYS = ("values_0", "values_1", "values_2")
+#: Defaults of the fit.
+DEFAULT_ITERATIONS, DEFAULT_LR, DEFAULT_SPP = 60, 0.02, 4
+#: A value's scale is at least this fraction of its channel's largest magnitude.
+SCALE_FLOOR = 1e-3
+
+
+@dataclass
+class View:
+    """One reference image (float32 (H, W, 3), linear) and the scene defaults it was
+    rendered or photographed with (e.g. ``{"envrot": "90"}``)."""
+
+    image: np.ndarray
+    params: dict = field(default_factory=dict)
+    name: str = "view"
+
+
+@dataclass
+class FitResult:
+    """The fitted model and the fit's record: per iteration the views' mean whole-image
+    SNR (dB) of the values before that iteration's step; wall-clock seconds."""
+
+    model: SparseBRDF
+    snr_db: list[float]
+    seconds: float
+    seconds_per_iteration: float
+    iterations: int
+    resumed_from: int = 0
+
+    def summary(self) -> dict:
+        return {"iterations": self.iterations, "seconds": round(self.seconds, 2),
+                "seconds_per_iteration": round(self.seconds_per_iteration, 3),
+                "start_snr_db": self.snr_db[0] if self.snr_db else None,
+                "final_snr_db": self.snr_db[-1] if self.snr_db else None,
+                "resumed_from": self.resumed_from}
+
+
+def parse_view(text: str) -> tuple[str, dict]:
+    """``IMAGE.exr[:KEY=VALUE[,KEY=VALUE...]]`` -> (image path, scene defaults)."""
+    path, sep, tail = str(text).rpartition(":")
+    if not sep or "=" not in tail:
+        return str(text), {}
+    params = {}
+    for item in tail.split(","):
+        key, eq, value = item.partition("=")
+        if not eq or not key.strip():
+            raise UsageError(f"--view {text!r}: expected IMAGE.exr:KEY=VALUE[,KEY=VALUE]")
+        params[key.strip()] = value.strip()
+    return path, params
+
+
+def _fingerprint(scene, views: Sequence[View], model: SparseBRDF, settings: dict) -> str:
+    """A hash of what a checkpoint belongs to: scene, views, start values, settings."""
+    h = hashlib.sha256(str(Path(scene).resolve()).encode())
+    for v in views:
+        h.update(np.ascontiguousarray(v.image, np.float32).tobytes())
+        h.update(json.dumps(v.params, sort_keys=True).encode())
+    for a in model.values:
+        h.update(np.ascontiguousarray(a, np.float32).tobytes())
+    h.update(json.dumps(settings, sort_keys=True).encode())
+    return h.hexdigest()[:16]
+
+
+def _value_keys(params, material: str) -> list[str]:
+    """The three ``mi.traverse`` keys of the material's values."""
+    keys = []
+    for k in VALUE_KEYS:
+        found = [p for p in params.keys() if p.endswith("." + k) or p == k]
+        own = [p for p in found if p.split(".")[0] == material]
+        if len(own) == 1 or len(found) == 1:
+            keys.append((own or found)[0])
+        else:
+            raise UsageError(f"material {material!r}: found {len(found)} sparse_brdf "
+                             f"parameters {k} in the scene ({', '.join(found) or 'none'})")
+    return keys
+
+
+@dataclass
+class _Scene:
+    scene: object
+    params: object
+    keys: list
+    reference: object  # mi.TensorXf
+    norm: float
+
+
+def _load_views(scene, views, material, start_path, spp, seed, variant, options):
+    import mitsuba as mi  # lazy: Mitsuba is slow to import (see the module doc)
+
+    out = []
+    for v in views:
+        img = np.asarray(v.image, np.float32)
+        if img.ndim != 3 or img.shape[2] != 3 or not np.isfinite(img).all():
+            raise ImageFileError(f"{v.name}: a reference must be a finite RGB image, got "
+                                 f"shape {img.shape}")
+        res = img.shape[0] if img.shape[0] == img.shape[1] else None
+        sc = load_scene(scene, {material: str(start_path)}, spp=spp, seed=seed, res=res,
+                        variant=variant, params=v.params, sparse_options=options)
+        size = tuple(int(x) for x in sc.sensors()[0].film().crop_size())
+        if size != (img.shape[1], img.shape[0]):
+            raise ImageFileError(f"{v.name}: {img.shape[1]}x{img.shape[0]}, but the scene "
+                                 f"renders {size[0]}x{size[1]}")
+        params = mi.traverse(sc)
+        norm = float(np.sum(np.square(img, dtype=np.float64)))
+        if norm <= 0:
+            raise ImageFileError(f"{v.name}: the reference image is black")
+        out.append(_Scene(sc, params, _value_keys(params, material), mi.TensorXf(img), norm))
+    return out
+
+
+def _write_checkpoint(path: Path, it: int, opt, snr: list[float], fp: str) -> None:
+    arrays = {"iteration": np.array(it), "snr_db": np.array(snr, np.float64),
+              "fingerprint": np.array(fp)}
+    for c, key in enumerate(VALUE_KEYS):
+        value, _, _, extra = opt.state[key]
+        arrays[f"u{c}"] = np.array(value, np.float32)
+        arrays[f"t{c}"] = np.array(int(extra[0]))
+        arrays[f"m{c}"] = np.array(extra[1], np.float32)
+        arrays[f"v{c}"] = np.array(extra[2], np.float32)
+    with atomic_path(path, suffix=".npz") as tmp:
+        np.savez(tmp, **arrays)
+
+
+def _read_checkpoint(path: Path, opt, fp: str):
+    """(iteration, snr history) restored into ``opt``; a checkpoint of another fit is
+    refused in one line."""
+    import mitsuba as mi  # lazy: Mitsuba is slow to import (see the module doc)
+
+    try:
+        with np.load(path) as z:
+            data = {k: z[k] for k in z.files}
+    except (OSError, ValueError) as exc:
+        raise UsageError(f"{path}: unreadable checkpoint ({exc}): delete it to start over")
+    if str(data.get("fingerprint")) != fp:
+        raise UsageError(f"{path}: a checkpoint of another fit (other scene, views, start "
+                         "file or settings): delete it or use another --checkpoint-dir")
+    for c, key in enumerate(VALUE_KEYS):
+        opt[key] = mi.Float(data[f"u{c}"])
+        value, promoted, lr, extra = opt.state[key]
+        extra = (int(data[f"t{c}"]), mi.Float(data[f"m{c}"]), mi.Float(data[f"v{c}"]),
+                 *extra[3:])
+        opt.state[key] = (value, promoted, lr, extra)
+    return int(data["iteration"]), [float(x) for x in data["snr_db"]]
+
+
+def _step(views: list[_Scene], opt, scales, seed: int, grad_seed: int, spp: int) -> float:
+    """One Adam step over all views; returns their mean whole-image SNR (dB) before it.
+
+    Per view: a primal render (seed ``seed``), the loss's image gradient
+    ``2 (img - ref) / sum ref^2``, and the integrator's ``render_backward`` with seed
+    ``grad_seed`` (the primal's for the shared-path gradient), which accumulates
+    d loss / d values on the plugin's parameters; the chain rule through ``scale * u``
+    is applied here."""
+    import drjit as dr  # lazy: Dr.Jit is slow to import (see the module doc)
+    import mitsuba as mi
+
+    losses = []
+    grads = [dr.zeros(mi.Float, dr.width(opt[k])) for k in VALUE_KEYS]
+    for i, v in enumerate(views):
+        for key, name, s in zip(v.keys, VALUE_KEYS, scales, strict=True):
+            val = mi.Float(dr.detach(opt[name]) * s)
+            dr.enable_grad(val)
+            v.params[key] = val
+        v.params.update()
+        with dr.suspend_grad():
+            img = mi.render(v.scene, spp=spp, seed=seed)
+            diff = img - v.reference
+            loss = float(np.asarray(dr.sum(dr.square(diff), axis=None)).ravel()[0]) / v.norm
+        g_img = diff * (2.0 / (v.norm * len(views)))
+        v.scene.integrator().render_backward(v.scene, v.params, g_img,
+                                             seed=grad_seed + i if grad_seed != seed
+                                             else seed, spp=spp)
+        for c, key in enumerate(v.keys):
+            grads[c] = grads[c] + dr.grad(v.params[key])
+            dr.disable_grad(v.params[key])
+        losses.append(loss)
+    for name, g, s in zip(VALUE_KEYS, grads, scales, strict=True):
+        dr.set_grad(opt[name], g * s)
+    opt.step()
+    return float(-10.0 * np.log10(max(float(np.mean(losses)), 1e-30)))
+
+
+def fit_images(  # long: the fit loop with its checkpointing and progress bar
+    scene: str | os.PathLike,
+    views: Sequence[View],
+    start: str | os.PathLike | SparseBRDF,
+    *,
+    material: str = "material",
+    ensemble: str | os.PathLike | Ensemble | None = None,
+    iterations: int = DEFAULT_ITERATIONS,
+    lr: float = DEFAULT_LR,
+    spp: int = DEFAULT_SPP,
+    seed: int = 0,
+    checkpoint_dir: str | os.PathLike | None = None,
+    checkpoint_every: int = 10,
+    decoder: str = "auto",
+    variant: str = DEFAULT_VARIANT,
+    shared_paths: bool = True,
+    progress: bool = True,
+) -> FitResult:
+    """Optimise the coefficient values of ``start`` so that renders of ``scene`` match
+    the reference ``views``.
+
+    Parameters
+    ----------
+    scene : path
+        Scene XML whose BSDF ``material`` is replaced by the model (e.g. a shipped
+        ``sphere.xml``); its first sensor must render the references' size (square
+        references set the scene's ``res``).
+    views : sequence of View
+        Reference images (float32 (H, W, 3), linear RGB) and the scene defaults of each.
+    start : path or SparseBRDF
+        The starting model: its support (dictionaries, atoms) is kept, its values are
+        the starting point.
+    material : str
+        Id of the BSDF in the scene that the model replaces.
+    ensemble : path, Ensemble or None
+        The start file's ensemble (None: the shipped one it names).
+    iterations, lr, spp, seed : int, float, int, int
+        Adam iterations (each renders every view once and takes one step), Adam's
+        learning rate (a relative step per value, see the module doc), samples per
+        pixel, and the primal renders' seed (that of the references).
+    checkpoint_dir : path or None
+        Where to keep ``fit-images.npz`` (every ``checkpoint_every`` iterations): a rerun
+        with the same inputs resumes from it; one of another fit is refused.
+    decoder, variant : str
+        The plugin's decoder and the Mitsuba variant (an ``*_ad_*`` one).
+    shared_paths : bool
+        Differentiate each view's render along the primal's own sample paths (seed
+        ``seed``: the gradient of the very estimate the loss compares, low in variance;
+        the default) or along fresh ones each iteration (Mitsuba's decorrelated,
+        unbiased gradient, noisier at low spp).
+    progress : bool
+        Show a tqdm progress bar with the current SNR.
+
+    Returns
+    -------
+    FitResult
+        The fitted model (the start's support with the new values) and the record.
+    """
+    if not views:
+        raise UsageError("fit-images: give at least one reference view")
+    if iterations < 1 or spp < 1 or not (lr > 0 and np.isfinite(lr)):
+        raise UsageError(f"fit-images: iterations ({iterations}) and spp ({spp}) must be "
+                         f">= 1 and the learning rate ({lr}) a positive number")
+    if "_ad_" not in variant:
+        raise UsageError(f"fit-images: variant {variant!r} is not differentiable: use an "
+                         "llvm_ad_* or cuda_ad_* variant")
+    import drjit as dr  # lazy: Mitsuba and Dr.Jit are slow to import (see the module doc)
+    import mitsuba as mi
+
+    from tqdm import tqdm  # lazy: only long jobs show a bar
+
+    ens = ensemble if isinstance(ensemble, Ensemble) else None
+    if isinstance(start, SparseBRDF):
+        model = start
+        ens = ens or resolve_ensemble(ensemble, for_id=model.ensemble_id)
+    else:
+        ens = ens or resolve_ensemble(ensemble, for_id=load_sbrdf(start).ensemble_id)
+        model = load_sbrdf(start, ens)
+    ens_path = None
+    with tempfile.TemporaryDirectory(prefix="fit-images-") as tmp:
+        start_path = save_sbrdf(Path(tmp) / "start.sbrdf", model, version=1)
+        if ensemble is not None:
+            ens_path = (str(ensemble) if not isinstance(ensemble, Ensemble)
+                        else str(ensemble.save(Path(tmp) / "ensemble.npz")))
+        options = {"decoder": decoder, **({"ensemble": ens_path} if ens_path else {})}
+        scenes = _load_views(scene, views, material, start_path, spp, seed, variant,
+                             options)
+        settings = {"lr": lr, "spp": spp, "seed": seed, "material": material,
+                    "decoder": decoder, "variant": variant, "shared_paths": shared_paths}
+        fp = _fingerprint(scene, views, model, settings)
+        scales = []
+        opt = mi.ad.Adam(lr=lr)
+        for c, key in enumerate(VALUE_KEYS):
+            v = np.asarray(model.values[c], np.float32)
+            top = float(np.max(np.abs(v))) if v.size else 1.0
+            s = np.maximum(np.abs(v), SCALE_FLOOR * max(top, 1e-30)).astype(np.float32)
+            scales.append(mi.Float(s))
+            opt[key] = mi.Float((v / s).astype(np.float32))
+        ckpt = Path(checkpoint_dir) / "fit-images.npz" if checkpoint_dir else None
+        done, snr = 0, []
+        if ckpt is not None and ckpt.is_file():
+            done, snr = _read_checkpoint(ckpt, opt, fp)
+        elif ckpt is not None:
+            ckpt.parent.mkdir(parents=True, exist_ok=True)
+        t0 = time.perf_counter()
+        bar = tqdm(total=iterations, initial=min(done, iterations), disable=not progress,
+                   desc="fit-images", unit="it")
+        try:
+            for it in range(done, iterations):
+                try:
+                    gseed = seed if shared_paths else seed + 1 + it * len(scenes)
+                    snr.append(_step(scenes, opt, scales, seed, gseed, spp))
+                except RuntimeError as exc:
+                    raise RenderError(f"{scene}: rendering failed during the fit: "
+                                      f"{exc}") from exc
+                bar.set_postfix(snr_db=f"{snr[-1]:.2f}")
+                bar.update(1)
+                if ckpt is not None and ((it + 1) % checkpoint_every == 0
+                                         or it + 1 == iterations):
+                    _write_checkpoint(ckpt, it + 1, opt, snr, fp)
+        finally:
+            bar.close()
+        seconds = time.perf_counter() - t0
+        values = [np.array(dr.detach(opt[k] * s), np.float32)
+                  for k, s in zip(VALUE_KEYS, scales, strict=True)]
+    ran = max(iterations - done, 0)
+    fitted = replace(model, values=values, name=model.name)
+    return FitResult(fitted, snr, seconds, seconds / max(ran, 1), iterations, done)
+
+
+def load_views(items: Sequence[str], read) -> list[View]:
+    """:class:`View` objects from ``IMAGE.exr[:KEY=VALUE,...]`` strings, reading each
+    image with ``read`` (e.g. :func:`sparse_brdf.evaluation.render.read_exr`)."""
+    out = []
+    for text in items:
+        path, params = parse_view(text)
+        out.append(View(np.asarray(read(path), np.float32), params, name=path))
+    return out
+
+
+def views_for(scene_params: Sequence[Mapping[str, object]],
+              images: Sequence[np.ndarray]) -> list[View]:
+    """:class:`View` objects from parallel lists of scene defaults and images."""
+    return [View(np.asarray(img, np.float32), {k: str(v) for k, v in p.items()},
+                 name=json.dumps(dict(p), sort_keys=True))
+            for p, img in zip(scene_params, images, strict=True)]
