@@ -285,6 +285,7 @@ def cmd_blend(args: argparse.Namespace) -> int:
     except EnsembleMismatchError as exc:
         raise EnsembleMismatchError(f"{args.a}: {exc}") from exc
     n = None if args.coeffs is None else check_n_coeffs(args.coeffs, ens)
+    _note_capped(args, ens.shape)
     a, b = load_sbrdf(args.a, ens), load_sbrdf(args.b, ens)
     if a.transform != b.transform:
         raise UsageError(f"cannot blend {args.a} ({a.transform}) with {args.b} "
@@ -619,11 +620,12 @@ def _add_blend_and_bench(sub) -> None:
     bl.add_argument("--alpha", type=_typed(INTERPOLATE["alpha"]), required=True,
                     help="0 gives A, 1 gives B")
     bl.add_argument("--coeffs", type=_typed(INTERPOLATE["n_coeffs"].capped(GRID_BINS.hi)),
-                    default=_default(interpolate, "n_coeffs"),
-                    help="coefficients per channel of the result")
+                    default=_default(interpolate, "n_coeffs"), action=_Given,
+                    help="at most this many coefficients per channel of the result "
+                         "(default: the larger of the two files' counts)")
     bl.add_argument("--ensemble", help="ensemble .npz (default: the shipped one the files name)")
     bl.add_argument("-o", "--output", required=True, help="output .sbrdf")
-    bl.set_defaults(func=cmd_blend)
+    bl.set_defaults(func=cmd_blend, coeffs_given=False)
 
     b = sub.add_parser("bench", help="compare models: tables, figures, speed-vs-accuracy chart",
                        description="Run a bench suite (see benchmarks/*.toml for configs); "
