@@ -73,3 +73,14 @@ def test_reprs_never_hold_arrays(brdf, small_ensemble):
     30,610 characters before)."""
     big = BRDF(np.ones((90, 90, 180, 3), np.float32), np.ones((90, 90, 180), bool), "big")
     _check(big, "(90, 90, 180)", "1458000/1458000")
+
+
+def test_corpus_and_training_data_reprs():
+    from sparse_brdf.sources.corpora import get_corpus
+    from sparse_brdf.sources.dataset import TrainingData
+
+    corpus = get_corpus("mitsuba")
+    _check(corpus, "Corpus('mitsuba'", f"{len(corpus.materials)} materials")
+    _check(corpus.materials[0], corpus.materials[0].name)
+    data = TrainingData(np.zeros((6, 18, 18, 36), np.float32), ["x"] * 6)
+    _check(data, "6 tensors", "(18, 18, 36)")

@@ -20,7 +20,7 @@ from pathlib import Path
 
 from ..brdf import BRDF
 from ..coords import MERL_SHAPE
-from ..errors import MissingDataError, MissingFileError, UsageError
+from ..errors import MissingDataError, MissingFileError, UsageError, short
 from ..params import check_choice
 from ..paths import DEMO_MATERIALS_DIR, shared_data_dir
 from .catalog import mitsuba_catalog
@@ -92,6 +92,10 @@ class Corpus:
     description: str
     materials: tuple[Material, ...]
     test_only: bool = False  # every material is unseen (e.g. the shipped demo materials)
+
+    def __repr__(self) -> str:
+        return (f"Corpus({short(self.name)!r}, {len(self.materials)} materials"
+                f"{', test only' if self.test_only else ''})")
 
     def split(self, which: str = "all") -> list[Material]:
         """``"train"``, ``"test"`` or ``"all"`` materials, in name order."""

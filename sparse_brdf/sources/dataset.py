@@ -31,6 +31,11 @@ class TrainingData:
     basis: str = "rgb"
     transforms: tuple[str, ...] = TRANSFORMS
 
+    def __repr__(self) -> str:
+        return (f"TrainingData({self.x.shape[0]} tensors, grid={tuple(self.x.shape[1:])}, "
+                f"basis={self.basis!r}, transforms={list(self.transforms)}, "
+                f"{len(self.missing)} with unmeasured bins)")
+
 
 def training_data(
     materials: Sequence[Material],
