@@ -471,7 +471,7 @@ def test_bench_configs_check_with_exit_0_or_2(work, bench_world, capsys, monkeyp
                                         "tabulated", "pca:2", "tucker:2x1x1", "sparse:0",
                                         "cpd:1"]), min_size=1, max_size=3),
        split=st.sampled_from(["train", "test", "all"]),
-       curve=st.lists(st.integers(1, 20000), min_size=1, max_size=2),
+       curve=st.lists(st.integers(1, 20000), max_size=2),
        corpus=st.sampled_from(["mats", "mixed"]))
 def test_bench_runs_with_exit_0_or_2(work, bench_world, capsys, models, split, curve,
                                      corpus):

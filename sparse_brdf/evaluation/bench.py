@@ -167,6 +167,9 @@ SETTINGS = {
     "max_materials": Interval(int, 1), "pca_train_max": Interval(int, 2),
     "speed_evals": Interval(int, 1, 1 << 26), "curve_coeffs": GRID_BINS, "split": SPLITS,
 }
+#: List settings that may not be empty, and why.
+_NON_EMPTY = {"curve_coeffs": "give at least one coefficient count (the error curve's "
+                              "points)"}
 _SETTING_TYPES = {
     "int": lambda v: isinstance(v, int) and not isinstance(v, bool),
     "str": lambda v: isinstance(v, str),
@@ -182,6 +185,8 @@ def _check_setting(path: Path, key: str, value, annotation) -> None:
     kind = str(annotation).removesuffix(" | None")
     if not _SETTING_TYPES.get(kind, lambda v: True)(value):
         raise ConfigError(f"{path}: setting {key} = {value!r}: expected {kind}")
+    if key in _NON_EMPTY and value == []:
+        raise ConfigError(f"{path}: setting {key} = []: {_NON_EMPTY[key]}")
     if key in SETTINGS:
         for v in value if isinstance(value, list) else [value]:
             try:

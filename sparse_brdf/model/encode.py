@@ -245,12 +245,21 @@ def pick_transform(stats: dict[str, dict], selector: str = "gamma-mse") -> str:
     return min(stats, key=lambda t: stats[t][key])
 
 
+def check_grid_matches(brdf: BRDF, ens: Ensemble) -> None:
+    """:class:`EnsembleMismatchError` naming the BRDF's file (or name) unless its grid is
+    the ensemble's."""
+    if brdf.shape != ens.shape:
+        raise EnsembleMismatchError(f"{brdf.source or brdf.name}: BRDF grid {brdf.shape} "
+                                    f"does not match the ensemble's {ens.shape}")
+
+
 def error_curve(brdf: BRDF, ens: Ensemble, counts: list[int]) -> dict:
     """Errors against the coefficient count, per transform, and the transform chosen.
 
     Returns ``{"counts": counts, "<transform>": {"rae": [...], "cos_snr": [...],
     "gamma_mse": [...], "mse": [...]}, "chosen": [...]}`` (one projection per transform).
     """
+    check_grid_matches(brdf, ens)
     proj = {t: project_all(brdf, ens, t, max(counts)) for t in TRANSFORMS}
     out: dict = {"counts": list(counts), "chosen": []}
     out.update({t: {"rae": [], "cos_snr": [], "gamma_mse": [], "mse": []} for t in TRANSFORMS})
@@ -383,10 +392,7 @@ def encode(
         For an option out of its range or choices.
     """
     ens = resolve_ensemble(ensemble)
-    if brdf.shape != ens.shape:
-        raise EnsembleMismatchError(f"{brdf.source or brdf.name}: BRDF grid {brdf.shape} "
-                                    "does not match the "
-                         f"ensemble's {ens.shape}")
+    check_grid_matches(brdf, ens)
     check("n_coeffs", n_coeffs, PARAMETERS["n_coeffs"])
     if max_error is not None:
         check("max_error", max_error, PARAMETERS["max_error"])
