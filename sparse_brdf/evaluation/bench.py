@@ -397,24 +397,25 @@ class Bench:
             _key(m) not in self.results["noise_floor"].get(s, {}) for s in self.scenes)]
         todo = [(m, mod) for m in mats for mod in models
                 if f"{_key(m)}|{mod.name}" not in self.results["cells"]]
-        bar = tqdm(total=len(todo) + len(todo_mats), desc="bench", disable=not self.progress)
-        bench = ex.scatter(self._for_workers(ex))
-        for i, (curve, floors) in ex.as_completed(_material_task, todo_mats, bench,
-                                                  ex.scatter(ens)):
-            key = _key(todo_mats[i])
-            self.results["curves"][key] = curve
-            for scene, floor in floors.items():
-                self.results["noise_floor"].setdefault(scene, {})[key] = floor
-            self._save()
-            bar.update(1)
-        shipped = {name: ex.scatter(mod) for name, mod in {m.name: m for _, m in todo}.items()}
-        for i, row in ex.as_completed(_cell_task, [(m, shipped[mod.name]) for m, mod in todo],
-                                      bench):
-            m, mod = todo[i]
-            self.results["cells"][f"{_key(m)}|{mod.name}"] = row
-            self._save()
-            bar.update(1)
-        bar.close()
+        # closed on an error too, so that the error line starts a line of its own
+        with tqdm(total=len(todo) + len(todo_mats), desc="bench",
+                  disable=not self.progress) as bar:
+            bench = ex.scatter(self._for_workers(ex))
+            for i, (curve, floors) in ex.as_completed(_material_task, todo_mats, bench,
+                                                      ex.scatter(ens)):
+                key = _key(todo_mats[i])
+                self.results["curves"][key] = curve
+                for scene, floor in floors.items():
+                    self.results["noise_floor"].setdefault(scene, {})[key] = floor
+                self._save()
+                bar.update(1)
+            shipped = {name: ex.scatter(mod) for name, mod in {m.name: m for _, m in todo}.items()}
+            for i, row in ex.as_completed(_cell_task, [(m, shipped[mod.name]) for m, mod in todo],
+                                          bench):
+                m, mod = todo[i]
+                self.results["cells"][f"{_key(m)}|{mod.name}"] = row
+                self._save()
+                bar.update(1)
 
     def _for_workers(self, ex: Executor) -> Bench:
         """This bench as a worker needs it: itself in-process; otherwise a copy without the
