@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import inspect
 import json
 import math
@@ -671,6 +672,10 @@ def main(argv: list[str] | None = None) -> int:
             _report(debug, f"interrupted by {signal.Signals(signum).name}; no partial "
                            "output was left")
             return 128 + signum
+        except BrokenPipeError:  # the reader of stdout went away (`... | head`): quietly
+            with contextlib.suppress(OSError):
+                os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            return 128 + signal.SIGPIPE
         except (SparseBRDFError, OSError) as exc:
             _report(debug, f"error: {_describe(exc)}")
             return 2

@@ -734,3 +734,13 @@ def test_encode_caps_coeffs_to_a_small_grid(capsys, tmp_path):
                  "--coeffs", "128"]) == 0
     assert (tmp_path / "d.sbrdf").read_bytes() == at_most.read_bytes() == \
         (tmp_path / "g.sbrdf").read_bytes()
+
+
+def test_a_closed_stdout_is_not_an_error():
+    """``sparse-brdf corpus list | head``: the reader goes away; no message, status 141."""
+    p = subprocess.Popen([sys.executable, "-m", "sparse_brdf.cli", "corpus", "list",
+                          "mitsuba"], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    p.stdout.close()
+    err = p.stderr.read()
+    p.stderr.close()
+    assert p.wait(timeout=60) == 128 + signal.SIGPIPE and err == b""
