@@ -38,6 +38,7 @@ from ..errors import (
     MissingFileError,
     SparseBRDFError,
     UsageError,
+    one_line,
     short,
 )
 from ..fileio import atomic_write, require_file
@@ -376,7 +377,12 @@ class Bench:
         if self.cfg.speed and missing and mats:  # e.g. measurements deleted to redo them
             brdf = mats[0].load()
             for mod in missing:
-                self._speed(mod, mod.compress(brdf))
+                try:
+                    self._speed(mod, mod.compress(brdf))
+                except Exception as exc:  # noqa: BLE001 - as in a cell: never stops the run
+                    print(f"bench: no speed for {mod.name}: {type(exc).__name__}: "
+                          f"{one_line(exc)}", file=sys.stderr)
+                    continue
                 self._save()
         if self.cfg.stability and "stability" not in self.results and mats:
             smodels = [make_model(s, ens) for s in self.cfg.stability_models]
