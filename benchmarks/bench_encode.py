@@ -25,9 +25,7 @@ medians, and the load average before and after.
 
 from __future__ import annotations
 
-import argparse
 import os
-import platform
 import subprocess
 import sys
 import tempfile
@@ -35,11 +33,11 @@ import time
 from pathlib import Path
 
 import numpy as np
+from harness import header, parser, write_json
 
 from sparse_brdf import Ensemble, encode, get_corpus
 from sparse_brdf.paths import shared_data_dir
 
-ROOT = Path(__file__).resolve().parents[1]
 #: The whole commands timed by ``--whole``: name -> extra arguments of ``encode``.
 COMMANDS = {"encode (262 per channel)": [], "encode --bytes 6300": ["--bytes", "6300"]}
 
@@ -50,10 +48,8 @@ def _materials(args) -> tuple[str, list]:
 
 
 def _header(what: str, n: int, corpus: str, args, load: tuple[float, float]) -> str:
-    return (f"{n} {corpus} test materials, {what}, {len(os.sched_getaffinity(0))} cores, "
-            f"{platform.node()}, {time.strftime('%Y-%m-%d %H:%M')}, median of "
-            f"{args.repeats} per material, load average (1 min) {load[0]:.1f} before, "
-            f"{load[1]:.1f} after")
+    return (f"{header()}\n{n} {corpus} test materials, {what}, median of {args.repeats} "
+            f"per material, load average (1 min) {load[0]:.1f} before, {load[1]:.1f} after")
 
 
 def in_process(args) -> None:
@@ -85,6 +81,10 @@ def in_process(args) -> None:
           f"| one transform (forced) | {np.mean(forced):.2f} | {np.max(forced):.2f} |")
     print(f"\nProjections completed per transform (of {3 * ens.n_dicts}; the rest pruned): "
           f"median {np.median(completed):.0f}, range {min(completed)}-{max(completed)}")
+    if args.json:
+        write_json(args.json, {"materials": [m.name for m in mats],
+                               "auto_s": auto.tolist(), "forced_s": forced.tolist(),
+                               "projections_completed": completed}, args)
 
 
 def _run(code: Path | None, src: str, out: Path, extra: list[str]) -> float:
@@ -141,11 +141,15 @@ def whole(args) -> None:
             ratio = np.median(med[("this checkout", k)] / med[("--code", k)])
             print(f"{k}: this checkout / --code, median over materials {ratio:.2f}")
         print(f"files byte-identical between the two: {same} of {compared}")
+    if args.json:
+        write_json(args.json, {"materials": [m.name for m in mats],
+                               "median_s": {f"{c} | {k}": v.tolist()
+                                            for (c, k), v in med.items()},
+                               "identical_files": [same, compared]}, args)
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = parser(__doc__)
     p.add_argument("--n", type=int, default=8, help="materials per corpus")
     p.add_argument("--corpus", nargs="+", default=None,
                    help="test splits to time (default: merl, or mitsuba without ../shared)")

@@ -25,7 +25,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import drjit as dr
-import numpy as np
 
 from sparse_brdf.errors import PluginError
 from sparse_brdf.model.ensemble import resolve_ensemble
@@ -43,17 +42,19 @@ from sparse_brdf.model.layouts import (
     choose_decoder,
     colour_mix,
     fit_lobe,
+    float_buffer,
     grouped_channels,
     grouped_layout,
     sparse_profile,
     strict_channel,
     strict_layout,
+    strict_orders,
     table_profile,
+    term_values,
 )
 from sparse_brdf.model.sbrdf import decode_file, load_sbrdf
 from sparse_brdf.sources.load import load_brdf
 
-from . import differentiable as dif
 from .kernels import (
     Ops,
     Shape,
@@ -661,8 +662,17 @@ class SparseBSDF(GlossyBSDF):
         self.distinct_atoms = tuple(tuple(r.shape[0] for r in ch.rows) for ch in chans)
 
     # differentiable values -----------------------------------------------------------
+    # Both decoders' buffers are linear in the values, but a buffer derived from a
+    # parameter outside a render (as the grouped decoder's contracted tables would be)
+    # breaks Mitsuba's forward mode: a render may only differentiate through variables it
+    # reads itself. So after ``params.update()`` the buffers are rebuilt exactly as from a
+    # file holding the new values (detached), and when a channel's values carry
+    # gradients the kernel adds, per channel, the derivative carrier
+    # ``sum_t (s_t - detach(s_t)) U1[i, a_t] U2[j, b_t] U3[k, c_t]``: zero in value, with
+    # the model's exact derivative, ``s_t`` gathered inside the kernel from the values
+    # that ``mi.traverse`` holds (see :func:`strict_x`).
     def _value_array(self, v):
-        v = np.asarray(v, np.float32)
+        v = float_buffer(v)
         return self._m.Float(v) if self._ops.jit else self._m.TensorXf(v)
 
     def traverse(self, callback):
@@ -675,21 +685,14 @@ class SparseBSDF(GlossyBSDF):
     def parameters_changed(self, keys=None):
         """Re-derive the decoder's buffers from the (possibly updated) values: exactly as
         from a file holding those values, plus, when a channel's values carry gradients,
-        a zero-valued Dr.Jit term through which they flow (:mod:`mitsuba_plugin.
-        differentiable`)."""
+        a zero-valued Dr.Jit term through which they flow (see the comment above)."""
         if keys and not any(str(k).startswith("values_") for k in keys):
             return
-        vals = []
-        for c, (v, n) in enumerate(zip(self._values, self.n_terms, strict=True)):
-            a = np.asarray(dr.detach(v) if self._ops.jit else v, np.float32).ravel()
-            if a.size != n:
-                raise PluginError(f"{self.plugin}: {self.filename!r}: values_{c} holds "
-                                  f"{a.size} values, channel {c} has {n} terms (the "
-                                  "support is fixed)")
-            if not np.isfinite(a).all():
-                raise PluginError(f"{self.plugin}: {self.filename!r}: values_{c} holds "
-                                  "NaN or inf values")
-            vals.append(a)
+        try:
+            vals = term_values([dr.detach(v) if self._ops.jit else v for v in self._values],
+                               self.n_terms)
+        except ValueError as exc:
+            raise PluginError(f"{self.plugin}: {self.filename!r}: {exc}") from None
         model = dataclasses.replace(self._model, values=vals)
         self._model = model
         if self.decoder == "grouped":
@@ -703,14 +706,14 @@ class SparseBSDF(GlossyBSDF):
     def _attach_gradients(self) -> None:
         """Build the derivative carrier's data once (it depends on the support only): the
         strict decoder's atom rows and packed indices, and per channel the file's term
-        index of each of its terms (:func:`mitsuba_plugin.differentiable.strict_orders`).
+        index of each of its terms (:func:`sparse_brdf.model.layouts.strict_orders`).
         The decoders' own buffers stay detached, so the kernel's derivative flows only
         through the values, read inside the kernel like any Mitsuba parameter."""
         if self._ad is None:
             chans = [strict_channel(*channel_terms(self._model, self._ens, c))
                      for c in range(3)]
             orders = [self._ops.uints(o if o.size else [0])
-                      for o in dif.strict_orders(self._model, self._ens)]
+                      for o in strict_orders(self._model, self._ens)]
             self._ad = (upload_strict(self._ops, strict_layout(chans)), orders)
 
     # lookups -------------------------------------------------------------------------

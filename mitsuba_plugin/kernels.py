@@ -11,12 +11,11 @@ and per-material numbers only as buffers or ``dr.opaque`` scalars (see :meth:`Op
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import drjit as dr
 
 from sparse_brdf.coords import grid_coords
-from sparse_brdf.model.layouts import angle_tables, float_buffer, uint_buffer
+from sparse_brdf.model.layouts import angle_tables, float_buffer, read_rgb2spec_table, uint_buffer
 
 
 class VariantNamespace:
@@ -295,27 +294,6 @@ def lobe_pdf(ops: Ops, wi, wo, exponent):
 # ------------------------------------------------------------- spectral upsampling
 
 
-def read_srgb_coeff(path):
-    """(res, scale (res,), coefficients (3, res, res, res, 3)) of an RGB-to-spectrum
-    table file in the RGB2Spec format of Jakob and Hanika 2019 (Mitsuba ships one as
-    ``data/srgb.coeff``): the magic ``SPEC``, the resolution as uint32, ``res`` float32
-    samples of the largest component, then the coefficient grid, float32, indexed by
-    (largest component, its sample, the next component, the one after, coefficient).
-    Anything past the grid (newer files add a forward model) is not needed here."""
-    import numpy as np  # lazy: only spectral variants read the table
-
-    raw = Path(path).read_bytes()
-    if raw[:4] != b"SPEC" or len(raw) < 8:
-        raise ValueError("not an RGB2Spec coefficient table (no 'SPEC' header)")
-    res = int(np.frombuffer(raw, "<u4", 1, 4)[0])
-    n_grid = 3 * res ** 3 * 3
-    if not 2 <= res <= 1024 or len(raw) < 8 + 4 * (res + n_grid):
-        raise ValueError(f"truncated RGB2Spec table (resolution {res}, {len(raw)} bytes)")
-    scale = np.frombuffer(raw, "<f4", res, 8).astype(np.float32)
-    data = np.frombuffer(raw, "<f4", n_grid, 8 + 4 * res).astype(np.float32)
-    return res, scale, data.reshape(3, res, res, res, 3)
-
-
 class SpectralUpsampling:
     """Linear RGB -> spectrum at given wavelengths, as Mitsuba's own textures and emitters
     upsample unbounded RGB in spectral variants: the colour is divided by twice its
@@ -328,7 +306,7 @@ class SpectralUpsampling:
     """
 
     def __init__(self, ops: Ops, path) -> None:
-        res, scale, data = read_srgb_coeff(path)
+        res, scale, data = read_rgb2spec_table(path)
         self.ops = ops
         self.res = res
         self.path = str(path)

@@ -36,7 +36,7 @@ import logging
 import os
 import threading
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import CancelledError, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
@@ -227,8 +227,6 @@ class DaskExecutor:
         return self.client.submit(fn, *args, pure=False, **kw)
 
     def _result(self, fut) -> Any:
-        from concurrent.futures import CancelledError
-
         from distributed import KilledWorker  # lazy: Dask is optional (see the module doc)
 
         try:

@@ -21,8 +21,8 @@ PACKAGES = ("sparse_brdf", "mitsuba_plugin")
 # Modules of sparse_brdf allowed to import the Mitsuba plugin: the render helpers.
 PLUGIN_USERS = {"sparse_brdf.evaluation.render", "sparse_brdf.evaluation.speed"}
 # Imports that may sit inside a function, with a comment saying why (heavy or optional).
-LAZY_OK = ("mitsuba", "drjit", "mitsuba_plugin", "matplotlib", "tqdm", "dask", "OpenEXR",
-           "Imath", "h5py", "scipy", "tensorly", "threadpoolctl")
+LAZY_OK = ("mitsuba", "drjit", "mitsuba_plugin", "matplotlib", "tqdm", "dask", "distributed",
+           "OpenEXR", "Imath", "h5py", "scipy", "tensorly", "threadpoolctl")
 
 
 def _module_name(path: Path) -> str:
@@ -201,8 +201,9 @@ def test_only_parallel_creates_threads_and_pools():
 
 
 def test_functions_stay_short():
-    """No function over 80 lines, in the packages and in benchmarks/, unless its first
-    line carries a ``# long:`` reason."""
+    """No function over 80 lines, its docstring not counted (numpydoc sections of a
+    function with many options are long by design), in the packages and in benchmarks/,
+    unless its first line carries a ``# long:`` reason."""
     long = []
     files = [p for d in (*PACKAGES, "benchmarks") for p in (ROOT / d).rglob("*.py")]
     for p in files:
@@ -210,14 +211,19 @@ def test_functions_stay_short():
         for node in ast.walk(ast.parse("\n".join(lines))):
             if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
                 n = node.end_lineno - node.lineno + 1
+                doc = node.body[0]
+                if (isinstance(doc, ast.Expr) and isinstance(doc.value, ast.Constant)
+                        and isinstance(doc.value.value, str)):
+                    n -= doc.end_lineno - doc.lineno + 1
                 if n > 80 and "# long:" not in lines[node.lineno - 1]:
                     long.append(f"{p.relative_to(ROOT)}:{node.lineno} {node.name}: {n} lines")
     assert long == []
 
 
 # A pointer to a text the reader does not have: a SPEC section, an issue number ("issue 14",
-# "issue #14", "#14"). Cite the paper or docs/ instead.
-POINTER = re.compile(r"\bSPEC\b|\b[Ii]ssues?\s+#?\d+|(?<![\w&#/])#\d{1,4}\b")
+# "issue #14", "#14"). Cite the paper or docs/ instead. A quoted "SPEC" is a byte string
+# (a file's magic number), not a pointer.
+POINTER = re.compile(r"(?<!\")\bSPEC\b|\bSPEC\b(?!\")|\b[Ii]ssues?\s+#?\d+|(?<![\w&#/])#\d{1,4}\b")
 
 
 def _texts_for_readers() -> list[Path]:
@@ -240,9 +246,11 @@ def test_no_pointer_to_files_outside_the_repository():
 
 
 def test_pointer_pattern_catches_what_it_should():
-    for text in ("SPEC section 7", "(issue 14)", "issue #13", "see #13.", "Issues 3 and 4"):
+    for text in ("SPEC section 7", '"SPEC section 7"', "(issue 14)", "issue #13", "see #13.",
+                 "Issues 3 and 4"):
         assert POINTER.search(text), text
-    for text in ("a SPECTRUM", "spec = 8.0", "issues about 800 gathers", "colour #1f77b4",
+    for text in ('raw[:4] != b"SPEC"', "a SPECTRUM", "spec = 8.0", "issues about 800 gathers",
+                 "colour #1f77b4",
                  "# long: why", "## Heading", "&#10;", "the paper's section 6"):
         assert not POINTER.search(text), text
 

@@ -1,10 +1,13 @@
 """The trainer is deterministic: the same tensors, options and seed give the same
-ensemble, bit for bit. The expected ids below pin today's training output on the small
-grid.
+ensemble, bit for bit, on one machine. The expected objectives below pin today's training
+output on the small grid, on tensors drawn from a seeded generator (numpy's PCG64 draws
+the same numbers everywhere; a corpus tabulated by Mitsuba differs between machines in
+its last bits, which the seeded initialisation can amplify).
 
-Any change that alters training output (the dictionaries, or the objective of any
-iteration) must change the expected values here, and say so in its commit message; a
-refactoring that keeps training output must leave them as they are.
+Across machines, BLAS kernels may round differently, so the objectives are compared to
+a relative 1e-7, far below what any change to the algorithm moves them by. Any change
+that alters training output must change the expected values here, and say so in its
+commit message; a refactoring that keeps training output must leave them as they are.
 """
 
 import hashlib
@@ -17,11 +20,23 @@ from conftest import SMALL
 from sparse_brdf.coords import geometric_valid
 from sparse_brdf.model.train import train_ensemble
 
-#: (ensemble id, digest of every iteration's objectives) per case of :func:`_train`.
+#: Per case of :func:`_train`: each sparsity's objective after each iteration.
 EXPECTED = {
-    "masked-seeded": ("a6809c24f13c7c5a631f0a99b484b566", "2c47fedb1d89a990"),
-    "unmasked-random": ("1a8479e294f2c6db0bb6a4ba8b5c408a", "b11170fe7e4f31b0"),
+    "masked-seeded": {"16": [6071.4233666042255, 5443.544977039515, 5097.796315116813],
+                      "48": [3384.702959920659, 2964.076748916321, 2744.30517882383]},
+    "unmasked-random": {"16": [6423.206832408905, 6225.604632854462, 6094.25118637085],
+                        "48": [3134.2653279304504, 3032.129642188549, 2977.572200655937]},
 }
+
+
+@pytest.fixture(scope="module")
+def tensors() -> np.ndarray:
+    """48 smooth tensors on the small grid, (48, 18, 18, 36): a seeded draw, summed along
+    each axis so that neighbouring bins correlate as measured ones do."""
+    x = np.random.default_rng(20261202).standard_normal((48, *SMALL))
+    for axis in (1, 2, 3):
+        x = np.cumsum(x, axis=axis) / np.sqrt(x.shape[axis])
+    return x.astype(np.float32)
 
 
 def _objectives_digest(meta: dict) -> str:
@@ -31,8 +46,7 @@ def _objectives_digest(meta: dict) -> str:
     return hashlib.sha256(json.dumps(obj).encode()).hexdigest()[:16]
 
 
-def _train(small_training: np.ndarray, case: str):
-    x = small_training[:48]
+def _train(x: np.ndarray, case: str):
     if case == "masked-seeded":
         # a few unmeasured bins above the horizon, shared by one material's channels
         holes = np.zeros(SMALL, bool)
@@ -45,13 +59,20 @@ def _train(small_training: np.ndarray, case: str):
                           reassign_every=1, tol=0, **kw)
 
 
+def _objectives(meta: dict) -> dict[str, list[float]]:
+    return {str(tau): [h["objective"] for h in hist]
+            for tau, hist in sorted(meta["history"].items())}
+
+
 @pytest.mark.parametrize("case", sorted(EXPECTED))
-def test_training_output_is_pinned(small_training, case):
-    ens = _train(small_training, case)
-    assert (ens.id, _objectives_digest(ens.meta)) == EXPECTED[case]
+def test_training_output_is_pinned(tensors, case):
+    got = _objectives(_train(tensors, case).meta)
+    assert got.keys() == EXPECTED[case].keys()
+    for tau, want in EXPECTED[case].items():
+        np.testing.assert_allclose(got[tau], want, rtol=1e-7, err_msg=f"{case}, tau {tau}")
 
 
-def test_same_inputs_same_ensemble(small_training):
-    a, b = (_train(small_training, "masked-seeded") for _ in range(2))
+def test_same_inputs_same_ensemble(tensors):
+    a, b = (_train(tensors, "masked-seeded") for _ in range(2))
     assert a.id == b.id
     assert _objectives_digest(a.meta) == _objectives_digest(b.meta)

@@ -174,7 +174,7 @@ def _read_checkpoint(path: Path, opt, fp: str):
         with np.load(path) as z:
             data = {k: z[k] for k in z.files}
     except (OSError, ValueError) as exc:
-        raise UsageError(f"{path}: unreadable checkpoint ({exc}): delete it to start over")
+        raise UsageError(f"{path}: unreadable checkpoint ({exc}): delete it to start over") from exc
     if str(data.get("fingerprint")) != fp:
         raise UsageError(f"{path}: a checkpoint of another fit (other scene, views, start "
                          "file or settings): delete it or use another --checkpoint-dir")
@@ -292,7 +292,6 @@ def fit_images(  # long: the fit loop with its checkpointing and progress bar
                          "llvm_ad_* or cuda_ad_* variant")
     import drjit as dr  # lazy: Mitsuba and Dr.Jit are slow to import (see the module doc)
     import mitsuba as mi
-
     from tqdm import tqdm  # lazy: only long jobs show a bar
 
     ens = ensemble if isinstance(ensemble, Ensemble) else None

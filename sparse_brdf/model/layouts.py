@@ -50,6 +50,7 @@ the inverse transform; a channel may hold no terms (its X is 0).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -610,3 +611,105 @@ def sparse_profile(model, ensemble, n_d: int = 3) -> np.ndarray:
 def table_profile(values: np.ndarray, n_d: int = 3) -> np.ndarray:
     """theta_h profile of tabulated values (n1, n2, n3, 3) for :func:`fit_lobe`."""
     return np.asarray(values[:, :n_d], np.float64).mean(axis=(1, 2, 3))
+
+
+def strict_orders(model, ensemble) -> list[np.ndarray]:
+    """The order in which the strict decoder holds each channel's terms.
+
+    Read off :func:`strict_channel` built with the values 0, 1, 2, ..., so that the
+    order stays defined in one place. The plugin's derivative carrier uses it to gather
+    each term's differentiable value inside the kernel.
+
+    Parameters
+    ----------
+    model : SparseBRDF
+        The encoded material.
+    ensemble : Ensemble
+        Its ensemble.
+
+    Returns
+    -------
+    list of 3 ndarray, int64, shapes (n_terms[c],)
+        Term ``i`` of the strict decoder's channel ``c`` is the file's term ``order[c][i]``.
+    """
+    out = []
+    for c in range(3):
+        s, modes, us = channel_terms(model, ensemble, c)
+        probe = np.arange(s.size, dtype=np.float32)
+        out.append(strict_channel(probe, modes, us).values.astype(np.int64))
+    return out
+
+
+def term_values(arrays, n_terms) -> list[np.ndarray]:
+    """The coded channels' coefficient values, checked, as flat float32 arrays.
+
+    Parameters
+    ----------
+    arrays : sequence of 3 array-likes
+        One per coded channel: numpy arrays or Dr.Jit arrays (read through the buffer
+        protocol), in the file's term order.
+    n_terms : sequence of 3 int
+        The number of terms each channel's fixed support holds.
+
+    Returns
+    -------
+    list of 3 ndarray, float32, shapes (n_terms[c],)
+
+    Raises
+    ------
+    ValueError
+        A channel holds another number of values than its support, or NaN or inf.
+    """
+    out = []
+    for c, (v, n) in enumerate(zip(arrays, n_terms, strict=True)):
+        a = np.asarray(v, np.float32).ravel()
+        if a.size != n:
+            raise ValueError(f"values_{c} holds {a.size} values, channel {c} has {n} terms "
+                             "(the support is fixed)")
+        if not np.isfinite(a).all():
+            raise ValueError(f"values_{c} holds NaN or inf values")
+        out.append(a)
+    return out
+
+
+# ------------------------------------------------------------- spectral upsampling table
+
+
+def read_rgb2spec_table(path: str | Path) -> tuple[int, np.ndarray, np.ndarray]:
+    """Read an RGB-to-spectrum coefficient table (the format of Jakob and Hanika 2019;
+    Mitsuba ships one as ``data/srgb.coeff``), for the plugin's spectral upsampling.
+
+    Parameters
+    ----------
+    path : str or Path
+        The table file: a 4-byte magic number, the resolution ``res`` as uint32, ``res``
+        float32 samples of the largest colour component, then the coefficient grid as
+        float32. Anything after the grid (newer files append a forward model) is ignored.
+
+    Returns
+    -------
+    res : int
+        The table's resolution, in [2, 1024].
+    scale : ndarray, shape (res,), float32
+        The samples of the largest component, increasing, in [0, 1].
+    coefficients : ndarray, shape (3, res, res, res, 3), float32
+        The sigmoid-polynomial coefficients, indexed by (largest component, its sample,
+        the next component, the one after, coefficient).
+
+    Raises
+    ------
+    ValueError
+        The file does not start with the table's magic number, or is shorter than its
+        resolution says.
+    """
+    raw = Path(path).read_bytes()
+    if raw[:4] != b"SPEC" or len(raw) < 8:
+        raise ValueError(f"{path}: not an RGB-to-spectrum coefficient table (bad magic number)")
+    res = int(np.frombuffer(raw, "<u4", 1, 4)[0])
+    n_grid = 3 * res ** 3 * 3
+    if not 2 <= res <= 1024 or len(raw) < 8 + 4 * (res + n_grid):
+        raise ValueError(f"{path}: truncated RGB-to-spectrum table (resolution {res}, "
+                         f"{len(raw)} bytes)")
+    scale = np.frombuffer(raw, "<f4", res, 8).astype(np.float32)
+    data = np.frombuffer(raw, "<f4", n_grid, 8 + 4 * res).astype(np.float32)
+    return res, scale, data.reshape(3, res, res, res, 3)

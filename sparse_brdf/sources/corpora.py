@@ -98,7 +98,26 @@ class Corpus:
                 f"{', test only' if self.test_only else ''})")
 
     def split(self, which: str = "all") -> list[Material]:
-        """``"train"``, ``"test"`` or ``"all"`` materials, in name order."""
+        """The materials of one split.
+
+        Parameters
+        ----------
+        which : str
+            ``"train"``, ``"test"`` or ``"all"`` (``SPLITS``). The test split is a fixed
+            15 % of the names (at least one), chosen by a hash of corpus and name, so it
+            does not change when materials are added; a test-only corpus has no
+            training split.
+
+        Returns
+        -------
+        list of Material
+            In name order.
+
+        Raises
+        ------
+        UsageError
+            For a split not in ``SPLITS``.
+        """
         if check_choice("split", which, SPLITS) == "all":
             return list(self.materials)
         if self.test_only:

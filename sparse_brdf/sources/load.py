@@ -26,9 +26,35 @@ def load_brdf(
 ) -> BRDF:
     """Load a BRDF on the grid ``shape``.
 
-    ``source`` is a MERL/DTU ``.binary`` file, a Neural-BRDF ``.h5`` file (tabulated,
-    cached), a ``.sbrdf`` coefficient file (decoded with the default ensemble),
-    ``"mitsuba:<name>"`` for a built-in material, or a ``mi.load_dict`` dictionary.
+    Parameters
+    ----------
+    source : str, path-like or dict
+        A MERL/DTU ``.binary`` file (read on its own grid), a Neural-BRDF ``.h5`` file
+        (tabulated on ``shape``), a ``.sbrdf`` coefficient file (decoded with the
+        shipped ensemble the file names), ``"mitsuba:<name>"`` for one of
+        Mitsuba's built-in materials (``sparse-brdf corpus list mitsuba``), or a
+        ``mi.load_dict`` dictionary of a Mitsuba BSDF.
+    shape : tuple of 3 int
+        The (theta_h, theta_d, phi_d) grid for tabulated sources; default MERL's
+        (90, 90, 180).
+    cache : bool
+        Keep tabulations (of networks and Mitsuba BSDFs) in the user cache, keyed by
+        their content, and reuse them.
+
+    Returns
+    -------
+    BRDF
+        Linear-RGB values in 1/sr, shape (n1, n2, n3, 3).
+
+    Raises
+    ------
+    MissingFileError
+        If the file does not exist.
+    BRDFFileError
+        For an unknown suffix, or a file that is truncated, corrupt or decodes to
+        unusable values.
+    UnknownNameError
+        For a ``mitsuba:`` name that is not a built-in material.
     """
     if isinstance(source, dict):
         name = str(source.get("type", "mitsuba"))
