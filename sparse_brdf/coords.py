@@ -175,7 +175,8 @@ def grid_angles(
 
 @functools.lru_cache(maxsize=8)
 def _cosines(shape: tuple[int, int, int]) -> tuple[np.ndarray, np.ndarray]:
-    ci, co = cos_io(*grid_angles(shape))
+    th, td, pd = bin_angles(shape)  # broadcast: the trigonometry runs on each axis once
+    ci, co = cos_io(th[:, None, None], td[None, :, None], pd[None, None, :])
     prod, valid = ci * co, (ci > 0.0) & (co > 0.0)
     prod.flags.writeable = False
     valid.flags.writeable = False

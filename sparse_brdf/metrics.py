@@ -247,7 +247,8 @@ def make_render_proxy(shape: tuple[int, int, int] = MERL_SHAPE,
     th = ((np.arange(n1) + 0.5) / n1) ** 2 * np.pi / 2  # bin centres (square-root spacing)
     td = (np.arange(n2) + 0.5) / n2 * np.pi / 2
     pd = (np.arange(n3) + 0.5) / n3 * np.pi
-    ci, co = (np.clip(c, 0, None) for c in cos_io(*np.meshgrid(th, td, pd, indexing="ij")))
+    ci, co = (np.clip(c, 0, None) for c in cos_io(th[:, None, None], td[None, :, None],
+                                                           pd[None, None, :]))
     omega = bin_solid_angle(shape)
     point = ci * co * 0.5 * (ci + co) * omega
     cell = np.floor(np.degrees(th) / blur_deg)
