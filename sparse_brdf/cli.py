@@ -176,6 +176,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         "data": [f"{m.corpus}/{m.name}" for m in materials],
         "corpora": args.corpus, "split": args.split, "transforms": list(args.transform),
         "basis": args.basis, "grid": list(shape), "load_seconds": load_s,
+        "data_sha256": data.digest(),
         "command": "sparse-brdf " + " ".join(sys.argv[1:]),
         "created": time.strftime("%Y-%m-%d %H:%M:%S %Z"),
     }

@@ -17,7 +17,7 @@ from sparse_brdf.model.ensemble import Ensemble
 from sparse_brdf.model.tensor_store import TensorStore
 from sparse_brdf.model.train import _converged, train_dictionaries, train_ensemble
 from sparse_brdf.sources.corpora import get_corpus
-from sparse_brdf.sources.dataset import training_data, training_tensors
+from sparse_brdf.sources.dataset import TrainingData, training_data, training_tensors
 from sparse_brdf.transforms import forward, to_basis
 
 
@@ -184,6 +184,21 @@ def test_train_command_options(tmp_path):
     assert meta["init"] == "seeded" and meta["corpora"] == ["mitsuba"]
     assert len(meta["history"]["8"]) == 2
     assert json.loads(json.dumps(meta))["max_moved"] == 0.01
+    # the data's digest: what the run read, so that a rebuild can tell same data from other
+    data = training_data(get_corpus("mitsuba").split("train"), shape=SMALL, progress=False,
+                         basis="opponent")
+    assert meta["data_sha256"] == data.digest() and len(data.digest()) == 64
+
+
+def test_training_data_digest_sees_one_ulp(small_training):
+    x = small_training[:6].copy()
+    a = TrainingData(x, [f"m:{i}" for i in range(6)])
+    b = TrainingData(x.copy(), list(a.labels))
+    assert a.digest() == b.digest()
+    b.x.flat[1234] = np.nextafter(b.x.flat[1234], np.float32(np.inf))
+    assert a.digest() != b.digest()
+    c = TrainingData(x, list(a.labels), missing={2: geometric_valid(SMALL)})
+    assert c.digest() != a.digest()
 
 
 def test_pruned_clustering_matches_full_search(small_training, monkeypatch):

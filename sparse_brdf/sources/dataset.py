@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -35,6 +36,24 @@ class TrainingData:
         return (f"TrainingData({self.x.shape[0]} tensors, grid={tuple(self.x.shape[1:])}, "
                 f"basis={self.basis!r}, transforms={list(self.transforms)}, "
                 f"{len(self.missing)} with unmeasured bins)")
+
+    def digest(self) -> str:
+        """The sha256 (hex) of everything the trainer reads: the tensors' bytes, their
+        labels, basis and transforms, and the unmeasured-bin masks.
+
+        Two runs whose digests match trained on bit-identical data, so their ensembles
+        match for the same options, seed and thread count; the ``train`` command stores
+        it in the ensemble's ``meta["data_sha256"]``. Tabulations made through Mitsuba
+        can differ in their last bits between Mitsuba builds or machines, which this
+        makes visible.
+        """
+        h = hashlib.sha256()
+        h.update(repr((self.x.shape, self.labels, self.basis, list(self.transforms))).encode())
+        h.update(np.ascontiguousarray(self.x, np.float32).tobytes())
+        for i in sorted(self.missing):
+            h.update(str(i).encode())
+            h.update(np.packbits(self.missing[i]).tobytes())
+        return h.hexdigest()
 
 
 def training_data(
