@@ -27,8 +27,10 @@ from .errors import (
     UsageError,
     one_line,
 )
+from .evaluation import fit_images as fit_images_module
 from .evaluation.batch import encode_batch, encode_file, is_batch
 from .evaluation.bench import Bench, BenchConfig, check_config
+from .evaluation.fit_images import fit_images, load_views
 from .evaluation.fit_scene import fit_scene
 from .evaluation.render import (
     RENDER_PARAMETERS,
@@ -373,6 +375,24 @@ def cmd_fit_scene(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_fit_images(args: argparse.Namespace) -> int:
+    scene = find_scene(args.scene)
+    paths = [fit_images_module.parse_view(v)[0] for v in args.view]
+    _check_outputs([args.output], [args.start, *paths])
+    views = load_views(args.view, read_exr)
+    result = fit_images(scene, views, args.start, material=args.material,
+                        ensemble=args.ensemble, iterations=args.iterations, lr=args.lr,
+                        lr_end=args.lr_end, spp=args.spp, seed=args.seed,
+                        checkpoint_dir=args.checkpoint_dir, decoder=args.decoder,
+                        variant=args.variant)
+    save_sbrdf(args.output, result.model)
+    snr = result.snr_db
+    print(f"wrote {args.output}: {result.iterations} iterations in {result.seconds:.0f} s "
+          f"({result.seconds_per_iteration:.2f} s each); the views' mean whole-image SNR "
+          f"{snr[0]:.1f} dB at the start, {snr[-1]:.1f} dB at the last iteration")
+    return 0
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     cfg = BenchConfig.load(args.config)
     if args.out:
@@ -411,7 +431,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "SPARSE_BRDF_DEBUG=1)")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for add in (_add_data_commands, _add_train, _add_codec_commands, _add_render, _add_snr,
-                _add_fit_scene, _add_blend_and_bench):  # in the order of the help
+                _add_fit_scene, _add_fit_images, _add_blend_and_bench):  # in the order of the help
         add(sub)
     return p
 
@@ -612,6 +632,44 @@ def _add_fit_scene(sub) -> None:
                          "of budgets ends at the largest coefficients that fit)")
     fs.add_argument("--ensemble", help="ensemble .npz (default: the shipped one)")
     fs.set_defaults(func=cmd_fit_scene)
+
+
+def _add_fit_images(sub) -> None:
+    fi = sub.add_parser(
+        "fit-images", formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        help="fit a .sbrdf's coefficient values to reference images (inverse rendering)",
+        description="Optimise the coefficient values of START (its support is kept) so "
+                    "that renders of SCENE match the reference images, with Mitsuba's "
+                    "Adam through the plugin's differentiable values (docs/fit-images.md)."
+                    " Each --view is an EXR image and the scene defaults it was taken "
+                    "with, e.g. ref.exr:envrot=90; square images set the scene's res.")
+    fi.add_argument("scene", help="scene XML (a path, or a name in the shipped scenes/)")
+    fi.add_argument("--view", action="append", required=True, metavar="IMAGE.exr[:K=V,...]",
+                    help="a reference image and its scene defaults (repeatable)")
+    fi.add_argument("--start", required=True, metavar="FILE.sbrdf",
+                    help="the starting coefficients (their dictionaries and atoms are kept)")
+    fi.add_argument("-o", "--output", required=True, metavar="OUT.sbrdf")
+    fi.add_argument("--material", default=_default(fit_images, "material"),
+                    help="id of the scene's BSDF that the model replaces")
+    fip = fit_images_module.PARAMETERS
+    fi.add_argument("--iterations", type=_typed(fip["iterations"]),
+                    default=_default(fit_images, "iterations"))
+    fi.add_argument("--lr", type=_typed(fip["lr"]), default=_default(fit_images, "lr"),
+                    help="Adam's first learning rate, a relative step per value")
+    fi.add_argument("--lr-end", type=_typed(fip["lr_end"]),
+                    default=_default(fit_images, "lr_end"),
+                    help="the last iteration's rate as a fraction of --lr (geometric decay)")
+    fi.add_argument("--spp", type=_typed(fip["spp"]), default=_default(fit_images, "spp"),
+                    help="samples per pixel of each render (use the references' spp)")
+    fi.add_argument("--seed", type=_typed(RENDER["seed"]), default=_default(fit_images, "seed"),
+                    help="the references' seed: the fit's renders share their sample paths")
+    fi.add_argument("--checkpoint-dir", default=None,
+                    help="keep fit-images.npz here; a rerun resumes from it")
+    fi.add_argument("--decoder", choices=DECODERS, default=_default(fit_images, "decoder"))
+    fi.add_argument("--variant", default=_default(fit_images, "variant"),
+                    help="a differentiable Mitsuba variant (llvm_ad_*, cuda_ad_*)")
+    fi.add_argument("--ensemble", help="ensemble .npz (default: the shipped one)")
+    fi.set_defaults(func=cmd_fit_images)
 
 
 def _add_blend_and_bench(sub) -> None:

@@ -15,6 +15,7 @@ import pytest
 from sparse_brdf import cli
 from sparse_brdf.coords import GRID_SIDE, MERL_SHAPE, check_grid
 from sparse_brdf.errors import ConfigError, UsageError
+from sparse_brdf.evaluation.fit_images import fit_images
 from sparse_brdf.evaluation.fit_scene import fit_scene
 from sparse_brdf.evaluation.render import RENDER_PARAMETERS, render_scene
 from sparse_brdf.model import encode as encode_module
@@ -156,6 +157,8 @@ MIRRORS = {
     ("fit-scene", "seed"): (fit_scene, "seed"),
     ("fit-scene", "bytes"): (fit_scene, "max_bytes"),
     ("blend", "coeffs"): (interpolate, "n_coeffs"),
+    **{("fit-images", o): (fit_images, o) for o in ("material", "iterations", "lr", "lr_end",
+                                                    "spp", "seed", "decoder", "variant")},
 }
 #: Options with a default of the command line's own (no library parameter stands behind
 #: them): the corpora and split the trainer reads, and the plugins' render choices.

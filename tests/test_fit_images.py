@@ -1,0 +1,138 @@
+"""Fitting coefficient values to images (``sparse-brdf fit-images``, ``fit_images``):
+the fit moves a perturbed encoding towards the references, keeps the support, resumes
+from its checkpoint, and refuses bad input in one line (exit 2, no output)."""
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sparse_brdf import encode, load_brdf
+from sparse_brdf.cli import main
+from sparse_brdf.errors import UsageError
+from sparse_brdf.evaluation.fit_images import fit_images, views_for
+from sparse_brdf.evaluation.render import find_scene, render_scene, write_exr
+from sparse_brdf.metrics import render_snr
+from sparse_brdf.model.sbrdf import load_sbrdf, save_sbrdf
+from sparse_brdf.paths import DEMO_MATERIALS_DIR
+
+RES, SPP, ROTS = 16, 4, (0, 180)
+MATERIAL = DEMO_MATERIALS_DIR / "silver-paint.h5"
+
+
+def run(capsys, *argv) -> tuple[int, str, str]:
+    try:
+        code = main([str(a) for a in argv])
+    except SystemExit as exc:  # argparse
+        code = exc.code
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture(scope="module")
+def case(tmp_path_factory):
+    """References of a measured material at two map rotations, its encoding, and that
+    encoding with 30 % multiplicative noise on every value."""
+    work = tmp_path_factory.mktemp("fit")
+    scene = find_scene("sphere.xml")
+    refs = {r: render_scene(scene, {"material": str(MATERIAL)}, spp=SPP, seed=0, res=RES,
+                            params={"envrot": r}) for r in ROTS}
+    paths = [write_exr(work / f"ref{r}.exr", refs[r]) for r in ROTS]
+    model = encode(load_brdf(MATERIAL), n_coeffs=64)
+    rng = np.random.default_rng(3)
+    noisy = dataclasses.replace(model, values=[
+        (v * (1 + 0.3 * rng.standard_normal(v.shape))).astype(np.float32)
+        for v in model.values])
+    start = save_sbrdf(work / "start.sbrdf", noisy)
+    return {"work": work, "scene": scene, "refs": refs, "paths": paths, "start": start}
+
+
+def _snr(case, path: Path) -> float:
+    """Mean whole-image SNR of ``path``'s renders against the references (dB)."""
+    return float(np.mean([render_snr(case["refs"][r], render_scene(
+        case["scene"], {"material": str(path)}, spp=SPP, seed=0, res=RES,
+        params={"envrot": r})) for r in ROTS]))
+
+
+def test_fit_images_command_moves_towards_the_references(capsys, case):
+    out = case["work"] / "fitted.sbrdf"
+    views = [f"{p}:envrot={r}" for p, r in zip(case["paths"], ROTS, strict=True)]
+    code, stdout, err = run(capsys, "fit-images", "sphere.xml", *sum([["--view", v]
+                            for v in views], []), "--start", case["start"], "-o", out,
+                            "--iterations", 12, "--lr", 0.05, "--spp", SPP)
+    assert code == 0, err
+    assert "wrote" in stdout and "12 iterations" in stdout
+    start, fitted = load_sbrdf(case["start"]), load_sbrdf(out)
+    # the support is kept: same dictionaries, same atoms (a file orders its terms by
+    # size, so compare them as sets); only the values move
+    assert np.array_equal(fitted.dict_index, start.dict_index)
+    for a, b in zip(fitted.locations, start.locations, strict=True):
+        assert np.array_equal(np.sort(a), np.sort(b))
+    assert not all(np.array_equal(np.sort(a), np.sort(b))
+                   for a, b in zip(fitted.values, start.values, strict=True))
+    assert _snr(case, out) > _snr(case, case["start"]) + 3.0
+
+
+def test_fit_resumes_from_its_checkpoint(case, monkeypatch):
+    """A fit interrupted after its checkpoint at iteration 4 and run again ends where an
+    uninterrupted fit of the same settings ends (to rounding: the gradients' atomic sums
+    over threads run in no fixed order)."""
+    from sparse_brdf.evaluation import fit_images as module
+
+    views = views_for([{"envrot": r} for r in ROTS], [case["refs"][r] for r in ROTS])
+    kw = dict(iterations=6, lr=0.05, spp=SPP, seed=0, progress=False, checkpoint_every=2)
+    whole = fit_images(case["scene"], views, case["start"],
+                       checkpoint_dir=case["work"] / "ckpt-whole", **kw)
+    step, calls = module._step, []
+
+    def interrupted(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 5:
+            raise KeyboardInterrupt
+        return step(*args, **kwargs)
+
+    ckpt = case["work"] / "ckpt"
+    monkeypatch.setattr(module, "_step", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        fit_images(case["scene"], views, case["start"], checkpoint_dir=ckpt, **kw)
+    monkeypatch.setattr(module, "_step", step)
+    again = fit_images(case["scene"], views, case["start"], checkpoint_dir=ckpt, **kw)
+    assert whole.resumed_from == 0 and again.resumed_from == 4
+    np.testing.assert_allclose(again.snr_db, whole.snr_db, atol=1e-4)
+    for a, b in zip(whole.model.values, again.model.values, strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-4 * np.abs(b).max())
+    # a checkpoint of another fit (another learning rate) is refused, not resumed
+    with pytest.raises(UsageError, match="another fit"):
+        fit_images(case["scene"], views, case["start"], checkpoint_dir=ckpt,
+                   **{**kw, "lr": 0.01})
+
+
+@pytest.mark.parametrize("bad", ["missing-view", "wrong-size", "variant", "lr-end",
+                                 "output-is-start", "corrupt-start"])
+def test_fit_images_bad_input_is_one_line(capsys, case, tmp_path, bad):
+    view, start = f"{case['paths'][0]}:envrot=0", case["start"]
+    extra: list = []
+    named = ""
+    if bad == "missing-view":
+        view, named = str(tmp_path / "nope.exr"), "nope.exr"
+    elif bad == "wrong-size":
+        img = np.ones((RES, RES + 4, 3), np.float32)
+        view = str(write_exr(tmp_path / "wide.exr", img))
+        named = "wide.exr"
+    elif bad == "variant":
+        extra, named = ["--variant", "scalar_rgb"], "scalar_rgb"
+    elif bad == "lr-end":
+        extra, named = ["--lr-end", "0"], "--lr-end"
+    elif bad == "corrupt-start":
+        start = tmp_path / "broken.sbrdf"
+        start.write_bytes(case["start"].read_bytes()[:100])
+        named = "broken.sbrdf"
+    out = start if bad == "output-is-start" else tmp_path / "out.sbrdf"
+    before = sorted(p.name for p in tmp_path.iterdir())
+    code, _, err = run(capsys, "fit-images", "sphere.xml", "--view", view, "--start", start,
+                       "-o", out, "--iterations", 1, "--spp", 1, *extra)
+    assert code == 2, err
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert named in err or bad == "output-is-start", err
+    assert sorted(p.name for p in tmp_path.iterdir()) == before  # nothing written
