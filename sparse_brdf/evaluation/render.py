@@ -257,12 +257,13 @@ def load_scene(
     sparse_options: Mapping[str, object] | None = None,
     tabulated_options: Mapping[str, object] | None = None,
 ):
-    """Load a scene with material overrides (see :func:`render_scene`); returns mi.Scene."""
+    """Load a scene with material overrides (see :func:`render_scene`); returns mi.Scene.
+    ``scene_path`` is a path, or the name of a shipped scene (:func:`find_scene`)."""
     import mitsuba as mi  # lazy: Mitsuba is slow to import (see the module doc)
 
     import mitsuba_plugin  # lazy: imports Mitsuba and Dr.Jit
 
-    scene_path = require_file(scene_path, "scene file")
+    scene_path = require_file(find_scene(scene_path), "scene file")
     kwargs = {k: str(v) for k, v in (params or {}).items()}
     for key, val in (("spp", spp), ("seed", seed), ("res", res)):
         if val is not None:  # checked: 0 spp is a SIGFPE inside Mitsuba
