@@ -306,17 +306,35 @@ def cmd_render(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     scene, materials = find_scene(args.scene), parse_overrides(args.material)
     _check_outputs([args.output, args.mask], [scene, *materials.values(), args.ensemble])
+    defines = _defines(args.define)
     img = render_scene(scene, materials, spp=args.spp,
-                       seed=args.seed, res=args.res, sparse_options=opts,
+                       seed=args.seed, res=args.res, params=defines, sparse_options=opts,
                        tabulated_options={"sampling": args.sampling})
     seconds = time.perf_counter() - t0
     write_exr(args.output, img)
     print(f"wrote {args.output} ({img.shape[1]}x{img.shape[0]}, {args.spp} spp, "
           f"{seconds:.2f} s)")
     if args.mask:
-        write_mask(args.mask, object_mask(find_scene(args.scene), res=img.shape[0]))
+        write_mask(args.mask, object_mask(find_scene(args.scene), res=img.shape[0],
+                                          params=defines))
         print(f"wrote {args.mask} (object mask: pixels whose camera rays hit the geometry)")
     return 0
+
+
+def _defines(items: list[str]) -> dict[str, str]:
+    """``-D KEY=VALUE`` options as scene defaults (``spp``, ``seed`` and ``res`` have
+    options of their own)."""
+    out = {}
+    for item in items:
+        key, eq, value = item.partition("=")
+        key = key.strip()
+        if not eq or not key:
+            raise UsageError(f"-D {item!r}: expected KEY=VALUE (a scene default, e.g. "
+                             "envrot=90)")
+        if key in RENDER:
+            raise UsageError(f"-D {key}: use --{key}")
+        out[key] = value.strip()
+    return out
 
 
 def _read_image(path: str, like: tuple[str, object] | None = None):
@@ -571,6 +589,8 @@ def _add_render(sub) -> None:
     r.add_argument("--material", action="append", default=[], metavar="ID=FILE",
                    help="replace BSDF ID: a .sbrdf selects sparse_brdf, any other BRDF "
                         "source tabulated_brdf (repeatable)")
+    r.add_argument("-D", "--define", action="append", default=[], metavar="KEY=VALUE",
+                   help="set a scene default, e.g. -D envrot=90 (repeatable)")
     r.add_argument("--spp", type=_typed(RENDER["spp"]), default=_default(render_scene, "spp"))
     r.add_argument("--seed", type=_typed(RENDER["seed"]), default=_default(render_scene, "seed"))
     r.add_argument("--res", type=_typed(RENDER["res"]), default=_default(render_scene, "res"),

@@ -156,3 +156,25 @@ def test_readme_inverse_rendering_example_runs(case, tmp_path):
     assert len(losses) == 10 and all(np.isfinite(losses))
     assert losses[-1] < 0.8 * losses[0], losses
     assert isinstance(env["scene"], mi.Scene) and dr.grad_enabled(env["opt"][env["keys"][0]])
+
+
+def test_render_sets_scene_defaults(capsys, tmp_path):
+    """``render -D KEY=VALUE`` sets a scene default (the views of a fit are rendered so);
+    a malformed one, or one that has its own option, is one line and exit 2."""
+    from sparse_brdf.evaluation.render import read_exr
+
+    imgs = {}
+    for rot in (0, 90):
+        out = tmp_path / f"r{rot}.exr"
+        code, _, err = run(capsys, "render", "sphere.xml", "-o", out, "--material",
+                           f"material={MATERIAL}", "--spp", 2, "--res", 16, "-D",
+                           f"envrot={rot}")
+        assert code == 0, err
+        imgs[rot] = read_exr(out)
+    direct = render_scene(find_scene("sphere.xml"), {"material": str(MATERIAL)}, spp=2,
+                          seed=0, res=16, params={"envrot": 90})
+    assert np.array_equal(imgs[90], direct) and not np.array_equal(imgs[0], imgs[90])
+    for bad, named in (("spp=3", "--spp"), ("envrot", "KEY=VALUE")):
+        code, _, err = run(capsys, "render", "sphere.xml", "-o", tmp_path / "x.exr", "-D", bad)
+        assert code == 2 and len(err.splitlines()) == 1 and named in err, err
+    assert not (tmp_path / "x.exr").exists()

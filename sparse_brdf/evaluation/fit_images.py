@@ -46,7 +46,7 @@ from .render import load_scene
 VALUE_KEYS = ("values_0", "values_1", "values_2")
 #: Defaults of the fit: iterations, Adam's first learning rate, its last as a fraction of
 #: the first (the rate falls geometrically in between), samples per pixel.
-DEFAULT_ITERATIONS, DEFAULT_LR, DEFAULT_LR_END, DEFAULT_SPP = 60, 0.02, 0.01, 4
+DEFAULT_ITERATIONS, DEFAULT_LR, DEFAULT_LR_END, DEFAULT_SPP = 150, 0.02, 0.1, 4
 #: The fit's numeric options and their ranges (the CLI takes its bounds from here).
 PARAMETERS = {"iterations": Interval(int, 1, 1 << 20), "lr": Interval(float, 0, 10, "right"),
               "lr_end": Interval(float, 0, 1, "right"), "spp": Interval(int, 1, 1 << 16)}
@@ -272,9 +272,8 @@ def fit_images(  # long: the fit loop with its checkpointing and progress bar
         pixel, and the primal renders' seed (that of the references).
     lr_end : float
         The learning rate of the last iteration as a fraction of ``lr``, in (0, 1]; the
-        rate falls geometrically from ``lr`` to ``lr * lr_end``. A constant rate (1)
-        leaves every value jittering by about ``lr`` of itself, which caps the SNR a fit
-        reaches (about 5 dB below the decayed rate's in ``docs/fit-images.md``).
+        rate falls geometrically from ``lr`` to ``lr * lr_end``, so that the values
+        settle instead of jittering by about ``lr`` of themselves (docs/fit-images.md).
     checkpoint_dir : path or None
         Where to keep ``fit-images.npz`` (every ``checkpoint_every`` iterations): a rerun
         with the same inputs resumes from it; one of another fit is refused.
