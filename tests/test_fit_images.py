@@ -7,9 +7,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_reliability import run
 
 from sparse_brdf import encode, load_brdf
-from sparse_brdf.cli import main
 from sparse_brdf.errors import UsageError
 from sparse_brdf.evaluation.fit_images import fit_images, views_for
 from sparse_brdf.evaluation.render import find_scene, render_scene, write_exr
@@ -19,15 +19,6 @@ from sparse_brdf.paths import DEMO_MATERIALS_DIR
 
 RES, SPP, ROTS = 16, 4, (0, 180)
 MATERIAL = DEMO_MATERIALS_DIR / "silver-paint.h5"
-
-
-def run(capsys, *argv) -> tuple[int, str, str]:
-    try:
-        code = main([str(a) for a in argv])
-    except SystemExit as exc:  # argparse
-        code = exc.code
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 @pytest.fixture(scope="module")
