@@ -37,6 +37,7 @@ from .evaluation.render import (
     find_scene,
     noise_floor_snr,
     object_mask,
+    parse_defaults,
     parse_overrides,
     read_exr,
     read_mask,
@@ -306,7 +307,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     scene, materials = find_scene(args.scene), parse_overrides(args.material)
     _check_outputs([args.output, args.mask], [scene, *materials.values(), args.ensemble])
-    defines = _defines(args.define)
+    defines = parse_defaults(args.define, "-D")
     img = render_scene(scene, materials, spp=args.spp,
                        seed=args.seed, res=args.res, params=defines, sparse_options=opts,
                        tabulated_options={"sampling": args.sampling})
@@ -319,22 +320,6 @@ def cmd_render(args: argparse.Namespace) -> int:
                                           params=defines))
         print(f"wrote {args.mask} (object mask: pixels whose camera rays hit the geometry)")
     return 0
-
-
-def _defines(items: list[str]) -> dict[str, str]:
-    """``-D KEY=VALUE`` options as scene defaults (``spp``, ``seed`` and ``res`` have
-    options of their own)."""
-    out = {}
-    for item in items:
-        key, eq, value = item.partition("=")
-        key = key.strip()
-        if not eq or not key:
-            raise UsageError(f"-D {item!r}: expected KEY=VALUE (a scene default, e.g. "
-                             "envrot=90)")
-        if key in RENDER:
-            raise UsageError(f"-D {key}: use --{key}")
-        out[key] = value.strip()
-    return out
 
 
 def _read_image(path: str, like: tuple[str, object] | None = None):

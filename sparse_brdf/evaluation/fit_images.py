@@ -40,7 +40,7 @@ from ..model.ensemble import Ensemble, resolve_ensemble
 from ..model.sbrdf import load_sbrdf, save_sbrdf
 from ..model.sparse import SparseBRDF
 from ..params import Interval, check
-from .render import load_scene
+from .render import load_scene, parse_defaults
 
 #: Keys under which the plugin exposes the coded channels' values (``mi.traverse``).
 VALUE_KEYS = ("values_0", "values_1", "values_2")
@@ -89,12 +89,7 @@ def parse_view(text: str) -> tuple[str, dict]:
     path, sep, tail = str(text).rpartition(":")
     if not sep or "=" not in tail:
         return str(text), {}
-    params = {}
-    for item in tail.split(","):
-        key, eq, value = item.partition("=")
-        if not eq or not key.strip():
-            raise UsageError(f"--view {text!r}: expected IMAGE.exr:KEY=VALUE[,KEY=VALUE]")
-        params[key.strip()] = value.strip()
+    params = parse_defaults(tail.split(","), f"--view {text!r}:")
     return path, params
 
 

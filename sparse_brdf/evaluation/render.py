@@ -79,6 +79,24 @@ def parse_overrides(items: Iterable[str]) -> dict[str, str]:
     return out
 
 
+def parse_defaults(items: Iterable[str], option: str) -> dict[str, str]:
+    """``["KEY=VALUE", ...]`` -> scene defaults ``{"KEY": "VALUE"}`` (e.g. ``envrot=90``).
+
+    ``spp``, ``seed`` and ``res`` are refused: they have options of their own. A
+    malformed item is a :class:`~sparse_brdf.errors.UsageError` naming ``option``."""
+    out: dict[str, str] = {}
+    for item in items:
+        key, eq, value = item.partition("=")
+        key = key.strip()
+        if not eq or not key:
+            raise UsageError(f"{option} {item!r}: expected KEY=VALUE (a scene default, e.g. "
+                             "envrot=90)")
+        if key in RENDER_PARAMETERS:
+            raise UsageError(f"{option} {key}: use --{key}")
+        out[key] = value.strip()
+    return out
+
+
 def plugin_for(source: str) -> str:
     """The plugin that renders ``source``: sparse_brdf for .sbrdf, else tabulated_brdf."""
     return "sparse_brdf" if str(source).lower().endswith(SPARSE_SUFFIX) else "tabulated_brdf"
