@@ -13,6 +13,7 @@ from ..model.sbrdf import decode_file
 from .analytic import tabulate_mitsuba
 from .cache import cached_brdf, content_key
 from .catalog import mitsuba_catalog
+from .fits import FIT_MODELS, FITS_VERSION, material_parameters, tabulate_fit
 from .merl import read_merl
 from .nbrdf import tabulate_nbrdf
 
@@ -32,14 +33,16 @@ def load_brdf(
         A MERL/DTU ``.binary`` file (read on its own grid), a Neural-BRDF ``.h5`` file
         (tabulated on ``shape``), a ``.sbrdf`` coefficient file (decoded with the
         shipped ensemble the file names), ``"mitsuba:<name>"`` for one of
-        Mitsuba's built-in materials (``sparse-brdf corpus list mitsuba``), or a
+        Mitsuba's built-in materials (``sparse-brdf corpus list mitsuba``),
+        ``"abc:<name>"`` or ``"sgd:<name>"`` for the ABC or SGD analytic fit of a MERL
+        material (:mod:`sparse_brdf.sources.fits`; ``sparse-brdf corpus list abc``), or a
         ``mi.load_dict`` dictionary of a Mitsuba BSDF.
     shape : tuple of 3 int
         The (theta_h, theta_d, phi_d) grid for tabulated sources; default MERL's
         (90, 90, 180).
     cache : bool
-        Keep tabulations (of networks and Mitsuba BSDFs) in the user cache, keyed by
-        their content, and reuse them.
+        Keep tabulations (of networks, Mitsuba BSDFs and analytic fits) in the user
+        cache, keyed by their content, and reuse them.
 
     Returns
     -------
@@ -54,7 +57,11 @@ def load_brdf(
         For an unknown suffix, or a file that is truncated, corrupt or decodes to
         unusable values.
     UnknownNameError
-        For a ``mitsuba:`` name that is not a built-in material.
+        For a ``mitsuba:`` name that is not a built-in material, or an ``abc:`` or
+        ``sgd:`` name without a fit.
+    MissingDataError
+        For an ``abc:`` or ``sgd:`` source when the fits' parameter file is absent
+        (``../shared/data/fits``).
     """
     if isinstance(source, dict):
         name = str(source.get("type", "mitsuba"))
@@ -69,6 +76,9 @@ def load_brdf(
                                    "`sparse-brdf corpus list mitsuba`)")
         key = content_key("mitsuba", catalog[name], list(shape), _mitsuba_version())
         return cached_brdf(key, lambda: tabulate_mitsuba(catalog[name], name, shape), cache)
+    prefix, colon, _ = s.partition(":")
+    if colon and prefix in FIT_MODELS:
+        return _load_fit(s, shape, cache)
     path = Path(s)
     suffix = path.suffix.lower()
     if suffix == ".binary":
@@ -84,6 +94,15 @@ def load_brdf(
             raise BRDFFileError(f"{path}: decodes to unusable values: {exc}") from exc
     require_file(path)
     raise BRDFFileError(f"{path}: unknown BRDF format (expected one of {', '.join(SUFFIXES)})")
+
+
+def _load_fit(source: str, shape: tuple[int, int, int], cache: bool) -> BRDF:
+    """``abc:<name>`` or ``sgd:<name>``, tabulated (cached by the material's parameters)."""
+    model, name = source.split(":", 1)
+    params = material_parameters(model, name)
+    key = content_key("fit", FITS_VERSION, model, name,
+                      {k: v.tolist() for k, v in params.items()}, list(shape))
+    return cached_brdf(key, lambda: tabulate_fit(model, name, shape), cache)
 
 
 def _mitsuba_version() -> str:
