@@ -444,7 +444,8 @@ def _add_data_commands(sub) -> None:
     c = sub.add_parser("corpus", help="list corpora and their train/test split")
     csub = c.add_subparsers(dest="corpus_command", required=True, metavar="ACTION")
     cl = csub.add_parser("list", help="list corpora, or the materials of one corpus")
-    cl.add_argument("corpus", nargs="?", help="mitsuba, merl, rgl or a folder")
+    cl.add_argument("corpus", nargs="?",
+                    help="a corpus name (mitsuba, merl-demo, merl, rgl, abc, sgd) or a folder")
     cl.set_defaults(func=cmd_corpus_list)
 
     i = sub.add_parser("info", help="shape, valid bins, value range and albedo of a BRDF")
