@@ -95,7 +95,14 @@ class NeuralFit:
     stopped_early: bool = False
 
     def params(self) -> dict[str, np.ndarray]:
-        """The stored numbers: ``w1, b1, w2, b2, w3, b3`` (float32, 675 in all)."""
+        """The network's stored numbers.
+
+        Returns
+        -------
+        dict of str to ndarray
+            ``w1`` (6, 21), ``b1`` (21,), ``w2`` (21, 21), ``b2`` (21,), ``w3`` (21, 3),
+            ``b3`` (3,): float32 copies, 675 numbers in all.
+        """
         return params_from_layers(self.layers)
 
     def __repr__(self) -> str:

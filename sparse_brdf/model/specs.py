@@ -34,6 +34,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from ..errors import UsageError
+from ..params import check_choice
 from .baselines import CPDModel, NaiveModel, PCAModel, TabulatedModel, TuckerModel
 from .compact import BRDFModel
 from .encode import DEFAULT_N_COEFFS, PAPER_OPTIONS
@@ -140,9 +141,7 @@ def _parse_nbrdf(arg: str) -> dict:
         key, eq, value = (x.strip() for x in item.partition("="))
         if not eq or key in out:
             raise UsageError(f"expected distinct KEY=VALUE options, got {item!r}")
-        if key not in NBRDF_PARAMETERS:
-            raise UsageError(f"unknown nbrdf option {key!r}: expected one of "
-                             f"{', '.join(NBRDF_PARAMETERS)}")
+        check_choice("nbrdf option", key, tuple(NBRDF_PARAMETERS))
         out[key] = NBRDF_PARAMETERS[key].parse(value, f"nbrdf {key}")
     return out
 
