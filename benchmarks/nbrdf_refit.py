@@ -15,7 +15,8 @@ sphere (``sphere``) and the paper's scene (``paper_sphere``, skipped with a line
 Grace Cathedral map is absent); the rendering SNR of the refit against the original's
 render is given in both forms (whole-image, object-only), beside the noise floor (the
 original rendered with seed 1 against seed 0). Also per material: training time (wall
-and CPU), epochs run, final loss, and the cosine-weighted SNR of the tables.
+and CPU), epochs run, the loss after each epoch, and the cosine-weighted SNR of the
+tables.
 """
 
 from __future__ import annotations
@@ -69,7 +70,7 @@ def refit(path: Path, budget: float | None, epochs: int, seed: int) -> tuple[BRD
     table, _ = tabulate(fit.layers, brdf.shape)
     return brdf, {"material": path.stem, "train_s": wall, "train_cpu_s": cpu,
                   "epochs": fit.epochs, "steps": fit.steps, "stopped_early": fit.stopped_early,
-                  "loss": fit.loss[-1] if fit.loss else None,
+                  "loss": fit.loss[-1] if fit.loss else None, "loss_curve": fit.loss,
                   "cos_snr": cosine_weighted_snr(brdf.values, table, brdf.valid),
                   "table": table}
 
