@@ -257,3 +257,16 @@ def test_evaluator_speed_axis_and_one_kernel(llvm, teacher):
     finally:
         dr.set_flag(dr.JitFlag.KernelHistory, False)
     assert hashes[0] and hashes[1] <= hashes[0]
+
+
+def test_recipe_is_the_defaults():
+    """The published recipe, the trainer's defaults and the model's are one set."""
+    import inspect
+
+    assert neural.RECIPE == {"epochs": 100, "batch_size": 512, "learning_rate": 5e-4,
+                             "n_samples": 800_000}
+    for func in (train_nbrdf, NBRDFModel.__init__):
+        sig = inspect.signature(func).parameters
+        assert {k: sig[k].default for k in neural.RECIPE} == neural.RECIPE, func
+        assert sig["seed"].default == 0 and sig["time_budget"].default is None
+    assert set(neural.PARAMETERS) == {*neural.RECIPE, "seed", "time_budget"}
