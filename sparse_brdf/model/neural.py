@@ -14,7 +14,9 @@ numpy (hand-written backpropagation, float32, vectorised per batch):
   wraps, theta clamps), over the neighbours whose bin is valid, renormalised (a pair none
   of whose eight neighbours is valid is not drawn). Interpolation rather than the nearest
   bin: a table sampled at lower edges is a smooth function's samples, and the nearest
-  sample of a continuous angle is up to one bin away (far in the specular peak);
+  sample of a continuous angle is up to one bin away (far in the specular peak); refits
+  of two glossy demo networks rendered about 7 dB closer to the originals with it
+  (``docs/benchmarks.md``, "Neural-BRDF");
 - loss: mean over the batch and the three channels of
   |ln(1 + rho cos_i) - ln(1 + rho_hat cos_i)|, rho_hat = exp(z) - 1 unclipped;
 - Adam (Keras' form and defaults: beta1 0.9, beta2 0.999, epsilon 1e-7) with learning
