@@ -3,15 +3,17 @@
     .venv/bin/python benchmarks/bench_eval.py [--material SOURCE] [--corpus NAME]
         [--n 1048576] [--repeats 5] [--rounds 3] [--pca-train 30] [--json PATH]
 
-Times :func:`sparse_brdf.evaluation.speed.evals_per_second` on one material for: the full table
-(``tabulated_brdf`` plugin), the sparse model at 32 / 128 / 262 coefficients per channel
-(``sparse_brdf`` plugin, grouped and strict decoders; the shipped ensemble), and the
-baselines through their own Dr.Jit evaluators (``mitsuba_plugin.evaluators``): naive
-(Bagher et al.), rank-1 CPD, 1x1x1 Tucker, PCA (Nielsen et al.) with 40 and 300
-coefficients. Each figure: 2^20 random upper-hemisphere direction pairs per call, the
-median call time of ``--repeats`` calls (fresh pairs each, after one untimed call that
-compiles), then the median over ``--rounds`` rounds (every model once per round, so
-that the machine's slow and fast phases hit all models alike).
+Times :func:`sparse_brdf.evaluation.speed.evals_per_second` on one material for: the
+full table (``tabulated_brdf`` plugin), the sparse model at 32 / 128 / 262 coefficients
+per channel (``sparse_brdf`` plugin, grouped and strict decoders; the shipped ensemble),
+and the baselines through their own Dr.Jit evaluators (``mitsuba_plugin.evaluators``):
+naive (Bagher et al.), rank-1 CPD, 1x1x1 Tucker, PCA (Nielsen et al.) with 40 and 300
+coefficients, Neural-BRDF (Sztrajman et al.; a network trained for one epoch on 20,000
+samples: its evaluator's cost does not depend on the weights' values). Each figure: 2^20
+random upper-hemisphere direction pairs per call, the median call time of ``--repeats``
+calls (fresh pairs each, after one untimed call that compiles), then the median over
+``--rounds`` rounds (every model once per round, so that the machine's slow and fast
+phases hit all models alike).
 
 Material: by default the first test-split material of the MERL corpus when
 ``../shared/data`` is present, else of the built-in ``mitsuba`` corpus. PCA is trained
@@ -60,6 +62,11 @@ def build_cases(brdf, corpus: str, pca_train: int, ens: Ensemble) -> list[dict]:
             _log(f"fitting {name}")
             cases.append({"name": name, "evaluator": "own evaluator",
                           "compact": make_model(name).compress(brdf)})
+    _log("training nbrdf (one short epoch: the cost does not depend on the weights)")
+    nbrdf = make_model("nbrdf:epochs=1,n_samples=20000")
+    nbrdf.progress = False
+    cases.append({"name": "nbrdf", "evaluator": "own evaluator",
+                  "compact": nbrdf.compress(brdf)})
     mats = [m for m in get_corpus(corpus).split("train") if m.name != brdf.name][:pca_train]
     _log(f"training PCA on {len(mats)} {corpus} training materials")
     pca = PCAModel(300).fit([m.load(brdf.shape) for m in mats])

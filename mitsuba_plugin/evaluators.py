@@ -12,15 +12,20 @@ what it costs to evaluate is the model's own cost:
 ``pca``       m = mean[e] + sum_r coef_r basis[r, e] at the entry e of (bin, c),
               rho_c = (exp(m) (median[e] + eps) - eps) / clip(cos_i cos_o, 0.01, 1);
               0 outside the PCA mask  (Nielsen et al. 2015)
+``nbrdf``     the 6 -> 21 -> 21 -> 3 network of :mod:`sparse_brdf.mlp` at the pair's
+              half and difference vectors, rho = max(exp(z) - 1, 0)
+              (Sztrajman et al. 2021)
 ============  =================================================================
 
-(i, j, k) is the bin of the direction pair, found with the plugins' own lookup
-(:func:`~mitsuba_plugin.kernels.angle_coords`, :func:`~mitsuba_plugin.kernels.nearest_bins`),
-so the evaluators, ``tabulated_brdf`` and ``sparse_brdf`` index bins identically. As in
-the plugins, a bin below the horizon at its angles (docs/method.md, "Grid, lookup
-convention, validity"), or a direction below the horizon, gives 0, and values are
-clamped to >= 0 (as every model's ``reconstruct`` does). Values are linear RGB BRDF
-values (1/sr), without the cosine factor that ``BSDF.eval`` includes.
+For the kinds stored on the grid, (i, j, k) is the bin of the direction pair, found with
+the plugins' own lookup (:func:`~mitsuba_plugin.kernels.angle_coords`,
+:func:`~mitsuba_plugin.kernels.nearest_bins`), so the evaluators, ``tabulated_brdf`` and
+``sparse_brdf`` index bins identically. As in the plugins, a bin below the horizon at its
+angles (docs/method.md, "Grid, lookup convention, validity"), or a direction below the
+horizon, gives 0, and values are clamped to >= 0 (as every model's ``reconstruct``
+does). ``nbrdf`` is a continuous function: it is evaluated at the pair itself, 0 only
+where a direction is below the horizon. Values are linear RGB BRDF values (1/sr),
+without the cosine factor that ``BSDF.eval`` includes.
 
 Per-material numbers live in Dr.Jit arrays and opaque scalars, as in the plugins: one
 compiled kernel serves every material of a kind (and ranks / coefficient counts are
@@ -52,10 +57,11 @@ from .kernels import (
     angle_coords,
     bin_weight,
     expm1,
+    half_diff,
     nearest_bins,
 )
 
-KINDS = ("naive", "cpd", "tucker", "pca")
+KINDS = ("naive", "cpd", "tucker", "pca", "nbrdf")
 
 
 def _variant_module(variant: str | None) -> tuple[VariantNamespace, str]:
@@ -381,9 +387,70 @@ class PCAEvaluator(Evaluator):
         return m.Color3f(*out)
 
 
+class NBRDFEvaluator(Evaluator):
+    """Neural-BRDF (Sztrajman et al. 2021): the network of :mod:`sparse_brdf.mlp`.
+
+    params: ``w1`` (6, 21), ``b1`` (21,), ``w2`` (21, 21), ``b2`` (21,), ``w3`` (21, 3),
+    ``b3`` (3,) (any hidden widths). Evaluated at the pair itself, not at a bin: the
+    input is the half vector with phi_h = 0, (sin th, 0, cos th), and the difference
+    vector (:func:`~mitsuba_plugin.kernels.half_diff`), phi_d folded into [0, pi) by
+    reciprocity (d -> (-dx, -dy, dz) where dy < 0). The layers are unrolled fused
+    multiply-adds over the weights, which are opaque scalars (kernel inputs: one kernel
+    for every network of these widths); hy = 0 drops a row of w1. 0 where either
+    direction is below the horizon.
+    """
+
+    kind = "nbrdf"
+
+    def __init__(self, params: dict, variant: str | None = None) -> None:
+        super().__init__(params, variant)
+        arrays = _require(self.kind, params, ("w1", "b1", "w2", "b2", "w3", "b3"),
+                          (2, 1, 2, 1, 2, 1))
+        layers = list(zip(arrays[::2], arrays[1::2], strict=True))
+        width = 6
+        for i, (k, b) in enumerate(layers, 1):
+            if k.shape[0] != width or b.shape != (k.shape[1],):
+                raise ValueError(f"nbrdf evaluator: params w{i} {k.shape} and b{i} {b.shape}"
+                                 f" do not continue a layer of width {width}")
+            width = k.shape[1]
+        if width != 3:
+            raise ValueError(f"nbrdf evaluator: the last layer must give 3 values, not {width}")
+        self.shape = tuple(k.shape[1] for k, _ in layers)  # the layers' widths
+        f = self.ops.f
+        self._layers = [([[f(v) for v in row] for row in np.asarray(k, np.float32).tolist()],
+                         [f(v) for v in np.asarray(b, np.float32).tolist()])
+                        for k, b in layers]
+        self.memory_bytes = self.material_bytes = 4 * sum(k.size + b.size for k, b in layers)
+
+    def network(self, inputs):
+        """The network's output z (before exp(z) - 1) at six input Floats (hy may be
+        None: 0); returns a list of three Floats."""
+        h = inputs
+        for n, (rows, bias) in enumerate(self._layers):
+            out = []
+            for j, acc in enumerate(bias):
+                for x, row in zip(h, rows, strict=True):
+                    if x is not None:
+                        acc = dr.fma(x, row[j], acc) if self.ops.jit else x * row[j] + acc
+                out.append(dr.maximum(acc, 0.0) if n < len(self._layers) - 1 else acc)
+            h = out
+        return h
+
+    def eval(self, wi, wo, active=True):
+        """As :meth:`Evaluator.eval`, at the pairs' own half and difference vectors."""
+        m = self.m
+        ok = active & (wi.z > 0.0) & (wo.z > 0.0)
+        st, ct, dx, dy, dz = half_diff(wi, wo)
+        flip = dy < 0.0
+        dx, dy = dr.select(flip, -dx, dx), dr.select(flip, -dy, dy)
+        z = self.network([st, None, ct, dx, dy, dz])
+        rgb = m.Color3f(*(dr.maximum(expm1(c), 0.0) for c in z))
+        return dr.select(ok, rgb, m.Color3f(0.0))
+
+
 EVALUATORS: dict[str, type[Evaluator]] = {
     "naive": NaiveEvaluator, "cpd": CPDEvaluator, "tucker": TuckerEvaluator,
-    "pca": PCAEvaluator,
+    "pca": PCAEvaluator, "nbrdf": NBRDFEvaluator,
 }
 
 
@@ -406,4 +473,5 @@ def evaluator_for(compact, variant: str | None = None) -> Evaluator:
 
 
 __all__ = ["KINDS", "EVALUATORS", "Evaluator", "NaiveEvaluator", "CPDEvaluator",
-           "TuckerEvaluator", "PCAEvaluator", "make_evaluator", "evaluator_for"]
+           "TuckerEvaluator", "PCAEvaluator", "NBRDFEvaluator", "make_evaluator",
+           "evaluator_for"]

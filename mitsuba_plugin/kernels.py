@@ -165,6 +165,26 @@ class Shape:
         self.trig = tuple(ops.floats(a) for a in angle_tables(self.py))
 
 
+def half_diff(wi, wo):
+    """The half vector's angle and the difference vector of a direction pair, phi_h = 0.
+
+    Returns ``(st, ct, dx, dy, dz)``: sin and cos of theta_h, and the difference vector
+    d = R_y(-theta_h) R_z(-phi_h) wi (docs/method.md, "Grid"), so that the half vector
+    with phi_h = 0 is (st, 0, ct). Only arithmetic and square roots (no trigonometry).
+    """
+    h = dr.normalize(wi + wo)
+    st = dr.sqrt(dr.maximum(h.x * h.x + h.y * h.y, 0.0))
+    ct = h.z
+    has = st > 0.0
+    inv = dr.rcp(dr.maximum(st, 1e-30))
+    cp = dr.select(has, h.x * inv, 1.0)
+    sp = dr.select(has, h.y * inv, 0.0)
+    x = cp * wi.x + sp * wi.y
+    y = cp * wi.y - sp * wi.x
+    z = wi.z
+    return st, ct, ct * x - st * z, y, st * x + ct * z
+
+
 def angle_coords(ops: Ops, shape: Shape, wi, wo):
     """Continuous grid coordinates (x_h, x_d, x_p) of a direction pair (docs/method.md,
     "Grid, lookup convention, validity").
@@ -174,20 +194,8 @@ def angle_coords(ops: Ops, shape: Shape, wi, wo):
     interpolation). Angles use atan2 rather than acos so that small theta_h keeps its
     precision in float32.
     """
-    h = dr.normalize(wi + wo)
-    st = dr.sqrt(dr.maximum(h.x * h.x + h.y * h.y, 0.0))
-    ct = h.z
-    has = st > 0.0
-    inv = dr.rcp(dr.maximum(st, 1e-30))
-    cp = dr.select(has, h.x * inv, 1.0)
-    sp = dr.select(has, h.y * inv, 0.0)
+    st, ct, dx, y, dz = half_diff(wi, wo)
     theta_h = dr.atan2(st, ct)
-    # d = R_y(-theta_h) R_z(-phi_h) wi
-    x = cp * wi.x + sp * wi.y
-    y = cp * wi.y - sp * wi.x
-    z = wi.z
-    dx = ct * x - st * z
-    dz = st * x + ct * z
     theta_d = dr.atan2(dr.sqrt(dx * dx + y * y), dz)
     phi_d = dr.atan2(y, dx)
     phi_d = dr.select(phi_d < 0.0, phi_d + math.pi, phi_d)

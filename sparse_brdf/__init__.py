@@ -11,6 +11,7 @@ decode/render -> evaluate.
 >>> sb.save_sbrdf("gold.sbrdf", model)                   # about 1.6 kB (version 2)
 >>> small = sb.encode_to_bytes(brdf, n_bytes=1000)       # a file of at most 1000 bytes
 >>> rec = model.decode(sb.Ensemble.default())            # back to a BRDF
+>>> net = sb.train_nbrdf(brdf, time_budget=120)          # a Neural-BRDF network (675 floats)
 """
 
 from .brdf import BRDF
@@ -20,6 +21,7 @@ from .model.budget import encode_to_bytes
 from .model.encode import DEFAULT_N_COEFFS, ENCODE_OPTIONS, PAPER_OPTIONS, encode
 from .model.ensemble import Ensemble
 from .model.interpolate import interpolate
+from .model.neural import NeuralFit, train_nbrdf
 from .model.sbrdf import decode_file, load_sbrdf, save_sbrdf
 from .model.sparse import SparseBRDF
 from .model.train import train_dictionaries, train_ensemble
@@ -36,11 +38,12 @@ __version__ = "0.1.0"
 __all__ = [
     "BRDF", "BRDFFileError", "Corpus", "DEFAULT_N_COEFFS", "ENCODE_OPTIONS", "Ensemble",
     "EnsembleMismatchError", "PAPER_OPTIONS",
-    "InvalidBRDFError", "Material", "SNRForms", "SparseBRDF", "SparseBRDFError", "TRANSFORMS",
+    "InvalidBRDFError", "Material", "NeuralFit", "SNRForms", "SparseBRDF", "SparseBRDFError",
+    "TRANSFORMS",
     "cosine_weighted_snr", "decode_file", "encode", "encode_to_bytes", "gamma_mse",
     "get_corpus",
     "interpolate", "inverse_transform", "list_corpora", "load_brdf", "load_sbrdf",
     "mitsuba_catalog", "rae",
     "read_merl", "render_snr", "save_sbrdf", "snr_forms", "train_dictionaries", "train_ensemble",
-    "transform", "write_merl",
+    "train_nbrdf", "transform", "write_merl",
 ]

@@ -123,6 +123,42 @@ def angles_to_bins(
     )
 
 
+def linear_neighbours(
+    theta_h: np.ndarray,
+    theta_d: np.ndarray,
+    phi_d: np.ndarray,
+    shape: tuple[int, int, int] = MERL_SHAPE,
+) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], ...]:
+    """The two grid samples around each angle, per axis, for trilinear interpolation.
+
+    The grid's samples are the bins' lower-edge angles (:func:`grid_coords`); per axis
+    ``(i0, i1, t)``: the samples below and above (int64) and the weight ``t`` of ``i1``
+    (float64 in [0, 1]). theta_h and theta_d clamp at the grid's ends; phi_d (folded into
+    [0, pi) by reciprocity first) wraps around with period pi, as the Mitsuba plugins'
+    interpolated lookup does.
+    """
+    th = np.maximum(np.asarray(theta_h, dtype=np.float64), 0.0)
+    pd = np.asarray(phi_d, dtype=np.float64)
+    pd = np.where(pd < 0.0, pd + np.pi, pd)
+    out = []
+    for axis, (x, n) in enumerate(zip(grid_coords(th, np.asarray(theta_d, np.float64), pd,
+                                                  shape), shape, strict=True)):
+        if axis < 2:
+            x = np.clip(x, 0.0, n - 1.0)
+            i0 = np.minimum(np.floor(x), max(n - 2, 0))
+            t = np.clip(x - i0, 0.0, 1.0)
+            i0 = i0.astype(np.int64)
+            i1 = np.minimum(i0 + 1, n - 1)
+        else:
+            x = np.clip(x, 0.0, float(n))
+            f0 = np.floor(x)
+            t = np.where(f0 >= n, 1.0, x - f0)  # x = n is the sample at 0
+            i0 = np.minimum(f0, n - 1).astype(np.int64)
+            i1 = (i0 + 1) % n
+        out.append((i0, i1, t))
+    return tuple(out)
+
+
 def dirs_to_bins(
     wi: np.ndarray, wo: np.ndarray, shape: tuple[int, int, int] = MERL_SHAPE
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

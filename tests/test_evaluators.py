@@ -203,7 +203,7 @@ def test07_evaluator_errors(llvm, compacts):
     bad = {**compacts["cpd-3"].params, "b": np.zeros((3, 18, 2), np.float32)}
     with pytest.raises(ValueError, match=r"params\['b'\] must have shape \(3, n, 3\)"):
         make_evaluator("cpd", bad)
-    assert set(KINDS) == {"naive", "cpd", "tucker", "pca"}
+    assert set(KINDS) == {"naive", "cpd", "tucker", "pca", "nbrdf"}
 
 
 # --------------------------------------------------------------------------------- speed

@@ -28,6 +28,10 @@ GOOD = {
     "pca": ("pca", "pca-40"),
     "pca:300": ("pca", "pca-300"),
     "tabulated": ("tabulated", "tabulated"),
+    "nbrdf": ("nbrdf", "nbrdf"),
+    "nbrdf:epochs=20,seed=3": ("nbrdf", "nbrdf-epochs=20-seed=3"),
+    "nbrdf:time_budget=90": ("nbrdf", "nbrdf-time_budget=90"),
+    "nbrdf:epochs=100": ("nbrdf", "nbrdf"),
 }
 
 BAD = ("svd", "", ":", "sparse:0", "sparse:-1", "sparse:x", "sparse:b", "sparse:b0",
@@ -36,7 +40,9 @@ BAD = ("svd", "", ":", "sparse:0", "sparse:-1", "sparse:x", "sparse:b", "sparse:
        "sparse:262:fill_iters=100000", "sparse:262:version=3", "sparse:262:paper:basis=rgb",
        "sparse:²", "naive:3", "tabulated:1", "cpd:0", "cpd:x", "cpd:1:2", "cpd:1458001",
        "tucker:1x1", "tucker:0x1x1", "tucker:91x1x1", "tucker:1x1x1x1", "pca:0", "pca:-3",
-       "pca:4.5", "PCA:40")
+       "pca:4.5", "PCA:40", "nbrdf:3", "nbrdf:epochs=0", "nbrdf:epochs=x", "nbrdf:depth=3",
+       "nbrdf:epochs", "nbrdf:seed=1,seed=2", "nbrdf:time_budget=0",
+       "nbrdf:learning_rate=-1", "nbrdf:batch_size=1.5")
 
 
 def _no_ensemble(*args, **kwargs):

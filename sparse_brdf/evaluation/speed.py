@@ -7,8 +7,9 @@ Every model is timed with its own evaluator, never through a dense table:
   ``eval``, with the ``grouped`` or ``strict`` decoder;
 - ``tabulated`` (a :class:`~sparse_brdf.brdf.BRDF`, or the ``Compact`` of
   :class:`~sparse_brdf.model.baselines.TabulatedModel`): the ``tabulated_brdf`` plugin's ``eval``;
-- ``naive``, ``cpd``, ``tucker``, ``pca`` (their ``Compact``): the Dr.Jit evaluators of
-  :mod:`mitsuba_plugin.evaluators`, computed from the model's stored ``params``.
+- ``naive``, ``cpd``, ``tucker``, ``pca``, ``nbrdf`` (their ``Compact``): the Dr.Jit
+  evaluators of :mod:`mitsuba_plugin.evaluators`, computed from the model's stored
+  ``params`` (for ``nbrdf``, the network itself at each pair).
 
 The plugins' ``eval`` includes the cosine factor and the evaluators do not; that one
 multiplication is part of the cost. Mitsuba is imported only when a function is called.
@@ -39,7 +40,7 @@ from ..params import check_choice
 from ..sources.merl import write_merl
 
 #: Model kinds :func:`evals_per_second` times (the part of ``Compact.model`` before ``-``).
-KINDS = ("tabulated", "sparse", "naive", "cpd", "tucker", "pca")
+KINDS = ("tabulated", "sparse", "naive", "cpd", "tucker", "pca", "nbrdf")
 
 
 def random_directions(n: int, rng: np.random.Generator):
@@ -106,7 +107,7 @@ def evals_per_second(model, n: int = 1 << 20, repeats: int = 5, ensemble=None, *
     ----------
     model : Compact, SparseBRDF or BRDF
         A fitted :class:`~sparse_brdf.model.compact.Compact` of any baseline kind (naive,
-        cpd, tucker, pca, tabulated, sparse), a sparse model, or a tabulated BRDF.
+        cpd, tucker, pca, nbrdf, tabulated, sparse), a sparse model, or a tabulated BRDF.
     n : int, default 2**20
         Random upper-hemisphere direction pairs per timed call.
     repeats : int, default 5

@@ -9,8 +9,9 @@ The convention, scikit-learn's:
   A model that needs ``fit`` raises :class:`~sparse_brdf.errors.UsageError` when it is
   used unfitted.
 
-The models: :class:`~sparse_brdf.model.sparse_model.SparseModel` (the paper's) and the
-baselines of :mod:`sparse_brdf.model.baselines`; a bench builds them from their specs
+The models: :class:`~sparse_brdf.model.sparse_model.SparseModel` (the paper's), the
+baselines of :mod:`sparse_brdf.model.baselines` and Neural-BRDF
+(:class:`~sparse_brdf.model.neural.NBRDFModel`); a bench builds them from their specs
 (:mod:`sparse_brdf.model.specs`).
 """
 
@@ -34,7 +35,8 @@ class Compact:
     ----------
     model : str
         The model's name (``"naive"``, ``"cpd-1"``, ``"tucker-1x1x1"``, ``"pca-40"``,
-        ``"tabulated"``, ``"sparse-262"``, ...); the part before the first ``-`` is its kind.
+        ``"tabulated"``, ``"sparse-262"``, ``"nbrdf"``, ...); the part before the first
+        ``-`` is its kind.
     nbytes : int
         Storage of the numbers kept per material (float32): the bytes of the arrays in
         ``params`` whose keys do not start with ``shared_``.
@@ -59,7 +61,7 @@ class Compact:
     @property
     def kind(self) -> str:
         """The model family: ``naive``, ``cpd``, ``tucker``, ``pca``, ``tabulated``,
-        ``sparse`` (the name up to its first ``-``)."""
+        ``sparse``, ``nbrdf`` (the name up to its first ``-``)."""
         return self.model.split("-", 1)[0]
 
     def param_nbytes(self) -> int:

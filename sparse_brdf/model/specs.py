@@ -12,6 +12,11 @@ A spec is ``KIND`` or ``KIND:ARGS``; each kind of :data:`KINDS` states its own g
   ``.sbrdf`` version counted and rendered, 1 or 2). E.g. ``sparse:262``,
   ``sparse:262:paper``, ``sparse:262:log-plus``, ``sparse:262:auto:fill=missing``,
   ``sparse:b1600:basis=rgb,version=1``.
+- ``nbrdf[:OPTIONS]`` Neural-BRDF (Sztrajman et al. 2021), a network trained per
+  material (:class:`~sparse_brdf.model.neural.NBRDFModel`); OPTIONS: ``KEY=VALUE`` pairs
+  separated by commas, the options of :func:`~sparse_brdf.model.neural.train_nbrdf`
+  (``epochs``, ``batch_size``, ``learning_rate``, ``n_samples``, ``seed``,
+  ``time_budget`` in seconds). E.g. ``nbrdf``, ``nbrdf:epochs=20,seed=1``.
 - ``naive`` Bagher et al.'s separable model; ``cpd:L`` rank-L CPD (default 1);
   ``tucker:AxBxC`` Tucker ranks (default 1x1x1); ``pca:N`` N principal components
   (default 40); ``tabulated`` the full table.
@@ -29,9 +34,12 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from ..errors import UsageError
+from ..params import check_choice
 from .baselines import CPDModel, NaiveModel, PCAModel, TabulatedModel, TuckerModel
 from .compact import BRDFModel
 from .encode import DEFAULT_N_COEFFS, PAPER_OPTIONS
+from .neural import PARAMETERS as NBRDF_PARAMETERS
+from .neural import NBRDFModel, nbrdf_name
 from .sbrdf import VERSION, VERSIONS
 from .sparse_model import SparseModel, sparse_name
 
@@ -125,6 +133,19 @@ def _parse_sparse(arg: str) -> dict:
             "n_bytes": n_bytes, "version": int(version), **options}
 
 
+def _parse_nbrdf(arg: str) -> dict:
+    """``KEY=VALUE[,KEY=VALUE...]`` -> NBRDFModel's keyword arguments, each value read and
+    checked by its declaration (``neural.PARAMETERS``)."""
+    out: dict = {}
+    for item in filter(None, arg.split(",")):
+        key, eq, value = (x.strip() for x in item.partition("="))
+        if not eq or key in out:
+            raise UsageError(f"expected distinct KEY=VALUE options, got {item!r}")
+        check_choice("nbrdf option", key, tuple(NBRDF_PARAMETERS))
+        out[key] = NBRDF_PARAMETERS[key].parse(value, f"nbrdf {key}")
+    return out
+
+
 def _sparse_name(kw: dict) -> str:
     kw = dict(kw)
     fixed = [kw.pop(k) for k in ("n_coeffs", "transform", "n_bytes", "version")]
@@ -135,6 +156,8 @@ def _sparse_name(kw: dict) -> str:
 KINDS: dict[str, Kind] = {
     "sparse": Kind("sparse:N[:TRANSFORM][:OPTIONS]", _parse_sparse,
                    lambda kw, ens: SparseModel(ens, **kw), _sparse_name),
+    "nbrdf": Kind("nbrdf[:OPTIONS]", _parse_nbrdf, lambda kw, ens: NBRDFModel(**kw),
+                  nbrdf_name),
     "naive": Kind("naive", _no_argument("naive"), lambda kw, ens: NaiveModel(**kw),
                   lambda kw: NaiveModel(**kw).name),
     "cpd": Kind("cpd:L", _parse_cpd, lambda kw, ens: CPDModel(**kw),

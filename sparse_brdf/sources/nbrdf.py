@@ -2,7 +2,8 @@
 
 A Keras HDF5 file with dense layers 6 -> 21 -> 21 -> 3 (ReLU, ReLU, max(exp(x) - 1, 0)).
 The input is (hx, hy, hz, dx, dy, dz), the half and difference vectors with phi_h = 0;
-the output is the linear RGB BRDF value.
+the output is the linear RGB BRDF value. The network's formulas are
+:mod:`sparse_brdf.mlp`'s; this module reads the files.
 """
 
 from __future__ import annotations
@@ -12,9 +13,10 @@ import os
 import numpy as np
 
 from ..brdf import BRDF
-from ..coords import MERL_SHAPE, geometric_valid, grid_angles, half_diff_vectors
+from ..coords import MERL_SHAPE
 from ..errors import BRDFFileError, InvalidBRDFError
 from ..fileio import require_file
+from ..mlp import tabulate
 
 _LAYERS = ("dense_1", "dense_2", "dense_3")
 #: Largest weight array read (the real networks hold 21 x 21); more is not a Neural-BRDF.
@@ -56,31 +58,10 @@ def read_nbrdf_weights(path: str | os.PathLike) -> list[tuple[np.ndarray, np.nda
     return layers
 
 
-def eval_nbrdf(
-    layers: list[tuple[np.ndarray, np.ndarray]], x: np.ndarray, chunk: int = 1 << 18
-) -> np.ndarray:
-    """Evaluate the network on inputs ``x`` of shape (n, 6); returns (n, 3) float32."""
-    out = np.empty((x.shape[0], 3), np.float32)
-    for s in range(0, x.shape[0], chunk):
-        h = x[s : s + chunk].astype(np.float32)
-        for i, (k, b) in enumerate(layers):
-            h = h @ k + b
-            if i < len(layers) - 1:
-                np.maximum(h, 0.0, out=h)
-        with np.errstate(over="ignore"):  # inf: refused by tabulate_nbrdf, naming the file
-            out[s : s + chunk] = np.maximum(np.expm1(h), 0.0)
-    return out
-
-
 def tabulate_nbrdf(path: str | os.PathLike, shape: tuple[int, int, int] = MERL_SHAPE) -> BRDF:
     """Load a Neural-BRDF ``.h5`` file and tabulate it at the bins' lower-edge angles."""
     layers = read_nbrdf_weights(path)
-    valid = geometric_valid(shape)
-    th, td, pd = grid_angles(shape)
-    h, d = half_diff_vectors(th[valid], td[valid], pd[valid])
-    vals = eval_nbrdf(layers, np.concatenate([h, d], axis=-1))
-    values = np.zeros((*shape, 3), np.float32)
-    values[valid] = vals
+    values, valid = tabulate(layers, shape)
     name = os.path.basename(os.fspath(path)).removesuffix(".h5")
     try:
         return BRDF(values=values, valid=valid, name=name, source=os.fspath(path))

@@ -1,0 +1,116 @@
+"""The Neural-BRDF network (Sztrajman et al. 2021): its inputs, forward pass and table.
+
+One small multilayer perceptron per material, dense layers 6 -> 21 -> 21 -> 3: ReLU after
+the two hidden layers, and an output of exp(x) - 1, evaluated as max(exp(x) - 1, 0) (a
+BRDF is not negative). Its input is the Cartesian half vector and difference vector of a
+direction pair with phi_h = 0, ``(hx, hy, hz, dx, dy, dz)`` =
+``(sin th, 0, cos th, sin td cos pd, sin td sin pd, cos td)``
+(:func:`sparse_brdf.coords.half_diff_vectors`), phi_d folded into [0, pi); its output is
+the linear RGB BRDF value (1/sr). The network is ``layers``, a list of three ``(kernel,
+bias)`` float32 pairs, kernel (n_in, n_out) and bias (n_out,), applied as ``x @ kernel +
+bias`` (Keras' convention).
+
+The same formulas serve the shipped networks (:mod:`sparse_brdf.sources.nbrdf` reads their
+Keras files), the trainer (:mod:`sparse_brdf.model.neural`, which backpropagates through
+:func:`forward`) and the networks' tables (:func:`tabulate`); the Mitsuba plugin's
+evaluator (``mitsuba_plugin.evaluators``) is their Dr.Jit twin.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .coords import MERL_SHAPE, geometric_valid, grid_angles, half_diff_vectors
+
+#: The published architecture's widths: input, two hidden layers, output.
+LAYER_SIZES: tuple[int, ...] = (6, 21, 21, 3)
+#: Its number of weights and biases (675).
+N_WEIGHTS: int = sum(a * b + b for a, b in zip(LAYER_SIZES[:-1], LAYER_SIZES[1:], strict=False))
+
+Layers = list[tuple[np.ndarray, np.ndarray]]
+
+
+def network_inputs(theta_h, theta_d, phi_d) -> np.ndarray:
+    """The network's inputs at angles (radians, any matching shapes; phi_d in [0, pi)).
+
+    Returns
+    -------
+    ndarray of shape (n, 6), float32
+        ``(hx, hy, hz, dx, dy, dz)`` per angle triple, flattened in C order.
+    """
+    h, d = half_diff_vectors(*np.broadcast_arrays(theta_h, theta_d, phi_d))
+    return np.concatenate([h, d], axis=-1).reshape(-1, 6).astype(np.float32)
+
+
+def forward(layers: Layers, x: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
+    """The network's pass on inputs ``x``, keeping what backpropagation needs.
+
+    Parameters
+    ----------
+    layers : list of (kernel, bias)
+        The dense layers, float32.
+    x : ndarray of shape (n, 6), float32
+        Inputs (:func:`network_inputs`).
+
+    Returns
+    -------
+    acts : list of ndarray
+        The input of each layer: ``[x, h1, h2]``, h1 and h2 (n, width) after their ReLU.
+    z : ndarray of shape (n, 3), float32
+        The last layer's output before exp(z) - 1.
+    """
+    acts = [x]
+    h = x
+    for i, (k, b) in enumerate(layers):
+        h = h @ k
+        h += b
+        if i < len(layers) - 1:
+            np.maximum(h, 0.0, out=h)
+            acts.append(h)
+    return acts, h
+
+
+def evaluate(layers: Layers, x: np.ndarray, chunk: int = 1 << 18) -> np.ndarray:
+    """The BRDF values of the network at inputs ``x`` (n, 6): max(exp(z) - 1, 0), (n, 3)
+    float32 linear RGB (1/sr); an overflowing output gives inf. Evaluated ``chunk`` rows
+    at a time."""
+    out = np.empty((x.shape[0], 3), np.float32)
+    for s in range(0, x.shape[0], chunk):
+        _, z = forward(layers, np.asarray(x[s : s + chunk], np.float32))
+        with np.errstate(over="ignore"):  # inf: refused where a BRDF is built from it
+            out[s : s + chunk] = np.maximum(np.expm1(z), 0.0)
+    return out
+
+
+def tabulate(layers: Layers, shape: tuple[int, int, int] = MERL_SHAPE
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """The network on a grid, at the bins' lower-edge angles (as the grid's samples).
+
+    Returns
+    -------
+    values : ndarray of shape (*shape, 3), float32
+        Linear RGB BRDF values; 0 on bins below the horizon.
+    valid : ndarray of ``shape``, bool
+        The bins above the horizon (:func:`~sparse_brdf.coords.geometric_valid`).
+    """
+    valid = geometric_valid(shape)
+    th, td, pd = grid_angles(shape)
+    values = np.zeros((*shape, 3), np.float32)
+    values[valid] = evaluate(layers, network_inputs(th[valid], td[valid], pd[valid]))
+    return values, valid
+
+
+def layers_from_params(params: dict[str, np.ndarray]) -> Layers:
+    """``[(w1, b1), (w2, b2), (w3, b3)]`` from a dict with those keys, as float32."""
+    return [(np.asarray(params[f"w{i}"], np.float32), np.asarray(params[f"b{i}"], np.float32))
+            for i in range(1, len(LAYER_SIZES))]
+
+
+def params_from_layers(layers: Layers) -> dict[str, np.ndarray]:
+    """The inverse of :func:`layers_from_params`: ``{"w1": kernel, "b1": bias, ...}``
+    (float32 copies)."""
+    out = {}
+    for i, (k, b) in enumerate(layers, 1):
+        out[f"w{i}"] = np.array(k, np.float32)
+        out[f"b{i}"] = np.array(b, np.float32)
+    return out
