@@ -29,7 +29,7 @@ from .errors import (
 )
 from .evaluation import fit_images as fit_images_module
 from .evaluation.batch import encode_batch, encode_file, is_batch
-from .evaluation.bench import Bench, BenchConfig, check_config
+from .evaluation.bench import Bench, BenchConfig, check_config, shipped_configs
 from .evaluation.fit_images import fit_images, load_views
 from .evaluation.fit_scene import fit_scene
 from .evaluation.render import (
@@ -694,9 +694,11 @@ def _add_blend_and_bench(sub) -> None:
     bl.set_defaults(func=cmd_blend, coeffs_given=False)
 
     b = sub.add_parser("bench", help="compare models: tables, figures, speed-vs-accuracy chart",
-                       description="Run a bench suite (see benchmarks/*.toml for configs); "
+                       description="Run a bench suite: a built-in config by name ("
+                                   + ", ".join(shipped_configs()) + ") or a TOML file; "
                                    "finished cells are skipped on a re-run.")
-    b.add_argument("config", nargs="?", help="TOML config (default: built-in small suite)")
+    b.add_argument("config", nargs="?",
+                   help="a built-in config's name or a TOML file (default: the small suite)")
     b.add_argument("--out", help="output folder (overrides the config's)")
     b.add_argument("--no-render", action="store_true", help="BRDF-space metrics only")
     b.add_argument("--check", action="store_true",

@@ -6,7 +6,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sparse_brdf.evaluation.bench import Bench, BenchConfig
+from sparse_brdf.errors import MissingDataError
+from sparse_brdf.evaluation.bench import (
+    Bench,
+    BenchConfig,
+    check_config,
+    evaluated_materials,
+    find_config,
+    training_materials,
+)
 from sparse_brdf.evaluation.report import pareto
 from sparse_brdf.model.encode import ENCODE_OPTIONS
 from sparse_brdf.model.specs import make_model
@@ -150,3 +158,22 @@ def test_results_of_another_ensemble_or_encoder_are_not_reused(tmp_path, small_e
     assert again.results["provenance"] == {"ensemble": small_ensemble.id,
                                            "encoder_defaults": dict(ENCODE_OPTIONS),
                                            "sbrdf_version": 2}
+
+
+@pytest.mark.parametrize("name", sorted(p.stem for p in
+                                        (ROOT / "sparse_brdf" / "data" / "configs").glob("*.toml")))
+def test_every_shipped_config_checks(name):
+    """Every shipped config loads and passes ``bench NAME --check`` (models, corpora,
+    training materials, scenes); one that needs ../shared/data skips where it is absent."""
+    cfg = BenchConfig.load(find_config(name))
+    try:
+        plan = check_config(cfg)
+    except MissingDataError as exc:
+        pytest.skip(f"{name}: {exc}")
+    assert plan["materials"] > 0 and plan["models"]
+    if any(m.startswith("pca") for m in plan["models"]):  # never trained on what is scored
+        evaluated = evaluated_materials(cfg)
+        keys = {(m.corpus, m.name) for m in evaluated}
+        train = training_materials(cfg, evaluated)
+        assert len(train) == plan["training"] >= 2
+        assert not keys & {(m.corpus, m.name) for m in train}
