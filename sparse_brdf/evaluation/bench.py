@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import itertools
 import json
 import os
 import shutil
@@ -216,11 +217,12 @@ def evaluated_materials(cfg: BenchConfig) -> list:
 def training_materials(cfg: BenchConfig, evaluated) -> list:
     """Training materials for learned models: the corpora's training splits, minus every
     evaluated material (a model never sees what it is scored on), at most
-    ``pca_train_max``."""
+    ``pca_train_max``, taken in turn from each corpus (the first of each, then the
+    second, ...) so that a capped set still draws on every corpus."""
     seen = {_key(m) for m in evaluated}
-    train = []
-    for c in cfg.corpora:
-        train += [m for m in get_corpus(c).split("train") if _key(m) not in seen]
+    per_corpus = [[m for m in get_corpus(c).split("train") if _key(m) not in seen]
+                  for c in cfg.corpora]
+    train = [m for rank in itertools.zip_longest(*per_corpus) for m in rank if m is not None]
     return train[: cfg.pca_train_max]
 
 
