@@ -16,6 +16,7 @@ decode/render -> evaluate.
 from .brdf import BRDF
 from .errors import BRDFFileError, EnsembleMismatchError, InvalidBRDFError, SparseBRDFError
 from .metrics import SNRForms, cosine_weighted_snr, gamma_mse, rae, render_snr, snr_forms
+from .model.acquire import encode_samples
 from .model.budget import encode_to_bytes
 from .model.encode import DEFAULT_N_COEFFS, ENCODE_OPTIONS, PAPER_OPTIONS, encode
 from .model.ensemble import Ensemble
@@ -23,10 +24,13 @@ from .model.interpolate import interpolate
 from .model.sbrdf import decode_file, load_sbrdf, save_sbrdf
 from .model.sparse import SparseBRDF
 from .model.train import train_dictionaries, train_ensemble
+from .samples import Samples
 from .sources.catalog import mitsuba_catalog
 from .sources.corpora import Corpus, Material, get_corpus, list_corpora
 from .sources.load import load_brdf
 from .sources.merl import read_merl, write_merl
+from .sources.samples import plan as plan_samples
+from .sources.samples import read_samples, write_samples
 from .transforms import TRANSFORMS
 from .transforms import forward as transform
 from .transforms import inverse as inverse_transform
@@ -36,11 +40,12 @@ __version__ = "0.1.0"
 __all__ = [
     "BRDF", "BRDFFileError", "Corpus", "DEFAULT_N_COEFFS", "ENCODE_OPTIONS", "Ensemble",
     "EnsembleMismatchError", "PAPER_OPTIONS",
-    "InvalidBRDFError", "Material", "SNRForms", "SparseBRDF", "SparseBRDFError", "TRANSFORMS",
-    "cosine_weighted_snr", "decode_file", "encode", "encode_to_bytes", "gamma_mse",
+    "InvalidBRDFError", "Material", "SNRForms", "Samples", "SparseBRDF", "SparseBRDFError",
+    "TRANSFORMS", "cosine_weighted_snr", "decode_file", "encode", "encode_samples",
+    "encode_to_bytes", "gamma_mse",
     "get_corpus",
     "interpolate", "inverse_transform", "list_corpora", "load_brdf", "load_sbrdf",
-    "mitsuba_catalog", "rae",
+    "mitsuba_catalog", "plan_samples", "rae", "read_samples",
     "read_merl", "render_snr", "save_sbrdf", "snr_forms", "train_dictionaries", "train_ensemble",
-    "transform", "write_merl",
+    "transform", "write_merl", "write_samples",
 ]

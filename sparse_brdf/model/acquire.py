@@ -1,0 +1,470 @@
+"""Encoding from samples: a sparse BRDF from a few measured direction pairs
+(``docs/method.md``, "Encoding from samples").
+
+Per coded channel the model is y(x) = sum_t s_t U1[x_h, a_t] U2[x_d, b_t] U3[x_p, c_t],
+the atoms interpolated linearly between the bins' lower-edge samples along each mode
+(:func:`sparse_brdf.coords.linear_bins`, the plugins' ``interpolate=true`` lookup). At N
+samples this is y = A s with a sensing matrix A of N rows and one column per coefficient
+of a dictionary; it is never formed. ``A s`` on a support is a product of gathered atom
+rows; the adjoint ``A^T r`` scatters the residual onto the grid with the interpolation
+weights and projects that tensor on the dictionary (one full projection).
+
+Recovery is greedy (stagewise orthogonal matching pursuit): the atoms of largest
+normalised correlation with the residual join the support in batches, and the values on
+the support are the (slightly ridged) least squares fit to the samples. The path of
+support sizes is scored on held-out samples (K-fold cross-validation), which picks the
+size per channel, the dictionary among the candidates a screening keeps, and the
+transform. The full table is never used.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..coords import linear_bins
+from ..errors import UsageError
+from ..parallel import parallel_map
+from ..params import SEED, Interval, check
+from ..samples import Samples
+from ..transforms import COS_CLIP, TRANSFORMS, check_transform, colour_matrix, from_basis
+from .budget import PARAMETERS as BUDGET
+from .budget import fit_bytes
+from .encode import DEFAULT_N_COEFFS, ENCODE_OPTIONS, project_pruned, select
+from .ensemble import Ensemble, resolve_ensemble
+from .sparse import SparseBRDF
+from .tensor import top_k
+
+#: Every parameter of :func:`encode_samples` a user sets, declared once.
+PARAMETERS = {
+    "n_coeffs": Interval(int, 1),
+    "transform": ("auto", *TRANSFORMS),
+    "folds": Interval(int, 2, 20),
+    "candidates": Interval(int, 1, 64),
+    "seed": SEED,
+}
+#: Folds of the cross-validation unless told otherwise.
+DEFAULT_FOLDS = 4
+#: Dictionaries per channel the screening keeps for cross-validation.
+DEFAULT_CANDIDATES = 2
+#: Support sizes of the greedy path: the first stage, and the growth factor per stage.
+FIRST_STAGE, GROWTH = 4, 2.0
+#: Largest support as a fraction of the training samples of a fit.
+MAX_SUPPORT_FRACTION = 0.5
+#: Ridge of each least-squares fit, relative to a column's mean squared norm over the
+#: dictionary (the summed weights over the grid's bins): well-sampled coefficients shrink
+#: by about this fraction, atoms the samples barely see are held near zero.
+RIDGE = 1e-2
+
+
+# ---------------------------------------------------------------- the sampling operator
+
+
+@dataclass
+class Operator:
+    """The sampling operator of N samples on a grid: each sample's 8 neighbouring grid
+    samples and their trilinear weights (``flat``, ``w8``: (N, 8)), and per mode the
+    interpolation (i0, i1, t) of :func:`~sparse_brdf.coords.linear_bins`."""
+
+    shape: tuple[int, int, int]
+    lin: tuple
+    flat: np.ndarray
+    w8: np.ndarray
+
+    @classmethod
+    def of(cls, wi: np.ndarray, wo: np.ndarray, shape: tuple[int, int, int]) -> Operator:
+        lin = linear_bins(wi, wo, shape)
+        n2, n3 = shape[1], shape[2]
+        flat, w8 = [], []
+        for ei in (0, 1):
+            for ej in (0, 1):
+                for ek in (0, 1):
+                    (i, ti), (j, tj), (k, tk) = ((m[e], m[2]) for m, e in zip(
+                        lin, (ei, ej, ek), strict=True))
+                    flat.append((i * n2 + j) * n3 + k)
+                    w8.append((ti if ei else 1 - ti) * (tj if ej else 1 - tj)
+                              * (tk if ek else 1 - tk))
+        return cls(tuple(shape), lin, np.stack(flat, 1), np.stack(w8, 1))
+
+    def rows(self, u: np.ndarray, mode: int, rows=slice(None)) -> np.ndarray:
+        """The atoms of mode matrix ``u`` (n, n) interpolated at the samples ``rows``:
+        (N, n) float32."""
+        i0, i1, t = (a[rows] for a in self.lin[mode])
+        t = t[:, None].astype(np.float32)
+        return (1 - t) * u[i0] + t * u[i1]
+
+    def scatter(self, r: np.ndarray, rows=slice(None)) -> np.ndarray:
+        """The adjoint of the interpolation: sample values ``r`` of ``rows`` spread onto the
+        grid with their trilinear weights, float32 (n1, n2, n3)."""
+        flat, w = self.flat[rows], self.w8[rows]
+        g = np.bincount(flat.ravel(), (w * np.asarray(r, np.float64)[:, None]).ravel(),
+                        minlength=math.prod(self.shape))
+        return g.astype(np.float32).reshape(self.shape)
+
+
+def project(g: np.ndarray, u1: np.ndarray, u2: np.ndarray, u3: np.ndarray) -> np.ndarray:
+    """g x1 U1^T x2 U2^T x3 U3^T of a tensor g (n1, n2, n3), float32: three large matrix
+    products (the coefficients of ``tensor.project``, with mode 2 done as one product on a
+    transposed copy rather than n1 small ones)."""
+    n1, n2, n3 = g.shape
+    t = (g.reshape(n1 * n2, n3) @ u3).reshape(n1, n2 * n3)
+    t = (u1.T @ t).reshape(n1, n2, n3).transpose(1, 0, 2).reshape(n2, n1 * n3)
+    return (u2.T @ t).reshape(n2, n1, n3).transpose(1, 0, 2)
+
+
+class _Atoms:
+    """One dictionary seen through an operator: interpolated atom rows of every sample,
+    the columns of the sensing matrix on a support, and the adjoint."""
+
+    def __init__(self, op: Operator, u) -> None:
+        self.op, self.u = op, u
+        self.r = [op.rows(u[m], m) for m in range(3)]
+        self.sq = [np.square(m) for m in u]
+
+    def columns(self, loc: np.ndarray, rows) -> np.ndarray:
+        a, b, c = np.unravel_index(loc, self.op.shape)
+        return self.r[0][rows][:, a] * self.r[1][rows][:, b] * self.r[2][rows][:, c]
+
+    def correlate(self, res: np.ndarray, rows) -> np.ndarray:
+        return project(self.op.scatter(res, rows), *self.u).ravel()
+
+    def norms(self, w: np.ndarray, rows) -> np.ndarray:
+        """Approximate column norms: sqrt(sum_s w_s prod_m R_m[s]^2), each squared
+        interpolated atom replaced by the interpolated squares (an upper bound, exact at
+        the grid's samples)."""
+        return np.sqrt(np.maximum(project(self.op.scatter(w, rows), *self.sq).ravel(), 0))
+
+
+# ------------------------------------------------------------------ the greedy path
+
+
+def stage_sizes(t_max: int) -> list[int]:
+    """Support sizes of the greedy path up to ``t_max``: FIRST_STAGE, then x GROWTH."""
+    sizes, t = [], FIRST_STAGE
+    while t < t_max:
+        sizes.append(t)
+        t = max(t + 1, int(math.ceil(t * GROWTH)))
+    return [*sizes, t_max] if t_max > 0 else []
+
+
+@dataclass
+class Path:
+    """A greedy path: the support in the order it grew, the values after each stage
+    (``values[j]`` on ``support[:sizes[j]]``) and, when held-out rows were given, the
+    predictions at them, (N_hold, stages)."""
+
+    sizes: list[int]
+    support: np.ndarray
+    values: list[np.ndarray]
+    held_out: np.ndarray | None = None
+
+
+def _solve(gram: np.ndarray, rhs: np.ndarray, lam: float) -> np.ndarray:
+    """The ridged least-squares values from the Gram matrix and A^T W y."""
+    n = gram.shape[0]
+    try:
+        c = np.linalg.cholesky(gram + lam * np.eye(n))
+        return np.linalg.solve(c.T, np.linalg.solve(c, rhs))
+    except np.linalg.LinAlgError:
+        return np.linalg.lstsq(gram + lam * np.eye(n), rhs, rcond=None)[0]
+
+
+def greedy_path(atoms: _Atoms, y: np.ndarray, w: np.ndarray, train: np.ndarray,
+                sizes: list[int], hold: np.ndarray | None = None) -> Path:
+    """Stagewise OMP on the samples ``train`` (row indices): at each stage the atoms of
+    largest |A^T W r| / ||column|| join until the support has ``sizes[j]`` atoms, then the
+    values on the support are refitted (ridged least squares, the Gram matrix grown
+    column block by column block)."""
+    yt, wt = y[train], w[train]
+    norms = atoms.norms(wt, train)
+    mean_sq = float(np.sum(wt)) / norms.size  # a column's mean squared norm
+    norms = np.sqrt(norms * norms + mean_sq)  # a soft floor: no atom wins by being unseen
+    lam = RIDGE * mean_sq
+    support = np.zeros(0, np.int64)
+    cols = np.zeros((train.size, 0), np.float32)
+    gram = np.zeros((0, 0))
+    rhs = np.zeros(0)
+    values, x = [], np.zeros(0)
+    res = yt.copy()
+    for size in sizes:
+        score = np.abs(atoms.correlate(wt * res, train)) / norms
+        score[support] = -1.0
+        new = top_k(score, size - support.size)
+        new = new[score[new] > 0]
+        if new.size:
+            nc = atoms.columns(new, train)
+            wn = nc * wt[:, None].astype(np.float32)
+            cross = (cols.T @ wn).astype(np.float64)
+            gram = np.block([[gram, cross], [cross.T, (nc.T @ wn).astype(np.float64)]])
+            rhs = np.concatenate([rhs, wn.T.astype(np.float64) @ yt])
+            cols = np.concatenate([cols, nc], axis=1)
+            support = np.concatenate([support, new])
+            x = _solve(gram, rhs, lam)
+            res = yt - cols.astype(np.float64) @ x
+        values.append(np.pad(x, (0, 0)))
+    pred = None
+    if hold is not None and hold.size:
+        hc = atoms.columns(support, hold).astype(np.float64)
+        pred = np.stack([hc[:, :v.size] @ v for v in values], 1)
+    return Path(sizes, support, values, pred)
+
+
+# ------------------------------------------------------- transforms at the samples
+
+
+def sample_weight(samples: Samples, transform: str) -> np.ndarray:
+    """The transform's weight c at each sample, (N,): clip(cos_i cos_o, 0.01, 1) at the
+    sample's own directions for ``log-plus-cosine`` (the value the dictionaries code is
+    ln(rho c + 1), smooth between the bins' samples), 1 for ``log-plus``."""
+    if check_transform(transform) == "log-plus":
+        return np.ones(len(samples))
+    return np.clip(samples.wi[:, 2] * samples.wo[:, 2], *COS_CLIP)
+
+
+def coded_values(samples: Samples, transform: str, basis: str) -> np.ndarray:
+    """The coded channels at the samples, (3, N) float64: the colour basis of the
+    transformed R, G, B (``transforms.forward`` at each sample's own weight)."""
+    t = np.log1p(samples.rgb * sample_weight(samples, transform)[:, None])
+    return colour_matrix(basis) @ t.T
+
+
+def linear_values(coded: np.ndarray, samples: Samples, transform: str,
+                  basis: str) -> np.ndarray:
+    """Inverse of :func:`coded_values`: linear RGB (N, 3) from coded channels (3, N),
+    clamped >= 0."""
+    t = from_basis(coded.astype(np.float32), basis).T.astype(np.float64)
+    with np.errstate(over="ignore"):
+        rho = np.expm1(t) / sample_weight(samples, transform)[:, None]
+    return np.clip(rho, 0.0, np.finfo(np.float32).max)
+
+
+def cosine_error(samples: Samples, rows: np.ndarray, rgb: np.ndarray) -> float:
+    """Weighted squared error of predicted linear RGB ``rgb`` (len(rows), 3) at the samples
+    ``rows``, each weighted by (cos_i cos_o)^2 (the cosine-weighted SNR's error,
+    ``metrics.cosine_weighted_snr``, at the samples)."""
+    c = samples.wi[rows, 2] * samples.wo[rows, 2]
+    d = (rgb - samples.rgb[rows]) * c[:, None]
+    return float(np.sum(samples.weight[rows][:, None] * d * d))
+
+
+# --------------------------------------------------------- screening and selection
+
+
+def screen(op: Operator, y: np.ndarray, w: np.ndarray, ens: Ensemble, transform: str,
+           n: int, keep: int) -> list[list[int]]:
+    """Per coded channel, up to ``keep`` dictionaries to cross-validate: those whose ``n``
+    largest coefficients of the back-projection A^T W y (the samples scattered onto the
+    grid, ``Operator.scatter``) keep the most energy, as the full-table encoder chooses
+    (the pruned search of ``encode.project_pruned``; with the full table this is exactly
+    its selection)."""
+    g = np.stack([op.scatter(w * y[c]) for c in range(3)])
+    p = project_pruned(None, ens, transform, n, y=g)
+    out = []
+    for c in range(3):
+        res = p.residual[c, :, min(n, p.residual.shape[2]) - 1]
+        order = [int(k) for k in np.argsort(res, kind="stable") if np.isfinite(res[k])]
+        best = int(select(p, n).dict_index[c])
+        out.append([best] + [k for k in order if k != best][:keep - 1])
+    return out
+
+
+def fold_of(n: int, folds: int, seed: int) -> np.ndarray:
+    """The fold (0 .. folds - 1) of each of ``n`` samples: a seeded balanced shuffle."""
+    rng = np.random.default_rng(seed)
+    return rng.permutation(np.arange(n) % folds)
+
+
+@dataclass
+class _Choice:
+    """A channel's cross-validated choice: dictionary, support size, CV error, the CV error
+    at every size of the path (``curve`` at ``sizes``, from size 0) and the held-out
+    predictions at every size, (N, stages + 1): every sample predicted by the fold that
+    held it out."""
+
+    dictionary: int
+    size: int
+    error: float
+    curve: list[float]
+    sizes: list[int]
+    predicted: np.ndarray
+
+
+def cross_validate(atoms: _Atoms, y: np.ndarray, w: np.ndarray, fold: np.ndarray,
+                   t_max: int) -> tuple[list[int], np.ndarray, np.ndarray]:
+    """The greedy path fitted on all folds but one, for each fold: the path's sizes, the
+    held-out squared error at each size (summed over the folds) and the held-out
+    predictions at each size, (N, stages)."""
+    folds = int(fold.max()) + 1
+    sizes = stage_sizes(t_max)
+    pred = np.zeros((y.size, len(sizes)))
+
+    def one(f):
+        return greedy_path(atoms, y, w, np.flatnonzero(fold != f), sizes,
+                           np.flatnonzero(fold == f))
+
+    for f, path in enumerate(parallel_map(one, range(folds))):
+        hold = np.flatnonzero(fold == f)
+        pred[hold] = path.held_out
+    err = np.sum(w[:, None] * (pred - y[:, None]) ** 2, axis=0)
+    return sizes, err, pred
+
+
+def _channel(op: Operator, ens: Ensemble, dicts: list[int], y: np.ndarray, w: np.ndarray,
+             fold: np.ndarray, t_max: int) -> _Choice:
+    """The best (dictionary, support size) of one coded channel by cross-validation; size 0
+    (the channel left empty) is a candidate too."""
+    zero = float(np.sum(w * y * y))
+    best = _Choice(dicts[0], 0, zero, [zero], [0], np.zeros((y.size, 1)))
+    if zero == 0.0 or t_max < 1:
+        return best
+    for k in dicts:
+        sizes, err, pred = cross_validate(_Atoms(op, ens.dictionary(k)), y, w, fold, t_max)
+        j = int(np.argmin(err))
+        if err[j] < best.error:
+            best = _Choice(k, sizes[j], float(err[j]), [zero, *map(float, err)],
+                           [0, *sizes], np.concatenate([np.zeros((y.size, 1)), pred], 1))
+    return best
+
+
+def _trim(choices: list[_Choice], cap: int) -> list[int]:
+    """Support sizes per channel within a joint budget of ``cap`` coefficients: while the
+    total is over, the channel losing least held-out error per coefficient steps back
+    along its path."""
+    idx = [ch.sizes.index(ch.size) for ch in choices]
+    while sum(ch.sizes[i] for ch, i in zip(choices, idx, strict=True)) > cap:
+        cost = [((ch.curve[i - 1] - ch.curve[i]) / (ch.sizes[i] - ch.sizes[i - 1]))
+                if i > 0 else np.inf for ch, i in zip(choices, idx, strict=True)]
+        idx[int(np.argmin(cost))] -= 1
+    return idx
+
+
+def _fit_transform(samples: Samples, op: Operator, ens: Ensemble, transform: str,
+                   basis: str, n: int, fold: np.ndarray, candidates: int) -> dict:
+    """Cross-validate one transform: each channel's dictionary and size, the joint budget,
+    and the held-out cosine-weighted error of the three channels together."""
+    y = coded_values(samples, transform, basis)
+    w = samples.weight
+    n_train = int(np.sum(fold != 0))
+    t_max = max(0, min(3 * n, int(MAX_SUPPORT_FRACTION * n_train)))
+    cands = screen(op, y, w, ens, transform, max(t_max, 1), candidates)
+    choices = [_channel(op, ens, cands[c], y[c], w, fold, t_max) for c in range(3)]
+    idx = _trim(choices, 3 * n)
+    pred = np.zeros_like(y)
+    for c, (ch, i) in enumerate(zip(choices, idx, strict=True)):
+        ch.size, ch.error = ch.sizes[i], ch.curve[i]
+        pred[c] = ch.predicted[:, i]
+    rgb = linear_values(pred, samples, transform, basis)
+    all_rows = np.arange(len(samples))
+    return {"choices": choices, "cv_error": cosine_error(samples, all_rows, rgb), "y": y}
+
+
+def encode_samples(samples: Samples, ensemble: Ensemble | str | None = None,
+                   n_coeffs: int = DEFAULT_N_COEFFS, n_bytes: int | None = None,
+                   transform: str = "auto", folds: int = DEFAULT_FOLDS,
+                   candidates: int = DEFAULT_CANDIDATES, seed: int = 0) -> SparseBRDF:
+    """Encode measured samples as a :class:`SparseBRDF` over ``ensemble`` (compressed
+    sensing with the ensemble's separable dictionaries; ``docs/method.md``, "Encoding
+    from samples").
+
+    Per coded channel (the encoder's opponent colour basis of the transformed R, G, B),
+    the coefficients are found by greedy sparse recovery (stagewise orthogonal matching
+    pursuit with least-squares refits) through the sampling operator, whose atoms are
+    interpolated linearly between the bins' lower-edge samples, so samples may lie
+    anywhere. The support size of each channel, its dictionary (among ``candidates``
+    that a screening keeps) and the transform are chosen by ``folds``-fold
+    cross-validation on held-out samples; the full table is never used. The result is an
+    ordinary model: ``save_sbrdf``, ``decode``, ``blend`` and the plugins read it.
+
+    Parameters
+    ----------
+    samples : Samples
+        N measurements: unit directions ``wi``, ``wo`` (N, 3) in the local frame (z up),
+        linear RGB values (N, 3) in 1/sr, weights (N,) (``sparse_brdf.read_samples``
+        reads them from a CSV or ``.npz`` file).
+    ensemble : Ensemble, path or id, optional
+        The dictionaries; default the shipped default ensemble.
+    n_coeffs : int
+        Coefficients per channel at most, spent as a joint budget of 3 ``n_coeffs`` over
+        the channels; fewer when held-out samples say more would overfit (at most half
+        the training samples of a fold per channel).
+    n_bytes : int, optional
+        A byte budget for the ``.sbrdf`` file instead: the largest coefficients over the
+        channels that fit (``encode_to_bytes``'s rule).
+    transform : str
+        ``"auto"`` (the one of smaller held-out error), ``"log-plus"`` or
+        ``"log-plus-cosine"``.
+    folds : int
+        Folds of the cross-validation (2 to 20).
+    candidates : int
+        Dictionaries per channel compared by cross-validation (1 to 64).
+    seed : int
+        Seed of the folds: the result is the same for the same seed.
+
+    Returns
+    -------
+    SparseBRDF
+        The model; ``stats`` holds per transform the held-out cosine-weighted error, per
+        channel the dictionary, size and cross-validation curve, and the seconds taken.
+
+    Raises
+    ------
+    UsageError
+        For an option out of its range, or fewer samples than folds.
+    EnsembleMismatchError
+        For an ensemble that cannot be resolved.
+    """
+    t0 = time.perf_counter()
+    ens = resolve_ensemble(ensemble)
+    n = min(check("n_coeffs", n_coeffs, PARAMETERS["n_coeffs"]), math.prod(ens.shape))
+    check("folds", folds, PARAMETERS["folds"])
+    check("candidates", candidates, PARAMETERS["candidates"])
+    check("seed", seed, PARAMETERS["seed"])
+    names = TRANSFORMS if transform == "auto" else (check_transform(transform),)
+    if not isinstance(samples, Samples):
+        raise UsageError(f"encode_samples: expected Samples, got {type(samples).__name__} "
+                         "(read a file with sparse_brdf.read_samples)")
+    if len(samples) < folds:
+        raise UsageError(f"{samples.source or samples.name}: {len(samples)} samples, fewer "
+                         f"than the {folds} folds of the cross-validation")
+    basis = ENCODE_OPTIONS["basis"]
+    op = Operator.of(samples.wi, samples.wo, ens.shape)
+    fold = fold_of(len(samples), folds, seed)
+    fits = {t: _fit_transform(samples, op, ens, t, basis, n, fold, candidates) for t in names}
+    chosen = min(fits, key=lambda t: fits[t]["cv_error"])
+    model = _final(samples, op, ens, chosen, basis, fits[chosen])
+    model.stats = {
+        "chosen": chosen, "samples": len(samples), "folds": folds,
+        "transforms": {t: {"cv_cosine_error": f["cv_error"],
+                           "channels": [{"dictionary": ch.dictionary, "size": ch.size,
+                                         "sizes": ch.sizes, "cv_error": ch.curve}
+                                        for ch in f["choices"]]}
+                       for t, f in fits.items()}}
+    if n_bytes is not None:
+        model = fit_bytes(model, check("n_bytes", n_bytes, BUDGET["n_bytes"]))
+    model.stats["seconds"] = time.perf_counter() - t0
+    return model
+
+
+def _final(samples: Samples, op: Operator, ens: Ensemble, transform: str, basis: str,
+           fit: dict) -> SparseBRDF:
+    """The chosen channels refitted on every sample, along the same path to the size
+    cross-validation chose."""
+    y, w, rows = fit["y"], samples.weight, np.arange(len(samples))
+
+    def one(c):
+        ch = fit["choices"][c]
+        if ch.size == 0:
+            return np.zeros(0, np.int64), np.zeros(0, np.float32)
+        sizes = ch.sizes[1:ch.sizes.index(ch.size) + 1]
+        path = greedy_path(_Atoms(op, ens.dictionary(ch.dictionary)), y[c], w, rows, sizes)
+        v = path.values[-1]
+        order = np.argsort(-np.abs(v), kind="stable")
+        return path.support[:v.size][order], v[order].astype(np.float32)
+
+    out = list(parallel_map(one, range(3)))
+    return SparseBRDF(transform, ens.shape, ens.id, [ch.dictionary for ch in fit["choices"]],
+                      [a for a, _ in out], [v for _, v in out], name=samples.name,
+                      basis=basis)
