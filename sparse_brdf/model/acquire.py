@@ -33,7 +33,7 @@ from ..samples import Samples
 from ..transforms import COS_CLIP, TRANSFORMS, check_transform, colour_matrix, from_basis
 from .budget import PARAMETERS as BUDGET
 from .budget import fit_bytes
-from .encode import DEFAULT_N_COEFFS, ENCODE_OPTIONS, project_pruned, select
+from .encode import DEFAULT_N_COEFFS, ENCODE_OPTIONS
 from .ensemble import Ensemble, resolve_ensemble
 from .sparse import SparseBRDF
 from .tensor import top_k
@@ -253,22 +253,22 @@ def cosine_error(samples: Samples, rows: np.ndarray, rgb: np.ndarray) -> float:
 # --------------------------------------------------------- screening and selection
 
 
-def screen(op: Operator, y: np.ndarray, w: np.ndarray, ens: Ensemble, transform: str,
-           n: int, keep: int) -> list[list[int]]:
-    """Per coded channel, up to ``keep`` dictionaries to cross-validate: those whose ``n``
+def screen(op: Operator, y: np.ndarray, w: np.ndarray, ens: Ensemble, n: int,
+           keep: int) -> list[list[int]]:
+    """Per coded channel, the ``keep`` dictionaries to cross-validate: those whose ``n``
     largest coefficients of the back-projection A^T W y (the samples scattered onto the
-    grid, ``Operator.scatter``) keep the most energy, as the full-table encoder chooses
-    (the pruned search of ``encode.project_pruned``; with the full table this is exactly
-    its selection)."""
-    g = np.stack([op.scatter(w * y[c]) for c in range(3)])
-    p = project_pruned(None, ens, transform, n, y=g)
-    out = []
-    for c in range(3):
-        res = p.residual[c, :, min(n, p.residual.shape[2]) - 1]
-        order = [int(k) for k in np.argsort(res, kind="stable") if np.isfinite(res[k])]
-        best = int(select(p, n).dict_index[c])
-        out.append([best] + [k for k in order if k != best][:keep - 1])
-    return out
+    grid, ``Operator.scatter``, projected on the dictionary) keep the most energy, the
+    full-table encoder's rule (with every bin sampled, A^T y is the coefficients)."""
+    g = [op.scatter(w * y[c]) for c in range(3)]
+
+    def kept(task):
+        c, k = task
+        e = np.square(project(g[c], *ens.dictionary(k)).ravel())
+        return float(np.sum(e[top_k(e, n)], dtype=np.float64))
+
+    tasks = [(c, k) for c in range(3) for k in range(ens.n_dicts)]
+    energy = np.array(list(parallel_map(kept, tasks))).reshape(3, ens.n_dicts)
+    return [[int(k) for k in np.argsort(-energy[c], kind="stable")[:keep]] for c in range(3)]
 
 
 def fold_of(n: int, folds: int, seed: int) -> np.ndarray:
@@ -349,7 +349,7 @@ def _fit_transform(samples: Samples, op: Operator, ens: Ensemble, transform: str
     w = samples.weight
     n_train = int(np.sum(fold != 0))
     t_max = max(0, min(3 * n, int(MAX_SUPPORT_FRACTION * n_train)))
-    cands = screen(op, y, w, ens, transform, max(t_max, 1), candidates)
+    cands = screen(op, y, w, ens, max(t_max, 1), candidates)
     choices = [_channel(op, ens, cands[c], y[c], w, fold, t_max) for c in range(3)]
     idx = _trim(choices, 3 * n)
     pred = np.zeros_like(y)

@@ -146,7 +146,7 @@ def project_all(brdf: BRDF, ens: Ensemble, transform: str, max_coeffs: int,
         norms=norms)
 
 
-def project_pruned(brdf: BRDF | None, ens: Ensemble, transform: str, n_coeffs: int,
+def project_pruned(brdf: BRDF, ens: Ensemble, transform: str, n_coeffs: int,
                    max_error: float | None = None,
                    y: np.ndarray | None = None) -> Projections:
     """:func:`project_all`, skipping dictionaries that provably cannot be selected.
@@ -156,8 +156,7 @@ def project_pruned(brdf: BRDF | None, ens: Ensemble, transform: str, n_coeffs: i
     slice along phi_d, the slices of largest energy first, and a dictionary is dropped
     once the coefficients computed so far prove it cannot be selected (the pruned
     projection, :mod:`~sparse_brdf.model.pruning`); the survivors are completed, so their
-    coefficients are exact. ``brdf`` may be None when ``y`` is given (a tensor that is no
-    material's own, e.g. samples scattered onto the grid).
+    coefficients are exact.
     """
     if y is None:
         y = forward(brdf.channel_first(), check_transform(transform), brdf.valid)
@@ -200,7 +199,7 @@ def project_pruned(brdf: BRDF | None, ens: Ensemble, transform: str, n_coeffs: i
         e = val.astype(np.float32) ** 2
         idx_out[c][k], val_out[c][k] = idx, val
         residual[c, k, :idx.size] = norms[c] - np.cumsum(e, dtype=np.float64)
-    return Projections(transform, (n1, n2, n3), ens.id, idx=idx_out, val=val_out,
+    return Projections(transform, brdf.shape, ens.id, idx=idx_out, val=val_out,
                        residual=residual, norms=norms, exact_for=(n_coeffs, max_error))
 
 

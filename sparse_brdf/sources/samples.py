@@ -10,7 +10,8 @@
   coordinates: theta_h on its square-root scale, so dense near the specular peak where
   the atoms vary fastest, theta_d and phi_d uniform) and ``bins`` (random valid bins at
   their lower-edge angles, the grid's sample positions). Each pair is rotated by a random
-  phi_h, as a measurement would be.
+  phi_h, as a measurement would be (``bins`` keeps one pair of the degenerate bins at
+  theta_d = 0, where every phi_d is the same pair).
 - Simulated measurements: :func:`measure_table` (a tabulated BRDF at the pairs' bins),
   :func:`measure_nbrdf` (a Neural-BRDF network at the pairs themselves), :func:`add_noise`.
 """
@@ -31,9 +32,9 @@ from ..coords import (
     bin_angles,
     cos_io,
     dirs_to_angles,
-    dirs_to_bins,
     geometric_valid,
     half_diff_vectors,
+    linear_bins,
 )
 from ..errors import BRDFFileError, UsageError
 from ..fileio import atomic_write, require_file
@@ -169,8 +170,13 @@ def write_samples(path: str | os.PathLike, samples: Samples) -> Path:
 
 
 def _rotate(wi: np.ndarray, wo: np.ndarray, rng: np.random.Generator):
-    """Both directions of each pair rotated about the normal by one random angle."""
+    """Both directions of each pair rotated about the normal by one random angle; pairs
+    whose half vector is the normal are left as they are (their phi_h is undefined, so a
+    rotation would move phi_d instead: the same value for an isotropic BRDF, another bin
+    of a table)."""
     a = rng.uniform(0.0, 2 * np.pi, wi.shape[0])
+    h = wi + wo
+    a = np.where(np.hypot(h[:, 0], h[:, 1]) <= 1e-12 * np.linalg.norm(h, axis=1), 0.0, a)
     c, s = np.cos(a), np.sin(a)
 
     def rot(v):
@@ -203,7 +209,11 @@ def _stratified(n: int, shape: tuple[int, int, int], rng: np.random.Generator):
 
 
 def _bins(n: int, shape: tuple[int, int, int], rng: np.random.Generator):
-    valid = np.flatnonzero(geometric_valid(shape).ravel())
+    """Random valid bins at their lower-edge angles; of the bins at theta_d = 0 (wi = wo,
+    the same pair at every phi_d) only phi_d = 0."""
+    ok = geometric_valid(shape)
+    ok[:, 0, 1:] = False
+    valid = np.flatnonzero(ok.ravel())
     pick = rng.choice(valid, size=min(n, valid.size), replace=False)
     i, j, k = np.unravel_index(pick, shape)
     th, td, pd = bin_angles(shape)
@@ -251,7 +261,9 @@ def plan(n: int, placement: str = "stratified", seed: int = 0,
 
 def measure_table(brdf: BRDF, wi: np.ndarray, wo: np.ndarray) -> Samples:
     """A tabulated BRDF's values at direction pairs: each pair's bin (the grid's lookup),
-    as measured samples (exact at the bins' lower-edge angles, ``plan(placement="bins")``).
+    as measured samples (exact at the bins' lower-edge angles, ``plan(placement="bins")``:
+    a pair within 1e-6 of a bin's lower edge, in grid units, belongs to that bin, so that
+    rounding in the angles does not move it to the bin below).
 
     Parameters
     ----------
@@ -265,7 +277,7 @@ def measure_table(brdf: BRDF, wi: np.ndarray, wo: np.ndarray) -> Samples:
     Samples
         The pairs with the table's values, named after the material.
     """
-    b = dirs_to_bins(wi, wo, brdf.shape)
+    b = tuple(np.where(t > 1.0 - 1e-6, i1, i0) for i0, i1, t in linear_bins(wi, wo, brdf.shape))
     return Samples(wi, wo, brdf.values[b].astype(np.float64), name=brdf.name,
                    source=brdf.source)
 
