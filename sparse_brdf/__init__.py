@@ -15,8 +15,8 @@ decode/render -> evaluate.
 
 from .brdf import BRDF
 from .errors import BRDFFileError, EnsembleMismatchError, InvalidBRDFError, SparseBRDFError
+from .evaluation.acquisition import encode_samples, pca_from_samples
 from .metrics import SNRForms, cosine_weighted_snr, gamma_mse, rae, render_snr, snr_forms
-from .model.acquire import encode_samples
 from .model.budget import encode_to_bytes
 from .model.encode import DEFAULT_N_COEFFS, ENCODE_OPTIONS, PAPER_OPTIONS, encode
 from .model.ensemble import Ensemble
@@ -45,7 +45,7 @@ __all__ = [
     "encode_to_bytes", "gamma_mse",
     "get_corpus",
     "interpolate", "inverse_transform", "list_corpora", "load_brdf", "load_sbrdf",
-    "mitsuba_catalog", "plan_samples", "rae", "read_samples",
+    "mitsuba_catalog", "pca_from_samples", "plan_samples", "rae", "read_samples",
     "read_merl", "render_snr", "save_sbrdf", "snr_forms", "train_dictionaries", "train_ensemble",
     "transform", "write_merl", "write_samples",
 ]
