@@ -298,8 +298,10 @@ def encode_samples(samples: Samples, ensemble: Ensemble | str | None = None,
         fits = {t: _fit_transform(samples, op, ens, t, basis, n, fold, candidates)
                 for t in names}
     else:
+        t, cands = acquire_pool.screen(samples, op, ens, prior, names, basis, fold,
+                                       candidates)
         fits = {t: acquire_pool.fit_transform(samples, op, ens, prior, t, basis, n, fold,
-                                              candidates) for t in names}
+                                              cands)}
     chosen = min(fits, key=lambda t: fits[t]["cv_error"])
     if prior is None:
         model = _final(samples, op, ens, chosen, basis, fits[chosen])

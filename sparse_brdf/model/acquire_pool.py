@@ -47,6 +47,8 @@ LAMBDAS = (1e-3, 1e-2, 1e-1, 1.0)
 ORDERS = ("prior", "greedy")
 #: Pool atoms the screening fits (the pool's head).
 SCREEN_ATOMS = 64
+#: Pool atoms the cross-validation and the final fit use (at most the prior's pool).
+FIT_ATOMS = 512
 #: Floor of the prior variances, relative to their mean over the pool.
 VAR_FLOOR = 1e-3
 
@@ -66,15 +68,15 @@ def _pool(atoms: _Atoms, prior: AtomPrior, transform: str, c: int, k: int,
           p: int | None = None) -> _Pool:
     loc, mu, var = (a[:p] for a in prior.pool(transform, c, k))
     var = np.maximum(var, VAR_FLOOR * float(np.mean(var)) + 1e-12)
-    return _Pool(loc, atoms.columns(loc, slice(None)).astype(np.float64), mu, 1.0 / var)
+    return _Pool(loc, atoms.columns(loc, slice(None)), mu, 1.0 / var)
 
 
 def _solve(g, rhs, lam, prec, mu):
+    """The values on a support: (G + lam D) s = A^T W y + lam D mu."""
     a = g + lam * np.diag(prec)
     b = rhs + lam * prec * mu
     try:
-        c = np.linalg.cholesky(a)
-        return np.linalg.solve(c.T, np.linalg.solve(c, b))
+        return np.linalg.solve(a, b)
     except np.linalg.LinAlgError:
         return np.linalg.lstsq(a, b, rcond=None)[0]
 
@@ -104,19 +106,26 @@ def path(g: np.ndarray, rhs: np.ndarray, pool: _Pool, lam: float, order: str,
     return support, values
 
 
+def normal_equations(cols: np.ndarray, y: np.ndarray, w: np.ndarray):
+    """G = A^T W A (float32 product, float64 result) and A^T W y of columns (N, P)."""
+    aw = cols * w[:, None].astype(np.float32)
+    return (aw.T @ cols).astype(np.float64), aw.T.astype(np.float64) @ y
+
+
 def _cross_validate(pool: _Pool, y, w, fold, sizes):
     """Held-out predictions (N, orders, lambdas, stages) of every path, each sample
-    predicted by the fold that held it out."""
-    aw = pool.cols * w[:, None]
+    predicted by the fold that held it out (each fold's Gram matrix is the one of all
+    samples less the held-out samples')."""
+    g_all, rhs_all = normal_equations(pool.cols, y, w)
     pred = np.zeros((y.size, len(ORDERS), len(LAMBDAS), len(sizes)))
     for f in range(int(fold.max()) + 1):
-        tr, ho = fold != f, fold == f
-        g = aw[tr].T @ pool.cols[tr]
-        rhs = aw[tr].T @ y[tr]
+        ho = fold == f
+        g_h, rhs_h = normal_equations(pool.cols[ho], y[ho], w[ho])
+        g, rhs = g_all - g_h, rhs_all - rhs_h
         for i, order in enumerate(ORDERS):
             for j, lam in enumerate(LAMBDAS):
                 sup, vals = path(g, rhs, pool, lam * float(np.mean(w)), order, sizes)
-                hc = pool.cols[ho][:, sup]
+                hc = pool.cols[ho][:, sup].astype(np.float64)
                 pred[ho, i, j] = np.stack([hc[:, :v.size] @ v for v in vals], 1)
     return pred
 
@@ -130,23 +139,41 @@ class PoolChoice(_Choice):
     lam: float = 0.0
 
 
-def _screen(op: Operator, ens: Ensemble, prior: AtomPrior, transform: str, y, w, fold,
-            keep: int) -> list[list[int]]:
-    """Per channel the ``keep`` dictionaries whose pool head (:data:`SCREEN_ATOMS`)
-    predicts fold 0 best from the other folds (the middle lambda, pool order)."""
+def screen(samples: Samples, op: Operator, ens: Ensemble, prior: AtomPrior,
+           transforms: tuple[str, ...], basis: str, fold: np.ndarray,
+           keep: int) -> tuple[str, list[list[int]]]:
+    """The transform and, per channel, the ``keep`` dictionaries to cross-validate: each
+    dictionary's pool head (:data:`SCREEN_ATOMS` atoms, the middle lambda) is fitted on
+    all folds but fold 0 and scored on fold 0; the transform is the one whose best
+    dictionaries predict fold 0 with the smaller cosine-weighted error of the linear
+    values (one pass over the dictionaries for every transform and channel)."""
     tr, ho = fold != 0, fold == 0
+    w = samples.weight
+    ys = {t: coded_values(samples, t, basis) for t in transforms}
 
-    def one(task):
-        c, k = task
-        pool = _pool(_Atoms(op, ens.dictionary(k)), prior, transform, c, k, SCREEN_ATOMS)
-        aw = pool.cols[tr] * w[tr, None]
-        x = _solve(aw.T @ pool.cols[tr], aw.T @ y[c, tr], 1e-2 * float(np.mean(w)),
-                   pool.prec, pool.mu)
-        return float(np.sum(w[ho] * (pool.cols[ho] @ x - y[c, ho]) ** 2))
+    def one(k):
+        atoms = _Atoms(op, ens.dictionary(k))
+        out = {}
+        for t in transforms:
+            for c in range(3):
+                pool = _pool(atoms, prior, t, c, k, SCREEN_ATOMS)
+                x = _solve(*normal_equations(pool.cols[tr], ys[t][c, tr], w[tr]),
+                           1e-2 * float(np.mean(w)), pool.prec, pool.mu)
+                out[t, c] = pool.cols[ho].astype(np.float64) @ x
+        return out
 
-    tasks = [(c, k) for c in range(3) for k in range(ens.n_dicts)]
-    err = np.array(list(parallel_map(one, tasks))).reshape(3, ens.n_dicts)
-    return [[int(k) for k in np.argsort(err[c], kind="stable")[:keep]] for c in range(3)]
+    preds = list(parallel_map(one, range(ens.n_dicts)))
+    best, score = {}, {}
+    for t in transforms:
+        err = np.array([[np.sum(w[ho] * (p[t, c] - ys[t][c, ho]) ** 2) for p in preds]
+                        for c in range(3)])
+        best[t] = [[int(k) for k in np.argsort(err[c], kind="stable")[:keep]]
+                   for c in range(3)]
+        coded = np.stack([preds[best[t][c][0]][t, c] for c in range(3)])
+        score[t] = cosine_error(samples, np.flatnonzero(ho), linear_values(
+            coded, samples.subset(ho), t, basis))
+    chosen = min(transforms, key=lambda t: score[t])
+    return chosen, best[chosen]
 
 
 def _channel(op, ens, prior, transform, c, dicts, y, w, fold, t_max) -> PoolChoice:
@@ -157,7 +184,7 @@ def _channel(op, ens, prior, transform, c, dicts, y, w, fold, t_max) -> PoolChoi
     if not sizes:
         return best
     for k in dicts:
-        pool = _pool(_Atoms(op, ens.dictionary(k)), prior, transform, c, k)
+        pool = _pool(_Atoms(op, ens.dictionary(k)), prior, transform, c, k, FIT_ATOMS)
         sz = [s for s in sizes if s <= pool.loc.size] or [pool.loc.size]
         pred = _cross_validate(pool, y, w, fold, sz)
         err = np.sum(w[:, None, None, None] * (pred - y[:, None, None, None]) ** 2, axis=0)
@@ -172,16 +199,20 @@ def _channel(op, ens, prior, transform, c, dicts, y, w, fold, t_max) -> PoolChoi
 
 def fit_transform(samples: Samples, op: Operator, ens: Ensemble, prior: AtomPrior,
                   transform: str, basis: str, n: int, fold: np.ndarray,
-                  candidates: int) -> dict:
+                  cands: list[list[int]]) -> dict:
     """Cross-validate one transform with the prior (the counterpart of the unrestricted
-    search's): each channel's choice, the joint budget of 3 ``n`` and the held-out
-    cosine-weighted error."""
+    search's) on the dictionaries ``cands`` of each channel (:func:`screen`): each
+    channel's choice, the joint budget of 3 ``n`` and the held-out cosine-weighted
+    error."""
     y = coded_values(samples, transform, basis)
     w = samples.weight
     t_max = max(0, min(n, int(0.5 * np.sum(fold != 0))))
-    cands = _screen(op, ens, prior, transform, y, w, fold, candidates)
-    choices = list(parallel_map(lambda c: _channel(op, ens, prior, transform, c, cands[c],
-                                                   y[c], w, fold, t_max), range(3)))
+    tasks = [(c, k) for c in range(3) for k in cands[c]]
+    done = list(parallel_map(lambda task: _channel(op, ens, prior, transform, task[0],
+                                                   [task[1]], y[task[0]], w, fold, t_max),
+                             tasks))
+    choices = [min((ch for (c2, _), ch in zip(tasks, done, strict=True) if c2 == c),
+                   key=lambda ch: ch.error) for c in range(3)]
     idx = _trim(choices, 3 * n)
     pred = np.zeros_like(y)
     for c, (ch, i) in enumerate(zip(choices, idx, strict=True)):
@@ -201,10 +232,9 @@ def final_values(op: Operator, ens: Ensemble, prior: AtomPrior, transform: str,
         if ch.size == 0:
             return np.zeros(0, np.int64), np.zeros(0, np.float32)
         pool = _pool(_Atoms(op, ens.dictionary(ch.dictionary)), prior, transform, c,
-                     ch.dictionary)
-        aw = pool.cols * w[:, None]
+                     ch.dictionary, FIT_ATOMS)
         sizes = ch.sizes[1:ch.sizes.index(ch.size) + 1]
-        sup, vals = path(aw.T @ pool.cols, aw.T @ fit["y"][c], pool,
+        sup, vals = path(*normal_equations(pool.cols, fit["y"][c], w), pool,
                          ch.lam * float(np.mean(w)), ch.order, sizes)
         v = vals[-1]
         order = np.argsort(-np.abs(v), kind="stable")
