@@ -28,6 +28,7 @@ from .errors import (
     one_line,
 )
 from .evaluation import fit_images as fit_images_module
+from .evaluation.acquisition import PRIORS
 from .evaluation.batch import (
     encode_batch,
     encode_file,
@@ -240,7 +241,7 @@ def cmd_encode(args: argparse.Namespace) -> int:
 
 def cmd_encode_samples(args: argparse.Namespace) -> int:
     path, model = encode_samples_file(args.samples, args.output, args.ensemble, args.coeffs,
-                                      args.bytes, seed=args.seed)
+                                      args.bytes, seed=args.seed, prior=args.prior)
     st = model.stats
     print(f"wrote {path} ({path.stat().st_size} bytes) from {st['samples']} samples: "
           f"{model.transform}, coefficients {model.n_coeffs.tolist()}, dictionaries "
@@ -597,8 +598,9 @@ def _add_samples_commands(sub) -> None:
         "encode-samples", formatter_class=argparse.RawDescriptionHelpFormatter,
         help="encode measured samples (direction pairs and RGB values) as a .sbrdf",
         description="Compressed sensing with the ensemble's dictionaries (docs/method.md, "
-                    "Encoding from samples): per coded channel a greedy sparse fit through "
-                    "the sampling operator (atoms interpolated between the bins), the "
+                    "Encoding from samples): per coded channel a sparse fit through the "
+                    "sampling operator (atoms interpolated between the bins) over the "
+                    "atoms training materials use, toward their training values; the "
                     "support size, dictionary and transform chosen by cross-validation on "
                     "held-out samples. SAMPLES is a CSV with the header "
                     "wi_x,wi_y,wi_z,wo_x,wo_y,wo_z,r,g,b[,weight] or an .npz with arrays "
@@ -622,6 +624,12 @@ def _add_samples_commands(sub) -> None:
     es.add_argument("--seed", type=_typed(acq["seed"]),
                     default=_default(acquire_module.encode_samples, "seed"),
                     help="seed of the cross-validation folds (default %(default)s)")
+    es.add_argument("--prior", choices=PRIORS,
+                    default=_default(encode_samples_file, "prior"),
+                    help="default: each dictionary restricted to the atoms the training "
+                         "split's materials use, fitted toward their values (computed once "
+                         "and cached; needs the merl data); none: every atom, no prior "
+                         "(default %(default)s)")
     es.set_defaults(func=cmd_encode_samples)
 
     ps = sub.add_parser(

@@ -189,8 +189,64 @@ def test_commands_plan_and_encode(capsys, tmp_path, ens):
     _, brdf = _sparse_material(ens)
     write_samples(tmp_path / "s.npz", _on_bins(brdf, 600, seed=0))
     code, out, err = run(capsys, "encode-samples", tmp_path / "s.npz", "-o",
-                         tmp_path / "m.sbrdf", "--ensemble", ens_path, "--coeffs", 8)
+                         tmp_path / "m.sbrdf", "--ensemble", ens_path, "--coeffs", 8,
+                         "--prior", "none")
     assert code == 0, err
     model = load_sbrdf(tmp_path / "m.sbrdf", ens)
     assert model.ensemble_id == ens.id and int(model.n_coeffs.sum()) <= 24
     assert geometric_valid(SMALL).shape == model.decode(ens).valid.shape
+
+
+# ------------------------------------------------------------------ with an atom prior
+
+
+@pytest.fixture(scope="module")
+def prior_and_truth(ens):
+    """An atom prior of training materials that share one support in dictionary 0 with
+    different values, and an unseen material on that support."""
+    from sparse_brdf.model.prior import compute_prior
+
+    truth, _ = _sparse_material(ens, seed=6)
+    rng = np.random.default_rng(0)
+    train = []
+    for _ in range(8):
+        vals = [v * rng.uniform(0.5, 1.5, v.size).astype(np.float32) for v in truth.values]
+        m = SparseBRDF("log-plus", SMALL, ens.id, [0, 0, 0], truth.locations, vals,
+                       basis="opponent")
+        train.append(m.decode(ens))
+    return compute_prior(ens, train, transforms=("log-plus",)), truth
+
+
+def test_with_a_prior_a_material_on_its_atoms_is_recovered(ens, prior_and_truth):
+    prior, truth = prior_and_truth
+    assert prior.loc.shape[:3] == (1, 3, ens.n_dicts)
+    for c in range(3):  # the pool of dictionary 0 holds the shared support
+        assert set(truth.locations[c]) <= set(prior.loc[0, c, 0])
+    brdf = truth.decode(ens)
+    model = encode_samples(_on_bins(brdf, 1500, seed=2), ens, n_coeffs=20,
+                           transform="log-plus", prior=prior)
+    assert list(model.dict_index) == [0, 0, 0]
+    assert _coded_error(model, truth, ens) < 1e-3
+    assert model.stats["transforms"]["log-plus"]["channels"][0]["order"] in ("prior",
+                                                                             "greedy")
+
+
+def test_the_prior_helps_most_with_few_samples(ens, prior_and_truth):
+    prior, truth = prior_and_truth
+    brdf = truth.decode(ens)
+    s = _on_bins(brdf, 40, seed=3)
+    with_prior = encode_samples(s, ens, n_coeffs=20, transform="log-plus", prior=prior)
+    without = encode_samples(s, ens, n_coeffs=20, transform="log-plus")
+    assert _coded_error(with_prior, truth, ens) < 0.5 * _coded_error(without, truth, ens)
+
+
+def test_a_prior_of_another_ensemble_is_refused(ens, prior_and_truth):
+    from sparse_brdf.errors import UsageError
+
+    prior, truth = prior_and_truth
+    rng = np.random.default_rng(4)
+    other = Ensemble(*[np.stack([random_orthonormal(n, rng)]) for n in SMALL],
+                     taus=np.array([8]))
+    s = _on_bins(truth.decode(ens), 100, seed=0)
+    with pytest.raises(UsageError, match="prior"):
+        encode_samples(s, other, prior=prior)

@@ -15,6 +15,7 @@ import pytest
 from sparse_brdf import cli
 from sparse_brdf.coords import GRID_SIDE, MERL_SHAPE, check_grid
 from sparse_brdf.errors import ConfigError, UsageError
+from sparse_brdf.evaluation.batch import encode_samples_file
 from sparse_brdf.evaluation.fit_images import fit_images
 from sparse_brdf.evaluation.fit_scene import fit_scene
 from sparse_brdf.evaluation.render import RENDER_PARAMETERS, render_scene
@@ -153,6 +154,7 @@ MIRRORS = {
     ("encode-samples", "coeffs"): (encode_samples, "n_coeffs"),
     ("encode-samples", "bytes"): (encode_samples, "n_bytes"),
     ("encode-samples", "seed"): (encode_samples, "seed"),
+    ("encode-samples", "prior"): (encode_samples_file, "prior"),
     ("plan-samples", "placement"): (plan, "placement"),
     ("plan-samples", "seed"): (plan, "seed"),
     ("render", "spp"): (render_scene, "spp"),

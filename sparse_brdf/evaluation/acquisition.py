@@ -38,8 +38,8 @@ from ..sources.cache import cache_dir, content_key
 from ..sources.corpora import get_corpus
 from ..transforms import TRANSFORMS
 
-#: The named atom priors (``prior=``).
-PRIORS = ("default",)
+#: The named atom priors (``prior=``): the training split's, or none.
+PRIORS = ("default", "none")
 #: The training corpus and the stride through its training split.
 TRAINING_CORPUS, TRAINING_STRIDE = "merl", 2
 
@@ -122,10 +122,11 @@ def encode_samples(samples: Samples, ensemble: Ensemble | str | None = None,
         Dictionaries per channel compared by cross-validation.
     seed : int
         Seed of the folds.
-    prior : AtomPrior, "default" or None
+    prior : AtomPrior, "default", "none" or None
         The atom prior; ``"default"`` is :func:`default_prior` of the ensemble (computed
-        once from the training split and cached), None searches every atom of every
-        dictionary without a prior (:func:`sparse_brdf.model.acquire.encode_samples`).
+        once from the training split and cached); ``"none"`` or None searches every atom
+        of every dictionary without a prior
+        (:func:`sparse_brdf.model.acquire.encode_samples`).
 
     Returns
     -------
@@ -142,8 +143,8 @@ def encode_samples(samples: Samples, ensemble: Ensemble | str | None = None,
     """
     ens = resolve_ensemble(ensemble)
     if isinstance(prior, str):
-        check_choice("prior", prior, PRIORS)
-        prior = default_prior(ens)
+        prior = default_prior(ens) if check_choice("prior", prior, PRIORS) == "default" \
+            else None
     return acquire.encode_samples(samples, ens, n_coeffs, n_bytes, transform, folds,
                                   candidates, seed, prior=prior)
 

@@ -44,16 +44,17 @@ import numpy as np
 from ..errors import BRDFFileError, EnsembleMismatchError, MissingFileError, OutputError, UsageError
 from ..fileio import atomic_write, check_output
 from ..metrics import cosine_weighted_snr
-from ..model.acquire import encode_samples
 from ..model.budget import encode_to_bytes
 from ..model.encode import DEFAULT_N_COEFFS, check_n_coeffs, encode
 from ..model.ensemble import Ensemble, resolve_ensemble
 from ..model.sbrdf import load_sbrdf, save_sbrdf
 from ..model.sparse import SparseBRDF
 from ..parallel import Executor, InProcess
+from ..params import check_choice
 from ..samples import Samples
 from ..sources.load import SUFFIXES, load_brdf
 from ..sources.samples import plan, read_samples, write_samples
+from .acquisition import PRIORS, encode_samples
 
 #: What a folder contributes to a batch (a glob may also match the other SUFFIXES).
 FOLDER_SUFFIXES = (".binary", ".h5")
@@ -269,10 +270,10 @@ def encode_batch(pattern: str | os.PathLike, out_dir: str | os.PathLike,
 def encode_samples_file(source: str | os.PathLike, output: str | os.PathLike,
                         ensemble: Ensemble | str | os.PathLike | None = None,
                         n_coeffs: int = DEFAULT_N_COEFFS, n_bytes: int | None = None,
-                        seed: int = 0) -> tuple[Path, SparseBRDF]:
+                        seed: int = 0, prior: str = "default") -> tuple[Path, SparseBRDF]:
     """Encode a samples file (``sources.samples.read_samples``: CSV or ``.npz``) into the
     ``.sbrdf`` file ``output`` (written atomically), by
-    :func:`~sparse_brdf.model.acquire.encode_samples`.
+    :func:`~sparse_brdf.evaluation.acquisition.encode_samples`.
 
     Parameters
     ----------
@@ -288,6 +289,9 @@ def encode_samples_file(source: str | os.PathLike, output: str | os.PathLike,
         A byte budget for the whole file instead.
     seed : int
         Seed of the cross-validation folds.
+    prior : str
+        ``"default"`` (the training split's atom prior) or ``"none"`` (every atom of
+        every dictionary, no prior).
 
     Returns
     -------
@@ -297,7 +301,8 @@ def encode_samples_file(source: str | os.PathLike, output: str | os.PathLike,
     out = check_output(output, [source, None if isinstance(ensemble, Ensemble) else ensemble])
     ens = resolve_ensemble(ensemble)
     samples = read_samples(source)
-    model = encode_samples(samples, ens, check_n_coeffs(n_coeffs, ens), n_bytes, seed=seed)
+    model = encode_samples(samples, ens, check_n_coeffs(n_coeffs, ens), n_bytes, seed=seed,
+                           prior=check_choice("prior", prior, PRIORS))
     return save_sbrdf(out, model), model
 
 
