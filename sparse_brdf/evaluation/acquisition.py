@@ -16,11 +16,15 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import numpy as np
+
+from ..brdf import BRDF
 from ..errors import MissingDataError
 from ..model import acquire, acquire_pca
 from ..model.baselines import PCAModel
+from ..model.budget import encode_to_bytes
 from ..model.compact import Compact
-from ..model.encode import DEFAULT_N_COEFFS
+from ..model.encode import DEFAULT_N_COEFFS, encode
 from ..model.ensemble import Ensemble, resolve_ensemble
 from ..model.prior import (
     POOL_SIZE,
@@ -99,7 +103,8 @@ def encode_samples(samples: Samples, ensemble: Ensemble | str | None = None,
                    n_coeffs: int = DEFAULT_N_COEFFS, n_bytes: int | None = None,
                    transform: str = "auto", folds: int = acquire.DEFAULT_FOLDS,
                    candidates: int = acquire.DEFAULT_CANDIDATES, seed: int = 0,
-                   prior: AtomPrior | str | None = "default") -> SparseBRDF:
+                   prior: AtomPrior | str | None = "default",
+                   pca_fallback: bool = True) -> SparseBRDF:
     """Encode measured samples as a sparse BRDF over ``ensemble`` (compressed sensing with
     the ensemble and an atom prior; ``docs/method.md``, "Encoding from samples").
 
@@ -127,6 +132,10 @@ def encode_samples(samples: Samples, ensemble: Ensemble | str | None = None,
         once from the training split and cached); ``"none"`` or None searches every atom
         of every dictionary without a prior
         (:func:`sparse_brdf.model.acquire.encode_samples`).
+    pca_fallback : bool
+        With a prior, also fit the PCA baseline (:func:`pca_from_samples`, same folds)
+        and, when its held-out cosine-weighted error is the smaller (few samples), return
+        the full-table encoding of its reconstruction instead (``stats["fallback"]``).
 
     Returns
     -------
@@ -145,8 +154,24 @@ def encode_samples(samples: Samples, ensemble: Ensemble | str | None = None,
     if isinstance(prior, str):
         prior = default_prior(ens) if check_choice("prior", prior, PRIORS) == "default" \
             else None
-    return acquire.encode_samples(samples, ens, n_coeffs, n_bytes, transform, folds,
-                                  candidates, seed, prior=prior)
+    model = acquire.encode_samples(samples, ens, n_coeffs, n_bytes, transform, folds,
+                                   candidates, seed, prior=prior)
+    if prior is None or not pca_fallback:
+        return model
+    basis = trained_pca()
+    pca = acquire_pca.pca_from_samples(samples, basis, folds=folds, seed=seed)
+    pca_error = min(min(r) for r in pca.info["cv_cosine_error"])
+    own = model.stats["transforms"][model.transform]["cv_cosine_error"]
+    model.stats["pca_cv_cosine_error"] = pca_error
+    if pca_error >= own:
+        return model
+    table = BRDF(pca.reconstruct(), np.array(basis.mask_[..., 0]), name=samples.name)
+    alt = (encode_to_bytes(table, ens, n_bytes) if n_bytes is not None
+           else encode(table, ens, n_coeffs))
+    alt.stats = {**model.stats, "fallback": {"model": "pca", "n_coeffs": pca.info["n_coeffs"],
+                                             "cv_cosine_error": pca_error,
+                                             "sparse_cv_cosine_error": own}}
+    return alt
 
 
 def pca_from_samples(samples: Samples, training: Sequence | None = None,
