@@ -250,3 +250,23 @@ def test_a_prior_of_another_ensemble_is_refused(ens, prior_and_truth):
     s = _on_bins(truth.decode(ens), 100, seed=0)
     with pytest.raises(UsageError, match="prior"):
         encode_samples(s, other, prior=prior)
+
+
+def test_the_pca_fallback_is_taken_when_pca_predicts_better(ens, prior_and_truth):
+    from sparse_brdf.evaluation.acquisition import encode_samples as encode_with_defaults
+
+    prior, truth = prior_and_truth
+    brdf = truth.decode(ens)
+    # PCA trained on the material itself (and a scaled copy) predicts it best
+    twin = BRDF(brdf.values * 1.5, brdf.valid, "twin")
+    s = _on_bins(brdf, 40, seed=3)
+    model = encode_with_defaults(s, ens, n_coeffs=20, transform="log-plus", prior=prior,
+                                 training=[brdf, twin])
+    assert model.stats["fallback"]["model"] == "pca"
+    assert model.stats["pca_cv_cosine_error"] < model.stats["fallback"][
+        "sparse_cv_cosine_error"]
+    assert model.ensemble_id == ens.id and int(model.n_coeffs.sum()) <= 60  # joint budget
+    plain = encode_with_defaults(s, ens, n_coeffs=20, transform="log-plus", prior=prior,
+                                 pca_fallback=False)
+    assert "fallback" not in plain.stats
+    assert _coded_error(model, truth, ens) < _coded_error(plain, truth, ens)

@@ -104,7 +104,7 @@ def encode_samples(samples: Samples, ensemble: Ensemble | str | None = None,
                    transform: str = "auto", folds: int = acquire.DEFAULT_FOLDS,
                    candidates: int = acquire.DEFAULT_CANDIDATES, seed: int = 0,
                    prior: AtomPrior | str | None = "default",
-                   pca_fallback: bool = True) -> SparseBRDF:
+                   pca_fallback: bool = True, training: Sequence | None = None) -> SparseBRDF:
     """Encode measured samples as a sparse BRDF over ``ensemble`` (compressed sensing with
     the ensemble and an atom prior; ``docs/method.md``, "Encoding from samples").
 
@@ -135,7 +135,11 @@ def encode_samples(samples: Samples, ensemble: Ensemble | str | None = None,
     pca_fallback : bool
         With a prior, also fit the PCA baseline (:func:`pca_from_samples`, same folds)
         and, when its held-out cosine-weighted error is the smaller (few samples), return
-        the full-table encoding of its reconstruction instead (``stats["fallback"]``).
+        the full-table encoding of its reconstruction instead (``stats["fallback"]``);
+        only when the PCA basis is on the ensemble's grid.
+    training : sequence of Material or BRDF, optional
+        The PCA basis's training materials (:func:`trained_pca`; default
+        :func:`training_materials`).
 
     Returns
     -------
@@ -158,7 +162,9 @@ def encode_samples(samples: Samples, ensemble: Ensemble | str | None = None,
                                    candidates, seed, prior=prior)
     if prior is None or not pca_fallback:
         return model
-    basis = trained_pca()
+    basis = trained_pca(training)
+    if basis.mask_.shape[:3] != ens.shape:
+        return model
     pca = acquire_pca.pca_from_samples(samples, basis, folds=folds, seed=seed)
     pca_error = min(min(r) for r in pca.info["cv_cosine_error"])
     own = model.stats["transforms"][model.transform]["cv_cosine_error"]
