@@ -4,8 +4,10 @@
     .venv/bin/python benchmarks/acquisition_table.py [--materials A,B] [--n 100,1000]
         [--placements bins,uniform,stratified] [--seed 0] [--json OUT]
 
-Samples are simulated from the tabulated material (``measure_table``: each pair gets its
-bin's value) at ``plan(n, placement, seed)``. Prints the cosine-weighted SNR of each
+Samples are simulated at ``plan(n, placement, seed)`` from the tabulated material
+(``--measure table``: each pair gets its bin's value) or from the Neural-BRDF network the
+merl table was tabulated from, at the pairs themselves (``--measure nbrdf``: a
+continuous BRDF, as a real measurement). Prints the cosine-weighted SNR of each
 reconstruction against the full table, the seconds per fit, and the full-table encoding
 at 262 coefficients per channel (the sparse fit's budget) for reference. The published
 table: ``--materials blue-metallic-paint2,blue-fabric,silver-paint --n 100,1000,10000``
@@ -21,7 +23,7 @@ from harness import header, machine, parser, write_json
 from sparse_brdf import Ensemble, encode, encode_samples, get_corpus, pca_from_samples
 from sparse_brdf.evaluation.acquisition import default_prior, trained_pca
 from sparse_brdf.metrics import cosine_weighted_snr
-from sparse_brdf.sources.samples import measure_table, plan
+from sparse_brdf.sources.samples import measure_nbrdf, measure_table, plan
 
 
 def main() -> None:
@@ -30,6 +32,7 @@ def main() -> None:
     p.add_argument("--n", default="100,1000,10000")
     p.add_argument("--placements", default="bins,uniform,stratified")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--measure", choices=("table", "nbrdf"), default="table")
     args = p.parse_args()
     ens = Ensemble.default()
     test = {m.name: m for m in get_corpus("merl").split("test")}
@@ -45,7 +48,9 @@ def main() -> None:
                                    brdf.valid)
         for placement in args.placements.split(","):
             for n in map(int, args.n.split(",")):
-                s = measure_table(brdf, *plan(n, placement, args.seed))
+                wi, wo = plan(n, placement, args.seed)
+                s = (measure_table(brdf, wi, wo) if args.measure == "table"
+                     else measure_nbrdf(test[name].source, wi, wo))
                 t0 = time.perf_counter()
                 model = encode_samples(s, ens, prior=prior, seed=args.seed)
                 ts = time.perf_counter() - t0
