@@ -16,6 +16,7 @@ decode/render -> evaluate.
 
 from .brdf import BRDF
 from .errors import BRDFFileError, EnsembleMismatchError, InvalidBRDFError, SparseBRDFError
+from .evaluation.acquisition import encode_samples, pca_from_samples
 from .metrics import SNRForms, cosine_weighted_snr, gamma_mse, rae, render_snr, snr_forms
 from .model.budget import encode_to_bytes
 from .model.encode import DEFAULT_N_COEFFS, ENCODE_OPTIONS, PAPER_OPTIONS, encode
@@ -25,10 +26,13 @@ from .model.neural import NeuralFit, train_nbrdf
 from .model.sbrdf import decode_file, load_sbrdf, save_sbrdf
 from .model.sparse import SparseBRDF
 from .model.train import train_dictionaries, train_ensemble
+from .samples import Samples
 from .sources.catalog import mitsuba_catalog
 from .sources.corpora import Corpus, Material, get_corpus, list_corpora
 from .sources.load import load_brdf
 from .sources.merl import read_merl, write_merl
+from .sources.samples import plan as plan_samples
+from .sources.samples import read_samples, write_samples
 from .transforms import TRANSFORMS
 from .transforms import forward as transform
 from .transforms import inverse as inverse_transform
@@ -38,12 +42,12 @@ __version__ = "0.1.0"
 __all__ = [
     "BRDF", "BRDFFileError", "Corpus", "DEFAULT_N_COEFFS", "ENCODE_OPTIONS", "Ensemble",
     "EnsembleMismatchError", "PAPER_OPTIONS",
-    "InvalidBRDFError", "Material", "NeuralFit", "SNRForms", "SparseBRDF", "SparseBRDFError",
-    "TRANSFORMS",
-    "cosine_weighted_snr", "decode_file", "encode", "encode_to_bytes", "gamma_mse",
+    "InvalidBRDFError", "Material", "NeuralFit", "SNRForms", "Samples", "SparseBRDF",
+    "SparseBRDFError", "TRANSFORMS", "cosine_weighted_snr", "decode_file", "encode",
+    "encode_samples", "encode_to_bytes", "gamma_mse",
     "get_corpus",
     "interpolate", "inverse_transform", "list_corpora", "load_brdf", "load_sbrdf",
-    "mitsuba_catalog", "rae",
+    "mitsuba_catalog", "pca_from_samples", "plan_samples", "rae", "read_samples",
     "read_merl", "render_snr", "save_sbrdf", "snr_forms", "train_dictionaries", "train_ensemble",
-    "train_nbrdf", "transform", "write_merl",
+    "train_nbrdf", "transform", "write_merl", "write_samples",
 ]

@@ -28,7 +28,14 @@ from .errors import (
     one_line,
 )
 from .evaluation import fit_images as fit_images_module
-from .evaluation.batch import encode_batch, encode_file, is_batch
+from .evaluation.acquisition import PRIORS
+from .evaluation.batch import (
+    encode_batch,
+    encode_file,
+    encode_samples_file,
+    is_batch,
+    plan_samples_file,
+)
 from .evaluation.bench import Bench, BenchConfig, check_config, shipped_configs
 from .evaluation.fit_images import fit_images, load_views
 from .evaluation.fit_scene import fit_scene
@@ -47,6 +54,7 @@ from .evaluation.render import (
 )
 from .fileio import check_output, cleanup_on_signals, remove_temporaries
 from .metrics import snr_forms
+from .model import acquire as acquire_module
 from .model import budget as budget_module
 from .model import encode as encode_module
 from .model import train as train_module
@@ -70,6 +78,7 @@ from .sources.corpora import SPLITS, TRAINING_CORPORA, get_corpus, list_corpora
 from .sources.dataset import training_data
 from .sources.load import load_brdf
 from .sources.merl import write_merl
+from .sources.samples import PLACEMENTS, plan
 from .transforms import COLOUR_BASES
 
 EPILOG = f"""examples:
@@ -227,6 +236,23 @@ def cmd_encode(args: argparse.Namespace) -> int:
     print(f"wrote {path} ({info['bytes']} bytes): {model.transform}, coefficients "
           f"{info['coefficients']}, dictionaries {info['dictionaries']}, "
           f"RAE {st['rae']:.4f}, gamma-MSE {st['gamma_mse']:.3g}, {seconds:.2f} s")
+    return 0
+
+
+def cmd_encode_samples(args: argparse.Namespace) -> int:
+    path, model = encode_samples_file(args.samples, args.output, args.ensemble, args.coeffs,
+                                      args.bytes, seed=args.seed, prior=args.prior)
+    st = model.stats
+    print(f"wrote {path} ({path.stat().st_size} bytes) from {st['samples']} samples: "
+          f"{model.transform}, coefficients {model.n_coeffs.tolist()}, dictionaries "
+          f"{model.dict_index.tolist()}, {st['seconds']:.1f} s")
+    return 0
+
+
+def cmd_plan_samples(args: argparse.Namespace) -> int:
+    path = plan_samples_file(args.output, args.n, args.placement, args.seed)
+    print(f"wrote {path}: {args.n} direction pairs ({args.placement}); measure them and "
+          "fill in r,g,b")
     return 0
 
 
@@ -557,11 +583,67 @@ def _add_codec_commands(sub) -> None:
     _add_source_help(e)
     e.set_defaults(func=cmd_encode, coeffs_given=False)
 
+    _add_samples_commands(sub)
+
     d = sub.add_parser("decode", help="decode a .sbrdf file to a MERL .binary file")
     d.add_argument("source", help=".sbrdf file")
     d.add_argument("-o", "--output", required=True, help="output .binary path")
     d.add_argument("--ensemble", help="ensemble .npz (default: the shipped one the file names)")
     d.set_defaults(func=cmd_decode)
+
+
+def _add_samples_commands(sub) -> None:
+    """``encode-samples`` and ``plan-samples``."""
+    acq = acquire_module.PARAMETERS
+    es = sub.add_parser(
+        "encode-samples", formatter_class=argparse.RawDescriptionHelpFormatter,
+        help="encode measured samples (direction pairs and RGB values) as a .sbrdf",
+        description="Compressed sensing with the ensemble's dictionaries (docs/method.md, "
+                    "Encoding from samples): per coded channel a sparse fit through the "
+                    "sampling operator (atoms interpolated between the bins) over the "
+                    "atoms training materials use, toward their training values; the "
+                    "support size, dictionary and transform chosen by cross-validation on "
+                    "held-out samples. SAMPLES is a CSV with the header "
+                    "wi_x,wi_y,wi_z,wo_x,wo_y,wo_z,r,g,b[,weight] or an .npz with arrays "
+                    "wi, wo, rgb[, weight]: unit directions in the local frame (z the "
+                    "normal), linear RGB in 1/sr. Repeated pairs count as repeated "
+                    "measurements.",
+        epilog="example:\n  sparse-brdf plan-samples 2000 -o plan.csv\n  (measure, fill in "
+               "r,g,b)\n  sparse-brdf encode-samples plan.csv -o material.sbrdf")
+    es.add_argument("samples", help="samples file (.csv or .npz)")
+    es.add_argument("-o", "--output", required=True, help="output .sbrdf (written atomically)")
+    budget = es.add_mutually_exclusive_group()
+    budget.add_argument("--coeffs", type=_typed(acq["n_coeffs"].capped(GRID_BINS.hi)),
+                        default=_default(acquire_module.encode_samples, "n_coeffs"),
+                        help="coefficients per channel at most (a joint budget of 3 x this; "
+                             "fewer when held-out samples say more would overfit; default "
+                             "%(default)s)")
+    budget.add_argument("--bytes", type=_typed(budget_module.PARAMETERS["n_bytes"]),
+                        default=_default(acquire_module.encode_samples, "n_bytes"),
+                        metavar="N", help="the file holds at most N bytes")
+    es.add_argument("--ensemble", help="ensemble .npz or id (default: the shipped default)")
+    es.add_argument("--seed", type=_typed(acq["seed"]),
+                    default=_default(acquire_module.encode_samples, "seed"),
+                    help="seed of the cross-validation folds (default %(default)s)")
+    es.add_argument("--prior", choices=PRIORS,
+                    default=_default(encode_samples_file, "prior"),
+                    help="default: each dictionary restricted to the atoms the training "
+                         "split's materials use, fitted toward their values (computed once "
+                         "and cached; needs the merl data); none: every atom, no prior "
+                         "(default %(default)s)")
+    es.set_defaults(func=cmd_encode_samples)
+
+    ps = sub.add_parser(
+        "plan-samples", formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        help="write direction pairs to measure, as a samples CSV with zero values",
+        description="uniform: each direction uniform over the hemisphere; stratified: "
+                    "strata of the grid's coordinates (dense near the specular peak); "
+                    "bins: random valid bins at their lower-edge angles.")
+    ps.add_argument("n", type=_typed(Interval(int, 1)), help="direction pairs")
+    ps.add_argument("-o", "--output", required=True, help="output CSV")
+    ps.add_argument("--placement", default=_default(plan, "placement"), choices=PLACEMENTS)
+    ps.add_argument("--seed", type=_typed(acq["seed"]), default=_default(plan, "seed"))
+    ps.set_defaults(func=cmd_plan_samples)
 
 
 def _add_render(sub) -> None:

@@ -246,3 +246,45 @@ def bin_solid_angle(shape: tuple[int, int, int] = MERL_SHAPE) -> np.ndarray:
     per_d = 0.5 * (np.sin(td[1:]) ** 2 - np.sin(td[:-1]) ** 2)
     hd = (4.0 * 2.0 * np.pi * 2.0 * np.pi / n3) * per_h[:, None] * per_d[None, :]
     return np.repeat(hd[:, :, None], n3, axis=2)
+
+
+def linear_bins(wi: np.ndarray, wo: np.ndarray, shape: tuple[int, int, int] = MERL_SHAPE
+                ) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], ...]:
+    """Per mode (i0, i1, t): the two lower-edge samples around each direction pair and the
+    weight of i1, for linear interpolation between the bins' samples (docs/method.md,
+    "Interpolation between bins"); the numpy twin of the plugins' lookup.
+
+    Parameters
+    ----------
+    wi, wo : numpy.ndarray
+        Unit directions in the local frame (z up), shape (N, 3).
+    shape : tuple of int
+        The grid (n_h, n_d, n_p).
+
+    Returns
+    -------
+    tuple of 3 (i0, i1, t)
+        Int64 arrays i0, i1 and float64 t in [0, 1], each (N,), for theta_h, theta_d and
+        phi_d: the value at a pair is (1 - t) v[i0] + t v[i1] along each mode. theta_h and
+        theta_d clamp at the grid's ends; phi_d wraps around (period pi: phi_d = pi is
+        phi_d = 0 by reciprocity).
+    """
+    th, td, pd = dirs_to_angles(wi, wo)
+    pd = np.where(pd < 0.0, pd + np.pi, pd)
+    coords = grid_coords(np.maximum(th, 0.0), td, pd, shape)
+    out = []
+    for mode, (x, n) in enumerate(zip(coords, shape, strict=True)):
+        if mode < 2:
+            xc = np.clip(x, 0.0, n - 1.0)
+            f0 = np.minimum(np.floor(xc), max(n - 2.0, 0.0))
+            t = np.clip(xc - f0, 0.0, 1.0)
+            i0 = f0.astype(np.int64)
+            i1 = np.minimum(i0 + 1, n - 1)
+        else:
+            xc = np.clip(x, 0.0, float(n))
+            f0 = np.floor(xc)
+            t = np.where(f0 >= n, 1.0, xc - f0)  # x = n_p is the sample at 0
+            i0 = np.minimum(f0, n - 1.0).astype(np.int64)
+            i1 = (i0 + 1) % n
+        out.append((i0, i1, t))
+    return tuple(out)

@@ -15,11 +15,13 @@ import pytest
 from sparse_brdf import cli
 from sparse_brdf.coords import GRID_SIDE, MERL_SHAPE, check_grid
 from sparse_brdf.errors import ConfigError, UsageError
+from sparse_brdf.evaluation.batch import encode_samples_file
 from sparse_brdf.evaluation.fit_images import fit_images
 from sparse_brdf.evaluation.fit_scene import fit_scene
 from sparse_brdf.evaluation.render import RENDER_PARAMETERS, render_scene
 from sparse_brdf.model import encode as encode_module
 from sparse_brdf.model import train as train_module
+from sparse_brdf.model.acquire import encode_samples
 from sparse_brdf.model.budget import check_budget, encode_to_bytes
 from sparse_brdf.model.encode import encode
 from sparse_brdf.model.interpolate import interpolate
@@ -30,6 +32,7 @@ from sparse_brdf.model.train import train_dictionaries, train_ensemble
 from sparse_brdf.params import SEED, Choice, Interval, check, check_choice, check_range
 from sparse_brdf.sources.corpora import SPLITS, TRAINING_CORPORA
 from sparse_brdf.sources.dataset import training_data
+from sparse_brdf.sources.samples import plan
 from sparse_brdf.transforms import COLOUR_BASES, TRANSFORMS, check_basis, check_transform
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -148,6 +151,12 @@ MIRRORS = {
     ("encode", "fill_iters"): (encode, "fill_iters"),
     ("encode", "basis"): (encode, "basis"),
     ("encode", "budget"): (encode, "budget"),
+    ("encode-samples", "coeffs"): (encode_samples, "n_coeffs"),
+    ("encode-samples", "bytes"): (encode_samples, "n_bytes"),
+    ("encode-samples", "seed"): (encode_samples, "seed"),
+    ("encode-samples", "prior"): (encode_samples_file, "prior"),
+    ("plan-samples", "placement"): (plan, "placement"),
+    ("plan-samples", "seed"): (plan, "seed"),
     ("render", "spp"): (render_scene, "spp"),
     ("render", "seed"): (render_scene, "seed"),
     ("render", "res"): (render_scene, "res"),

@@ -39,6 +39,8 @@ import os
 import time
 from pathlib import Path
 
+import numpy as np
+
 from ..errors import BRDFFileError, EnsembleMismatchError, MissingFileError, OutputError, UsageError
 from ..fileio import atomic_write, check_output
 from ..metrics import cosine_weighted_snr
@@ -48,7 +50,11 @@ from ..model.ensemble import Ensemble, resolve_ensemble
 from ..model.sbrdf import load_sbrdf, save_sbrdf
 from ..model.sparse import SparseBRDF
 from ..parallel import Executor, InProcess
+from ..params import check_choice
+from ..samples import Samples
 from ..sources.load import SUFFIXES, load_brdf
+from ..sources.samples import plan, read_samples, write_samples
+from .acquisition import PRIORS, encode_samples
 
 #: What a folder contributes to a batch (a glob may also match the other SUFFIXES).
 FOLDER_SUFFIXES = (".binary", ".h5")
@@ -259,3 +265,69 @@ def encode_batch(pattern: str | os.PathLike, out_dir: str | os.PathLike,
     ex.release([handle])
     write_summary(out, rows, {**meta, "seconds": time.perf_counter() - t0})
     return json.loads((out / SUMMARY_JSON).read_text())
+
+
+def encode_samples_file(source: str | os.PathLike, output: str | os.PathLike,
+                        ensemble: Ensemble | str | os.PathLike | None = None,
+                        n_coeffs: int = DEFAULT_N_COEFFS, n_bytes: int | None = None,
+                        seed: int = 0, prior: str = "default") -> tuple[Path, SparseBRDF]:
+    """Encode a samples file (``sources.samples.read_samples``: CSV or ``.npz``) into the
+    ``.sbrdf`` file ``output`` (written atomically), by
+    :func:`~sparse_brdf.evaluation.acquisition.encode_samples`.
+
+    Parameters
+    ----------
+    source : path
+        The samples file.
+    output : path
+        The ``.sbrdf`` file; refused if it is a folder or one of the inputs.
+    ensemble : Ensemble, path or id, optional
+        Resolved once (default: the shipped one).
+    n_coeffs : int
+        Coefficients per channel, at most (a joint budget of 3 ``n_coeffs``).
+    n_bytes : int, optional
+        A byte budget for the whole file instead.
+    seed : int
+        Seed of the cross-validation folds.
+    prior : str
+        ``"default"`` (the training split's atom prior) or ``"none"`` (every atom of
+        every dictionary, no prior).
+
+    Returns
+    -------
+    (Path, SparseBRDF)
+        The file written and the model it holds (with its ``stats``).
+    """
+    out = check_output(output, [source, None if isinstance(ensemble, Ensemble) else ensemble])
+    ens = resolve_ensemble(ensemble)
+    samples = read_samples(source)
+    model = encode_samples(samples, ens, check_n_coeffs(n_coeffs, ens), n_bytes, seed=seed,
+                           prior=check_choice("prior", prior, PRIORS))
+    return save_sbrdf(out, model), model
+
+
+def plan_samples_file(output: str | os.PathLike, n: int, placement: str = "stratified",
+                      seed: int = 0) -> Path:
+    """Write the direction pairs to measure (``sources.samples.plan``) as a CSV samples file
+    whose values are 0, to be replaced by the measurements.
+
+    Parameters
+    ----------
+    output : path
+        The CSV file (written atomically).
+    n : int
+        Direction pairs.
+    placement : str
+        ``"uniform"``, ``"stratified"`` or ``"bins"``.
+    seed : int
+        The same seed gives the same pairs.
+
+    Returns
+    -------
+    Path
+        The file written.
+    """
+    out = check_output(output, [])
+    wi, wo = plan(n, placement, seed)
+    return write_samples(out, Samples(wi, wo, np.zeros((n if placement != "bins" else
+                                                          wi.shape[0], 3)), name=out.stem))

@@ -327,6 +327,23 @@ class TuckerModel(BRDFModel):
         return Compact(self.name, n * _F32, lambda: out, params=params)
 
 
+#: The offset of the log-relative mapping (1/sr).
+LOG_RELATIVE_EPS = 1e-3
+
+
+def log_relative(rho: np.ndarray, c, median) -> np.ndarray:
+    """Nielsen et al.'s log-relative mapping ln((rho c + eps) / (median + eps)) of linear
+    values ``rho`` with cosine weights ``c`` (broadcast) and a median of rho c (same
+    units), eps = :data:`LOG_RELATIVE_EPS`."""
+    return np.log((rho * c + LOG_RELATIVE_EPS) / (median + LOG_RELATIVE_EPS))
+
+
+def from_log_relative(m: np.ndarray, c, median) -> np.ndarray:
+    """Inverse of :func:`log_relative`: linear values from mapped ones (not clamped)."""
+    with np.errstate(over="ignore"):
+        return (np.exp(m) * (median + LOG_RELATIVE_EPS) - LOG_RELATIVE_EPS) / c
+
+
 class PCAModel(BRDFModel):
     """Nielsen et al. 2015: a PCA basis of the training set in the log-relative mapping.
 
@@ -336,7 +353,7 @@ class PCAModel(BRDFModel):
     training BRDFs).
     """
 
-    EPS = 1e-3
+    EPS = LOG_RELATIVE_EPS
     learns = True
     #: Components kept: at least 1 (and at most the training BRDFs less one, by itself).
     PARAMETERS = {"n_coeffs": Interval(int, 1, int(np.prod(MERL_SHAPE)))}
@@ -349,7 +366,7 @@ class PCAModel(BRDFModel):
 
     def _map(self, brdf: BRDF) -> np.ndarray:
         c = cosine_weight(brdf.shape)[..., None]
-        return np.log((brdf.values * c + self.EPS) / (self.median_ + self.EPS))[self.mask_]
+        return log_relative(brdf.values, c, self.median_)[self.mask_]
 
     def fit(self, brdfs: Sequence[BRDF]) -> PCAModel:
         """Learn the median, mean and principal components of ``brdfs`` (at least 2, on
@@ -390,7 +407,7 @@ class PCAModel(BRDFModel):
         m = np.zeros((*brdf.shape, 3))
         m[self.mask_] = self.mean_ + coef @ basis
         c = cosine_weight(brdf.shape)[..., None]
-        rho = ((np.exp(m) * (self.median_ + self.EPS)) - self.EPS) / c
+        rho = from_log_relative(m, c, self.median_)
         rho = np.where(self.mask_, np.maximum(rho, 0), 0).astype(np.float32)
         # per material only coef; the rest are references to the trained, shared state:
         # basis (k, M) and mean (M,) over the M masked (bin, channel) entries in C order
