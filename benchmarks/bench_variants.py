@@ -1,8 +1,10 @@
-"""Render speed of ``sparse_brdf`` against ``tabulated_brdf`` in the same Mitsuba variant,
-interleaved in one run (docs/benchmarks.md).
+"""Render speed of ``sparse_brdf`` and ``neural_brdf`` against ``tabulated_brdf`` in the
+same Mitsuba variant, interleaved in one run (docs/benchmarks.md).
 
 Per variant: the sphere scene with the material as ``tabulated_brdf`` (its full table)
-and as ``sparse_brdf`` (its encoding), and, in the ``*_ad_*`` variants, a third case: the
+and as ``sparse_brdf`` (its encoding); when the material is a Neural-BRDF ``.h5`` network
+(the default material and the demo materials are), also as ``neural_brdf`` (the network
+itself, evaluated at each direction pair); and, in the ``*_ad_*`` variants, a case: the
 sparse scene after ``mi.traverse`` set its ``values_0..2`` and ``params.update()`` rebuilt
 the decoders (the path an inverse-rendering loop takes), rendered without gradients. Each
 round renders every case once (so that the machine's slow and fast phases hit them
@@ -13,6 +15,7 @@ with ``--plugin-root /tmp/before`` (that tree's ``mitsuba_plugin`` and ``sparse_
 come first on the import path) and compare its sparse / table ratios with a run without.
 
     .venv/bin/python benchmarks/bench_variants.py [--material SOURCE] [--json PATH]
+        [--variants llvm_ad_rgb,...] [--no-neural]
 """
 
 from __future__ import annotations
@@ -72,6 +75,8 @@ def bench_variant(variant: str, src: str, sbrdf: Path, args) -> dict:
     scene_path = SCENES_DIR / "sphere.xml"
     cases = {"tabulated_brdf": {"type": "tabulated_brdf", "filename": src},
              "sparse_brdf": {"type": "sparse_brdf", "filename": str(sbrdf)}}
+    if args.neural and src.lower().endswith(".h5"):
+        cases["neural_brdf"] = {"type": "neural_brdf", "filename": src}
     scenes = {k: mi.load_dict(swap_material(scene_path, d, run)) for k, d in cases.items()}
     if "_ad_" in variant:
         scenes["sparse_brdf after update()"] = _updated(
@@ -98,6 +103,8 @@ def main() -> None:
     p.add_argument("--variants", default=",".join(VARIANTS))
     p.add_argument("--plugin-root", type=Path, default=None,
                    help="a checkout whose mitsuba_plugin and sparse_brdf are used instead")
+    p.add_argument("--no-neural", dest="neural", action="store_false",
+                   help="no neural_brdf case (e.g. for a --plugin-root without it)")
     args = p.parse_args()
     info = machine()
     src = default_material(args.material)
@@ -110,13 +117,15 @@ def main() -> None:
     print(f"material {src}, {args.repeats} interleaved rounds, plugin "
           f"{Path(mitsuba_plugin.__file__).parent}\n")
     print("| variant | res, spp | tabulated_brdf (s) | sparse_brdf (s) | sparse / table | "
-          "after update() / table |\n|---|---|---|---|---|---|")
+          "neural_brdf (s) | neural / table | after update() / table |\n"
+          "|---|---|---|---|---|---|---|---|")
     for r in rows:
-        upd = r.get("sparse_brdf after update()")
+        upd, net = r.get("sparse_brdf after update()"), r.get("neural_brdf")
         upd = f"{upd['vs_tabulated']:.2f}" if upd else "-"
+        net = f"{net['median_s']:.3f} | {net['vs_tabulated']:.2f}" if net else "- | -"
         print(f"| {r['variant']} | {r['res']}, {r['spp']} | "
               f"{r['tabulated_brdf']['median_s']:.3f} | {r['sparse_brdf']['median_s']:.3f} | "
-              f"{r['sparse_brdf']['vs_tabulated']:.2f} | {upd} |")
+              f"{r['sparse_brdf']['vs_tabulated']:.2f} | {net} | {upd} |")
     if args.json:
         write_json(args.json, rows, args, info)
 

@@ -1,4 +1,5 @@
-"""Mitsuba 3 plugins for sparse-brdf: ``sparse_brdf`` (the model) and ``tabulated_brdf``.
+"""Mitsuba 3 plugins for sparse-brdf: ``sparse_brdf`` (the model), ``tabulated_brdf`` and
+``neural_brdf`` (a Neural-BRDF network).
 
 Usage::
 
@@ -9,9 +10,10 @@ Usage::
     mitsuba_plugin.register()          # once per variant, before loading a scene
     bsdf = mi.load_dict({"type": "sparse_brdf", "filename": "gold.sbrdf"})
 
-Both BSDFs are single-sided glossy reflectors (``GlossyReflection | FrontSide``), share
-the bin lookup of docs/method.md ("Grid, lookup convention, validity") and the same
-sampling code, and return ``BSDF * cos(theta_o)`` from ``eval``. Parameters:
+The BSDFs are single-sided glossy reflectors (``GlossyReflection | FrontSide``), share
+the same sampling code and every variant's colours (rgb, mono, spectral, polarized),
+the two tabulated ones the bin lookup of docs/method.md ("Grid, lookup convention,
+validity"), and return ``BSDF * cos(theta_o)`` from ``eval``. Parameters:
 
 ``sparse_brdf``
     ``filename`` (.sbrdf), ``ensemble`` (optional .npz, default the shipped one),
@@ -22,6 +24,9 @@ sampling code, and return ``BSDF * cos(theta_o)`` from ``eval``. Parameters:
 ``tabulated_brdf``
     ``filename`` (anything :func:`sparse_brdf.sources.load.load_brdf` reads), ``sampling``,
     ``interpolate``, ``ensemble`` (for decoding a .sbrdf file).
+``neural_brdf``
+    ``filename`` (a Neural-BRDF Keras ``.h5`` network), ``sampling``; evaluated at the
+    direction pair itself by the same kernel as the ``nbrdf`` evaluator.
 
 A missing or corrupt file fails at scene load with a :class:`PluginError` naming the
 plugin and the file. The loaded objects expose ``memory_bytes`` (bytes of the arrays

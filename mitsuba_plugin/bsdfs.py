@@ -1,12 +1,14 @@
-"""The two Python BSDFs, ``tabulated_brdf`` and ``sparse_brdf``, and their registration.
+"""The three Python BSDFs, ``tabulated_brdf``, ``sparse_brdf`` and ``neural_brdf``, and
+their registration.
 
 Laid out like Mitsuba 3's own Python plugins: helpers, the sparse decoders' lookup
 kernels (:func:`grouped_x`, :func:`strict_x`), the BSDF classes with their parameters in
 their docstrings, and registration at the end (:func:`register`). One difference: a
 Python BSDF must derive from the *variant's* ``mi.BSDF``, which exists only once a
 variant is set, and nanobind allows a Python class one base only. So
-:class:`GlossyBSDF` (shared sampling, pdf and cosine), :class:`TabulatedBRDF` and
-:class:`SparseBSDF` are written against no base, and :func:`make_classes` copies their
+:class:`GlossyBSDF` (shared sampling, pdf, cosine and the variants' colours),
+:class:`TabulatedBRDF`, :class:`SparseBSDF` and :class:`NeuralBRDF` are written against
+no base, and :func:`make_classes` copies their
 bodies onto subclasses of one variant's ``mi.BSDF`` (cached per variant by
 :func:`classes`). The variant reaches the methods as class attributes (``_m``, the
 variant's names; ``_ops``, its :class:`~mitsuba_plugin.kernels.Ops`; a few constants).
@@ -26,7 +28,9 @@ from pathlib import Path
 
 import drjit as dr
 
+from sparse_brdf.coords import MERL_SHAPE
 from sparse_brdf.errors import PluginError
+from sparse_brdf.mlp import tabulate
 from sparse_brdf.model.ensemble import resolve_ensemble
 from sparse_brdf.model.layouts import (
     DECODERS,
@@ -54,6 +58,7 @@ from sparse_brdf.model.layouts import (
 )
 from sparse_brdf.model.sbrdf import decode_file, load_sbrdf
 from sparse_brdf.sources.load import load_brdf
+from sparse_brdf.sources.nbrdf import read_nbrdf_weights
 
 from .kernels import (
     Ops,
@@ -68,6 +73,8 @@ from .kernels import (
     linear_bins,
     lobe_pdf,
     mix_colour,
+    mlp_weights,
+    nbrdf_rho,
     nearest_bins,
     power_cosine_sample,
 )
@@ -374,7 +381,7 @@ def strict_x(ops: Ops, buf: StrictBuffers, shape: Shape, c: int, bins, lin, acti
 
 
 class GlossyBSDF:
-    """What both BSDFs share: a single-sided glossy reflector (``GlossyReflection |
+    """What the BSDFs share: a single-sided glossy reflector (``GlossyReflection |
     FrontSide``) with cosine or lobe sampling, whose ``eval`` is ``BRDF * cos(theta_o)``.
 
     Subclasses set ``plugin``, read their properties and call :meth:`_setup_sampling` in
@@ -772,6 +779,61 @@ class SparseBSDF(GlossyBSDF):
                 f"interpolate={self.interpolate}, memory_bytes={self.memory_bytes}]")
 
 
+class NeuralBRDF(GlossyBSDF):
+    """Neural-BRDF (``neural_brdf``): the 6 -> 21 -> 21 -> 3 network of Sztrajman et al.,
+    "Neural BRDF Representation and Importance Sampling" (2021), evaluated at the
+    direction pair itself (no grid) by :func:`~mitsuba_plugin.kernels.nbrdf_rho`, the
+    same kernel as the ``nbrdf`` evaluator: 675 weights (2700 bytes) per material, as
+    opaque scalars, so every network of these widths shares one compiled kernel.
+
+    .. list-table::
+       :header-rows: 1
+
+       * - Parameter
+         - Type
+         - Description
+       * - filename
+         - string
+         - A Neural-BRDF network in the published Keras HDF5 layout (``.h5``: the demo
+           materials, or a network trained with :func:`sparse_brdf.train_nbrdf` and saved
+           with ``NeuralFit.save``).
+       * - sampling
+         - string
+         - ``cosine`` (default) or ``lobe``, as for ``tabulated_brdf``; the lobe is fitted
+           to the network's table on the MERL grid at load time, so it equals the lobe of
+           ``tabulated_brdf`` reading the same file.
+
+    Example::
+
+        {"type": "neural_brdf", "filename": "blue-fabric.h5", "sampling": "cosine"}
+    """
+
+    plugin = "neural_brdf"
+
+    def __init__(self, props) -> None:
+        GlossyBSDF.__init__(self, props)
+        p = _read_props(props, self.plugin, {"filename": _REQUIRED, "sampling": "cosine"})
+        self.sampling = _choice(p["sampling"], SAMPLING, self.plugin, "sampling")
+        self.filename = _resolve(str(p["filename"]))
+        try:
+            layers = read_nbrdf_weights(self.filename)
+        except Exception as exc:  # noqa: BLE001 - re-raised with the plugin and file named
+            raise PluginError(f"{self.plugin}: cannot load {self.filename!r}: {exc}") from exc
+        self.name = Path(self.filename).stem
+        self.widths = tuple(k.shape[1] for k, _ in layers)
+        self._weights = mlp_weights(self._ops, layers)
+        self.memory_bytes = 4 * sum(k.size + b.size for k, b in layers)
+        profile = table_profile(tabulate(layers)[0]) if self.sampling == "lobe" else None
+        self._setup_sampling(self.sampling, profile, MERL_SHAPE)
+
+    def _rho(self, wi, wo, active):
+        return nbrdf_rho(self._ops, self._weights, wi, wo)
+
+    def to_string(self):
+        return (f"{type(self).__name__}[filename={self.filename!r}, widths={self.widths}, "
+                f"sampling={self.sampling}, memory_bytes={self.memory_bytes}]")
+
+
 # ------------------------------------------------------------------------- registration
 
 
@@ -832,8 +894,8 @@ def _upsampling_loader(name: str, ops: Ops):
     return get
 
 
-def make_classes(module, name: str | None = None) -> tuple[type, type]:
-    """(TabulatedBRDF, SparseBSDF) of variant module ``module`` (e.g.
+def make_classes(module, name: str | None = None) -> tuple[type, type, type]:
+    """(TabulatedBRDF, SparseBSDF, NeuralBRDF) of variant module ``module`` (e.g.
     ``mitsuba.llvm_ad_rgb``, whose variant is ``name``, default: the module's own name):
     the classes above on that variant's ``mi.BSDF``."""
     m = VariantNamespace(module)
@@ -845,10 +907,10 @@ def make_classes(module, name: str | None = None) -> tuple[type, type]:
                    _glossy=int(+m.BSDFFlags.GlossyReflection), _zero3=m.Color3f(0.0),
                    _zero_s=m.UnpolarizedSpectrum(0.0), _kind=kind, _polarized=polarized,
                    _upsampling=_upsampling_loader(name, ops))
-    return _derive(TabulatedBRDF, base), _derive(SparseBSDF, base)
+    return _derive(TabulatedBRDF, base), _derive(SparseBSDF, base), _derive(NeuralBRDF, base)
 
 
-_CLASSES: dict[str, tuple[type, type]] = {}
+_CLASSES: dict[str, tuple[type, type, type]] = {}
 _REGISTERED: set[str] = set()
 
 
@@ -862,8 +924,8 @@ def _current_variant(variant: str | None = None) -> str:
     return name
 
 
-def classes(variant: str | None = None) -> tuple[type, type]:
-    """(TabulatedBRDF, SparseBSDF) classes of ``variant`` (default: the current one)."""
+def classes(variant: str | None = None) -> tuple[type, type, type]:
+    """(TabulatedBRDF, SparseBSDF, NeuralBRDF) classes of ``variant`` (default: the current one)."""
     name = _current_variant(variant)
     if name not in _CLASSES:
         variant_kind(name)  # an unsupported variant: one line naming it
@@ -877,7 +939,8 @@ def classes(variant: str | None = None) -> tuple[type, type]:
 
 
 def register() -> str:
-    """Register ``sparse_brdf`` and ``tabulated_brdf`` for the current variant.
+    """Register ``sparse_brdf``, ``tabulated_brdf`` and ``neural_brdf`` for the current
+    variant.
 
     Idempotent per variant; returns the variant's name. Call after ``mi.set_variant``
     and before loading a scene that uses the plugins.
@@ -887,8 +950,9 @@ def register() -> str:
     name = _current_variant()
     if name in _REGISTERED:
         return name
-    tabulated, sparse = classes(name)
+    tabulated, sparse, neural = classes(name)
     mi.register_bsdf("tabulated_brdf", lambda props: tabulated(props))
     mi.register_bsdf("sparse_brdf", lambda props: sparse(props))
+    mi.register_bsdf("neural_brdf", lambda props: neural(props))
     _REGISTERED.add(name)
     return name

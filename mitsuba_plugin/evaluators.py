@@ -57,7 +57,9 @@ from .kernels import (
     angle_coords,
     bin_weight,
     expm1,
-    half_diff,
+    mlp_forward,
+    mlp_weights,
+    nbrdf_rho,
     nearest_bins,
 )
 
@@ -416,36 +418,23 @@ class NBRDFEvaluator(Evaluator):
         if width != 3:
             raise ValueError(f"nbrdf evaluator: the last layer must give 3 values, not {width}")
         self.shape = tuple(k.shape[1] for k, _ in layers)  # the layers' widths
-        f = self.ops.f
-        self._layers = [([[f(v) for v in row] for row in np.asarray(k, np.float32).tolist()],
-                         [f(v) for v in np.asarray(b, np.float32).tolist()])
-                        for k, b in layers]
+        self._layers = mlp_weights(self.ops, [(np.asarray(k, np.float32),
+                                               np.asarray(b, np.float32)) for k, b in layers])
         self.memory_bytes = self.material_bytes = 4 * sum(k.size + b.size for k, b in layers)
 
     def network(self, inputs):
         """The network's output z (before exp(z) - 1) at six input Floats (hy may be
-        None: 0); returns a list of three Floats."""
-        h = inputs
-        for n, (rows, bias) in enumerate(self._layers):
-            out = []
-            for j, acc in enumerate(bias):
-                for x, row in zip(h, rows, strict=True):
-                    if x is not None:
-                        acc = dr.fma(x, row[j], acc) if self.ops.jit else x * row[j] + acc
-                out.append(dr.maximum(acc, 0.0) if n < len(self._layers) - 1 else acc)
-            h = out
-        return h
+        None: 0); returns a list of three Floats (:func:`~mitsuba_plugin.kernels.
+        mlp_forward`)."""
+        return mlp_forward(self.ops, self._layers, inputs)
 
     def eval(self, wi, wo, active=True):
-        """As :meth:`Evaluator.eval`, at the pairs' own half and difference vectors."""
+        """As :meth:`Evaluator.eval`, at the pairs' own half and difference vectors
+        (:func:`~mitsuba_plugin.kernels.nbrdf_rho`, shared with the ``neural_brdf``
+        BSDF)."""
         m = self.m
         ok = active & (wi.z > 0.0) & (wo.z > 0.0)
-        st, ct, dx, dy, dz = half_diff(wi, wo)
-        flip = dy < 0.0
-        dx, dy = dr.select(flip, -dx, dx), dr.select(flip, -dy, dy)
-        z = self.network([st, None, ct, dx, dy, dz])
-        rgb = m.Color3f(*(dr.maximum(expm1(c), 0.0) for c in z))
-        return dr.select(ok, rgb, m.Color3f(0.0))
+        return dr.select(ok, nbrdf_rho(self.ops, self._layers, wi, wo), m.Color3f(0.0))
 
 
 EVALUATORS: dict[str, type[Evaluator]] = {

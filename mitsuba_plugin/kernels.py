@@ -185,6 +185,44 @@ def half_diff(wi, wo):
     return st, ct, ct * x - st * z, y, st * x + ct * z
 
 
+def mlp_weights(ops: Ops, layers) -> list:
+    """A Neural-BRDF network's (kernel, bias) pairs (float32 arrays, kernel (n_in, n_out))
+    as nested lists of opaque scalars (kernel inputs: one kernel for every network of
+    these widths)."""
+    return [([[ops.f(v) for v in row] for row in k.tolist()], [ops.f(v) for v in b.tolist()])
+            for k, b in layers]
+
+
+def mlp_forward(ops: Ops, weights, inputs) -> list:
+    """The network's output z (before exp(z) - 1) at its input Floats (an input may be
+    None: 0, its row of the first kernel skipped); dense layers unrolled into fused
+    multiply-adds, ReLU after all but the last (the Dr.Jit twin of
+    :func:`sparse_brdf.mlp.forward`). Returns a list of the last layer's Floats."""
+    h = inputs
+    for n, (rows, bias) in enumerate(weights):
+        out = []
+        for j, acc in enumerate(bias):
+            for x, row in zip(h, rows, strict=True):
+                if x is not None:
+                    acc = dr.fma(x, row[j], acc) if ops.jit else x * row[j] + acc
+            out.append(dr.maximum(acc, 0.0) if n < len(weights) - 1 else acc)
+        h = out
+    return h
+
+
+def nbrdf_rho(ops: Ops, weights, wi, wo):
+    """A Neural-BRDF network's value at direction pairs: max(exp(z) - 1, 0) per channel
+    (linear RGB, 1/sr; a Color3f), z the network at the pair's own half vector with
+    phi_h = 0, (sin th, 0, cos th), and difference vector (:func:`half_diff`), phi_d
+    folded into [0, pi) by reciprocity (d -> (-dx, -dy, dz) where dy < 0); hy = 0 drops a
+    row of the first kernel. Directions below the horizon are the caller's to mask."""
+    st, ct, dx, dy, dz = half_diff(wi, wo)
+    flip = dy < 0.0
+    dx, dy = dr.select(flip, -dx, dx), dr.select(flip, -dy, dy)
+    z = mlp_forward(ops, weights, [st, None, ct, dx, dy, dz])
+    return ops.m.Color3f(*(dr.maximum(expm1(c), 0.0) for c in z))
+
+
 def angle_coords(ops: Ops, shape: Shape, wi, wo):
     """Continuous grid coordinates (x_h, x_d, x_p) of a direction pair (docs/method.md,
     "Grid, lookup convention, validity").

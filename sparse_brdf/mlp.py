@@ -10,22 +10,32 @@ the linear RGB BRDF value (1/sr). The network is ``layers``, a list of three ``(
 bias)`` float32 pairs, kernel (n_in, n_out) and bias (n_out,), applied as ``x @ kernel +
 bias`` (Keras' convention).
 
-The same formulas serve the shipped networks (:mod:`sparse_brdf.sources.nbrdf` reads their
-Keras files), the trainer (:mod:`sparse_brdf.model.neural`, which backpropagates through
-:func:`forward`) and the networks' tables (:func:`tabulate`); the Mitsuba plugin's
-evaluator (``mitsuba_plugin.evaluators``) is their Dr.Jit twin.
+A network is stored in the published Keras HDF5 layout (:data:`KERAS_LAYERS`), written by
+:func:`save_keras` and read by :mod:`sparse_brdf.sources.nbrdf` (the shipped networks).
+The same formulas serve those networks, the trainer (:mod:`sparse_brdf.model.neural`,
+which backpropagates through :func:`forward`) and the networks' tables
+(:func:`tabulate`); the Mitsuba plugin's ``nbrdf`` evaluator and ``neural_brdf`` BSDF are
+their Dr.Jit twin (``mitsuba_plugin.kernels.nbrdf_rho``).
 """
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
 import numpy as np
 
 from .coords import MERL_SHAPE, geometric_valid, grid_angles, half_diff_vectors
+from .fileio import atomic_path
 
 #: The published architecture's widths: input, two hidden layers, output.
 LAYER_SIZES: tuple[int, ...] = (6, 21, 21, 3)
 #: Its number of weights and biases (675).
 N_WEIGHTS: int = sum(a * b + b for a, b in zip(LAYER_SIZES[:-1], LAYER_SIZES[1:], strict=False))
+
+#: The dense layers' names in a Keras HDF5 file of the network: layer ``name``'s kernel
+#: and bias are the datasets ``name/name/kernel:0`` and ``name/name/bias:0``.
+KERAS_LAYERS: tuple[str, ...] = ("dense_1", "dense_2", "dense_3")
 
 Layers = list[tuple[np.ndarray, np.ndarray]]
 
@@ -114,3 +124,45 @@ def params_from_layers(layers: Layers) -> dict[str, np.ndarray]:
         out[f"w{i}"] = np.array(k, np.float32)
         out[f"b{i}"] = np.array(b, np.float32)
     return out
+
+
+def save_keras(path: str | os.PathLike, layers: Layers) -> Path:
+    """Write a network in the Keras HDF5 layout of the published Neural-BRDF files.
+
+    The groups :data:`KERAS_LAYERS` (with Keras' ``layer_names`` and ``weight_names``
+    attributes, and the weightless output layer ``lambda_1``), each holding its float32
+    ``kernel:0`` (n_in, n_out) and ``bias:0`` (n_out,). Written atomically: a failed
+    write leaves no file. Read back bit for bit by
+    :func:`sparse_brdf.sources.nbrdf.read_nbrdf_weights` (and ``load_brdf``), rendered
+    by the ``neural_brdf`` Mitsuba plugin.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The ``.h5`` file to write (replaced if it exists).
+    layers : list of (kernel, bias)
+        One pair per name of :data:`KERAS_LAYERS`.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    import h5py  # lazy: h5py adds ~25 ms to `import sparse_brdf`
+
+    if len(layers) != len(KERAS_LAYERS):
+        raise ValueError(f"a Neural-BRDF file holds {len(KERAS_LAYERS)} layers, not "
+                         f"{len(layers)}")
+    path = Path(path)
+    names = [*KERAS_LAYERS, "lambda_1"]
+    with atomic_path(path, suffix=".h5") as tmp, h5py.File(tmp, "w") as f:
+        f.attrs["layer_names"] = np.array([n.encode() for n in names])
+        for name, (k, b) in zip(KERAS_LAYERS, layers, strict=True):
+            g = f.create_group(name)
+            g.attrs["weight_names"] = np.array([f"{name}/kernel:0".encode(),
+                                                f"{name}/bias:0".encode()])
+            inner = g.create_group(name)
+            inner.create_dataset("kernel:0", data=np.asarray(k, np.float32))
+            inner.create_dataset("bias:0", data=np.asarray(b, np.float32))
+        f.create_group("lambda_1").attrs["weight_names"] = np.array([], np.float64)
+    return path

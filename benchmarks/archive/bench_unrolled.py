@@ -104,7 +104,7 @@ def make_unrolled_class():
     import mitsuba_plugin
     from mitsuba_plugin.kernels import Ops, VariantNamespace
 
-    _, sparse = mitsuba_plugin.classes()
+    _, sparse, _ = mitsuba_plugin.classes()
     ops = Ops(VariantNamespace(importlib.import_module(f"mitsuba.{mi.variant()}")))
 
     class UnrolledBSDF(sparse):

@@ -36,8 +36,10 @@ network as it then is); the result says so. Measured times are in ``docs/benchma
 from __future__ import annotations
 
 import math
+import os
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -50,6 +52,7 @@ from ..mlp import (
     forward,
     network_inputs,
     params_from_layers,
+    save_keras,
     tabulate,
 )
 from ..parallel import blas_single_thread
@@ -106,6 +109,27 @@ class NeuralFit:
             ``b3`` (3,): float32 copies, 675 numbers in all.
         """
         return params_from_layers(self.layers)
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the network as a Neural-BRDF ``.h5`` file, the published Keras layout
+        (:func:`sparse_brdf.mlp.save_keras`, atomic), which ``load_brdf`` tabulates and
+        the ``neural_brdf`` Mitsuba plugin renders; the weights read back bit for bit.
+
+        Parameters
+        ----------
+        path : str or PathLike
+            The file to write (replaced if it exists).
+
+        Returns
+        -------
+        Path
+            ``path``.
+
+        Examples
+        --------
+        >>> train_nbrdf(brdf, time_budget=60).save("gold.h5")  # doctest: +SKIP
+        """
+        return save_keras(path, self.layers)
 
     def __repr__(self) -> str:
         last = f"{self.loss[-1]:.4g}" if self.loss else "n/a"

@@ -16,9 +16,8 @@ from ..brdf import BRDF
 from ..coords import MERL_SHAPE
 from ..errors import BRDFFileError, InvalidBRDFError
 from ..fileio import require_file
-from ..mlp import tabulate
+from ..mlp import KERAS_LAYERS, tabulate
 
-_LAYERS = ("dense_1", "dense_2", "dense_3")
 #: Largest weight array read (the real networks hold 21 x 21); more is not a Neural-BRDF.
 _MAX_WEIGHTS = 1 << 16
 
@@ -31,7 +30,7 @@ def read_nbrdf_weights(path: str | os.PathLike) -> list[tuple[np.ndarray, np.nda
     try:
         with h5py.File(path, "r") as f:
             layers = []
-            for name in _LAYERS:
+            for name in KERAS_LAYERS:
                 g = f[name][name]
                 kernel, bias = g["kernel:0"], g["bias:0"]
                 for d in (kernel, bias):  # refuse huge or non-numeric datasets before reading
