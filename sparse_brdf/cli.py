@@ -196,8 +196,8 @@ def cmd_train(args: argparse.Namespace) -> int:
                          checkpoint_dir=args.checkpoint_dir, meta=meta,
                          reassign_every=args.reassign_every, masked=args.masked,
                          missing=data.missing, init=args.init, tol=args.tol,
-                         max_moved=args.max_moved, workers=args.workers,
-                         scheduler=args.scheduler)
+                         max_moved=args.max_moved, shard_tensors=args.shard_tensors,
+                         workers=args.workers, scheduler=args.scheduler)
     if args.extend:
         ens = Ensemble.load(args.extend).union(ens)
     ens.save(args.output)
@@ -514,6 +514,12 @@ def _add_train(sub) -> None:
     t.add_argument("--max-moved", type=_typed(TRAIN["max_moved"]),
                    default=_default(train_dictionaries, "max_moved"),
                    help="fraction of tensors a clustering may move for training to stop")
+    t.add_argument("--shard-tensors", type=_typed(TRAIN["shard_tensors"]),
+                   default=_default(train_dictionaries, "shard_tensors"),
+                   help="tensors per shard: sums over tensors run per shard, then over "
+                        "the shards, so this fixes the floating-point order (any executor "
+                        "gives the same result for one value); 0: one shard of all, the "
+                        "order that trained the shipped default ensemble (docs/ensemble.md)")
     t.add_argument("--masked", action=argparse.BooleanOptionalAction,
                    default=_default(train_dictionaries, "masked"),
                    help="fit valid bins only (bins below the horizon and unmeasured bins "

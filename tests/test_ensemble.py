@@ -51,6 +51,25 @@ def test_resume_from_checkpoint_matches_uninterrupted(small_training, tmp_path):
                            progress=False)
 
 
+def test_shard_size_is_part_of_the_run(small_training, tmp_path):
+    """The shard size fixes the summation order, so a checkpoint of one size is refused
+    by a run of another; 0 (one shard of all tensors) is accepted and recorded, a
+    negative size refused naming the parameter."""
+    ck = tmp_path / "ck.npz"
+    one = train_dictionaries(small_training, 16, n_dicts=2, n_iter=1, seed=2, tol=0,
+                             checkpoint=ck, progress=False, shard_tensors=0)
+    assert one.iteration == 1
+    with pytest.raises(ValueError, match="another training run"):
+        train_dictionaries(small_training, 16, n_dicts=2, n_iter=2, seed=2, tol=0,
+                           checkpoint=ck, progress=False)
+    resumed = train_dictionaries(small_training, 16, n_dicts=2, n_iter=2, seed=2, tol=0,
+                                 checkpoint=ck, progress=False, shard_tensors=0)
+    assert resumed.iteration == 2
+    with pytest.raises(ValueError, match="shard_tensors"):
+        train_dictionaries(small_training, 16, n_dicts=2, n_iter=1, progress=False,
+                           shard_tensors=-1)
+
+
 def test_empty_clusters_are_reseeded():
     # three identical tensors and one other: K = 3 leaves a cluster empty after assignment
     rng = np.random.default_rng(0)

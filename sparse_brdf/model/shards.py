@@ -141,7 +141,8 @@ def shard_set_fill(sh: TensorStore, i: int, fill) -> None:
 
 
 class Shards:
-    """The training tensors as shards of ``SHARD_TENSORS`` consecutive tensors, each a
+    """The training tensors as shards of ``shard_tensors`` (default ``SHARD_TENSORS``; 0:
+    one shard of all) consecutive tensors, each a
     :class:`TensorStore` kept where the executor runs it (``parallel.py``: here, or on one
     worker for the whole run, so the tensors and their free-bin values travel once).
 
@@ -153,11 +154,13 @@ class Shards:
     """
 
     def __init__(self, x: np.ndarray, masked: bool, missing: dict | None, ex,
-                 progress: bool):
+                 progress: bool, shard_tensors: int = SHARD_TENSORS):
         self.ex, self.masked, self.progress = ex, masked, progress
         self.shape = tuple(int(n) for n in x.shape[1:])
         self.n = n = len(x)
-        self.bounds = [(lo, min(lo + SHARD_TENSORS, n)) for lo in range(0, n, SHARD_TENSORS)]
+        # 0: one shard of every tensor (the summation order of the trainer before shards)
+        self.size = size = int(shard_tensors) or max(n, 1)
+        self.bounds = [(lo, min(lo + size, n)) for lo in range(0, n, size)]
         args = []
         for lo, hi in self.bounds:
             part = np.ascontiguousarray(x[lo:hi]) if ex.distributed else x[lo:hi]
@@ -190,7 +193,7 @@ class Shards:
 
     def run_one(self, i: int, fn, *args):
         """``fn(shard, local index of tensor i, *args)`` on the shard holding tensor i."""
-        k = i // SHARD_TENSORS
+        k = i // self.size
         return self.ex.run_on([self.handles[k]], fn, [(i - self.bounds[k][0], *args)])[0]
 
     def scatter(self, *arrays) -> list:

@@ -41,6 +41,7 @@ from .checkpoint import TrainState, fingerprint, load_checkpoint, run_options, s
 from .ensemble import Ensemble
 from .pruning import PrunedSearch, slice_order
 from .shards import (
+    SHARD_TENSORS,
     Shards,
     cat,
     shard_gram,
@@ -72,6 +73,7 @@ PARAMETERS = {
     "tau": Interval(int, 1), "n_dicts": Interval(int, 1), "n_iter": Interval(int, 0),
     "reassign_every": Interval(int, 1), "tol": Interval(float, 0.0),
     "max_moved": Interval(float, 0.0, 1.0), "init": INITS, "seed": SEED,
+    "shard_tensors": Interval(int, 0),
 }
 
 
@@ -484,6 +486,7 @@ def train_dictionaries(
     init: str = DEFAULT_INIT,
     max_moved: float = DEFAULT_MAX_MOVED,
     executor: Executor | None = None,
+    shard_tensors: int = SHARD_TENSORS,
 ) -> TrainState:
     """Train ``n_dicts`` dictionaries under sparsity ``tau`` on tensors ``x``.
 
@@ -527,6 +530,12 @@ def train_dictionaries(
         ``"seeded"`` or ``"random"`` initial clusters (:func:`_init_state`).
     executor : Executor, optional
         Where the per-tensor work runs (``parallel.executor``; default: here).
+    shard_tensors : int
+        Tensors per shard (default ``SHARD_TENSORS``, 32): sums over tensors are summed
+        per shard, then over the shards, so the shard size fixes the floating-point
+        summation order (the result is the same on any executor for one size). 0: one
+        shard of every tensor, the order of the trainer before shards existed, which
+        trained the shipped default ensemble (``docs/ensemble.md``).
 
     Returns
     -------
@@ -547,10 +556,14 @@ def train_dictionaries(
     from tqdm.auto import tqdm  # lazy: tqdm.auto adds ~40 ms to `import sparse_brdf`
 
     x = _check_training_args(x, tau, n_dicts, init, reassign_every)
-    with Shards(x, masked, missing, executor or InProcess(), progress) as data:
+    check("shard_tensors", shard_tensors, PARAMETERS["shard_tensors"])
+    with Shards(x, masked, missing, executor or InProcess(), progress,
+                shard_tensors) as data:
         total = float(data.energy.sum())
-        run = fingerprint(x, data.raw_norms, tau, n_dicts, seed,
-                          run_options(data.extra, masked, init))
+        options = run_options(data.extra, masked, init)
+        if shard_tensors != SHARD_TENSORS:  # (the default keeps earlier checkpoints valid)
+            options = {**(options or {}), "shard_tensors": int(shard_tensors)}
+        run = fingerprint(x, data.raw_norms, tau, n_dicts, seed, options)
         state = _start(data, checkpoint, run, tau, n_dicts, seed, init)
         bar = tqdm(total=n_iter, initial=state.iteration, desc=f"tau={tau}", unit="it",
                    disable=not progress)
@@ -658,7 +671,8 @@ def train_ensemble(
                "init": kwargs.get("init", DEFAULT_INIT),
                "reassign_every": int(kwargs.get("reassign_every", DEFAULT_REASSIGN_EVERY)),
                "tol": float(kwargs.get("tol", DEFAULT_TOL)),
-               "max_moved": float(kwargs.get("max_moved", DEFAULT_MAX_MOVED))}
+               "max_moved": float(kwargs.get("max_moved", DEFAULT_MAX_MOVED)),
+               "shard_tensors": int(kwargs.get("shard_tensors", SHARD_TENSORS))}
     ens.meta = {**(meta or {}), "taus": list(map(int, taus)), "n_dicts_per_tau": n_dicts,
                 "n_iter": n_iter, "seed": seed, "n_tensors": int(len(x)), **options,
                 "seconds": time.perf_counter() - t0, "init_seconds": init_seconds,
