@@ -269,22 +269,4 @@ def linear_bins(wi: np.ndarray, wo: np.ndarray, shape: tuple[int, int, int] = ME
         theta_d clamp at the grid's ends; phi_d wraps around (period pi: phi_d = pi is
         phi_d = 0 by reciprocity).
     """
-    th, td, pd = dirs_to_angles(wi, wo)
-    pd = np.where(pd < 0.0, pd + np.pi, pd)
-    coords = grid_coords(np.maximum(th, 0.0), td, pd, shape)
-    out = []
-    for mode, (x, n) in enumerate(zip(coords, shape, strict=True)):
-        if mode < 2:
-            xc = np.clip(x, 0.0, n - 1.0)
-            f0 = np.minimum(np.floor(xc), max(n - 2.0, 0.0))
-            t = np.clip(xc - f0, 0.0, 1.0)
-            i0 = f0.astype(np.int64)
-            i1 = np.minimum(i0 + 1, n - 1)
-        else:
-            xc = np.clip(x, 0.0, float(n))
-            f0 = np.floor(xc)
-            t = np.where(f0 >= n, 1.0, xc - f0)  # x = n_p is the sample at 0
-            i0 = np.minimum(f0, n - 1.0).astype(np.int64)
-            i1 = (i0 + 1) % n
-        out.append((i0, i1, t))
-    return tuple(out)
+    return linear_neighbours(*dirs_to_angles(wi, wo), shape)
