@@ -29,6 +29,12 @@ from .errors import (
 )
 from .evaluation import fit_images as fit_images_module
 from .evaluation.acquisition import PRIORS
+from .evaluation.acquisition_bench import KIND as ACQUISITION
+from .evaluation.acquisition_bench import (
+    AcquisitionBench,
+    AcquisitionConfig,
+    check_acquisition_config,
+)
 from .evaluation.batch import (
     encode_batch,
     encode_file,
@@ -36,7 +42,7 @@ from .evaluation.batch import (
     is_batch,
     plan_samples_file,
 )
-from .evaluation.bench import Bench, BenchConfig, check_config, shipped_configs
+from .evaluation.bench import Bench, BenchConfig, check_config, config_kind, shipped_configs
 from .evaluation.fit_images import fit_images, load_views
 from .evaluation.fit_scene import fit_scene
 from .evaluation.render import (
@@ -423,6 +429,8 @@ def cmd_fit_images(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
+    if args.config is not None and config_kind(args.config) == ACQUISITION:
+        return _bench_acquisition(args)
     cfg = BenchConfig.load(args.config)
     if args.out:
         cfg.out = args.out
@@ -437,6 +445,25 @@ def cmd_bench(args: argparse.Namespace) -> int:
         return 0
     with executor(args.workers, args.scheduler) as ex:
         Bench(cfg).run(ex)
+    print(f"wrote {cfg.out}/report.md, results.csv, results.json")
+    return 0
+
+
+def _bench_acquisition(args: argparse.Namespace) -> int:
+    cfg = AcquisitionConfig.load(args.config)
+    if args.out:
+        cfg.out = args.out
+    if args.no_render or args.workers or args.scheduler:
+        given = "--no-render" if args.no_render else "--workers/--scheduler"
+        raise UsageError(f"{given}: the acquisition bench ({cfg.label}) renders every fit "
+                         "here; run it without that option")
+    plan = check_acquisition_config(cfg)
+    if args.check:
+        skipped = "".join(f"; skips {k}: {v}" for k, v in plan["skipped_scenes"].items())
+        print(f"{cfg.label}: ok: {plan['materials']} materials x {plan['cells']} fits, "
+              f"scenes {', '.join(plan['scenes'])}{skipped}")
+        return 0
+    AcquisitionBench(cfg).run()
     print(f"wrote {cfg.out}/report.md, results.csv, results.json")
     return 0
 
@@ -784,7 +811,11 @@ def _add_blend_and_bench(sub) -> None:
     b = sub.add_parser("bench", help="compare models: tables, figures, speed-vs-accuracy chart",
                        description="Run a bench suite: a built-in config by name ("
                                    + ", ".join(shipped_configs()) + ") or a TOML file; "
-                                   "finished cells are skipped on a re-run.")
+                                   "finished cells are skipped on a re-run. `acquisition` "
+                                   "(or a config with bench = \"acquisition\") benches "
+                                   "encoding from N measured samples, the sparse model against "
+                                   "PCA (docs/results.md); it renders every fit and takes "
+                                   "neither --no-render nor a Dask cluster.")
     b.add_argument("config", nargs="?",
                    help="a built-in config's name or a TOML file (default: the small suite)")
     b.add_argument("--out", help="output folder (overrides the config's)")

@@ -134,21 +134,18 @@ class BenchConfig:
         --list``); None gives the defaults."""
         if path is None:
             return cls()
-        path = require_file(find_config(path), "bench config")  # a FIFO would hang
-        if path.stat().st_size > _MAX_CONFIG_BYTES:
-            raise ConfigError(f"{path}: {path.stat().st_size} bytes: too large for a bench "
-                              "config")
-        try:
-            data = tomllib.loads(path.read_bytes().decode("utf-8"))
-        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-            raise ConfigError(f"{path}: not a valid TOML file: {exc}") from exc
+        path, data = read_config(path)
+        if data.get("bench", "models") != "models":
+            raise ConfigError(f"{path}: bench = {data['bench']!r}: not a model bench config "
+                              "(sparse-brdf bench runs it by name)")
+        data.pop("bench", None)
         if "scene" in data:  # the one-scene form of earlier configs
             data.setdefault("scenes", [data.pop("scene")])
         unknown = set(data) - set(cls.__dataclass_fields__)
         if unknown:
             raise ConfigError(f"{path}: unknown bench settings {sorted(unknown)}")
         for key, value in data.items():
-            _check_setting(path, key, value, cls.__dataclass_fields__[key].type)
+            check_setting(path, key, value, cls.__dataclass_fields__[key].type)
         for spec in data.get("models", []) + data.get("stability_models", []):
             _check_model_spec(path, spec)
         cfg = cls(**data)
@@ -161,6 +158,33 @@ class BenchConfig:
 
 #: Largest bench config read (the shipped ones are under 2 kB).
 _MAX_CONFIG_BYTES = 1 << 20
+
+
+def read_config(name: str | os.PathLike) -> tuple[Path, dict]:
+    """A bench config's file (a path, or a shipped config's name) and its TOML settings.
+
+    Raises
+    ------
+    MissingFileError
+        If there is no such file nor shipped config.
+    ConfigError
+        For a file too large or not valid UTF-8 TOML, naming the file.
+    """
+    path = require_file(find_config(name), "bench config")  # a FIFO would hang
+    if path.stat().st_size > _MAX_CONFIG_BYTES:
+        raise ConfigError(f"{path}: {path.stat().st_size} bytes: too large for a bench config")
+    try:
+        return path, tomllib.loads(path.read_bytes().decode("utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: not a valid TOML file: {exc}") from exc
+
+
+def config_kind(name: str | os.PathLike) -> str:
+    """What a config benches: its ``bench`` setting, ``"models"`` (the default: models side
+    by side, :class:`BenchConfig`) or ``"acquisition"`` (encoding from samples,
+    :class:`~sparse_brdf.evaluation.acquisition_bench.AcquisitionConfig`)."""
+    kind = read_config(name)[1].get("bench", "models")
+    return kind if isinstance(kind, str) else repr(kind)
 #: The settings' values (a list setting: each of its items), declared as
 #: :mod:`sparse_brdf.params` declarations; the render settings are the renderer's.
 SETTINGS = {
@@ -175,6 +199,7 @@ _NON_EMPTY = {"curve_coeffs": "give at least one coefficient count (the error cu
 _SETTING_TYPES = {
     "int": lambda v: isinstance(v, int) and not isinstance(v, bool),
     "str": lambda v: isinstance(v, str),
+    "float": lambda v: isinstance(v, (int, float)) and not isinstance(v, bool),
     "bool": lambda v: isinstance(v, bool),
     "list[str]": lambda v: isinstance(v, list) and all(isinstance(x, str) for x in v),
     "list[int]": lambda v: isinstance(v, list) and all(
@@ -182,17 +207,20 @@ _SETTING_TYPES = {
 }
 
 
-def _check_setting(path: Path, key: str, value, annotation) -> None:
-    """Raise :class:`ConfigError` unless ``value`` fits the field's type and range."""
+def check_setting(path: Path, key: str, value, annotation,
+                  declared: dict | None = None) -> None:
+    """Raise :class:`ConfigError` unless ``value`` fits the field's type and its
+    declaration in ``declared`` (default :data:`SETTINGS`)."""
     kind = str(annotation).removesuffix(" | None")
     if not _SETTING_TYPES.get(kind, lambda v: True)(value):
         raise ConfigError(f"{path}: setting {key} = {value!r}: expected {kind}")
     if key in _NON_EMPTY and value == []:
         raise ConfigError(f"{path}: setting {key} = []: {_NON_EMPTY[key]}")
-    if key in SETTINGS:
+    declared = SETTINGS if declared is None else declared
+    if key in declared:
         for v in value if isinstance(value, list) else [value]:
             try:
-                check(f"setting {key}", v, SETTINGS[key])
+                check(f"setting {key}", v, declared[key])
             except UsageError as exc:
                 raise ConfigError(f"{path}: {exc}") from None
 
