@@ -106,10 +106,15 @@ class Projections:
     exact_for: tuple[int, float | None] | None = None
 
 
+def _energy(x: np.ndarray) -> float:
+    """||x||^2, accumulated in float64 (a float32 dot product over 1.4 M entries is off by
+    about 1e-5 relative, the size of the residuals compared here)."""
+    return float(np.sum(np.square(x, dtype=np.float64)))
+
+
 def _energies(y: np.ndarray) -> np.ndarray:
-    """||Y_c||^2 of each channel, accumulated in float64 (a float32 dot product over 1.4 M
-    entries is off by about 1e-5 relative, the size of the residuals compared here)."""
-    return np.array([float(np.sum(np.square(ch, dtype=np.float64))) for ch in y])
+    """||Y_c||^2 of each channel (:func:`_energy`)."""
+    return np.array([_energy(ch) for ch in y])
 
 
 def project_all(brdf: BRDF, ens: Ensemble, transform: str, max_coeffs: int,
@@ -160,47 +165,69 @@ def project_pruned(brdf: BRDF, ens: Ensemble, transform: str, n_coeffs: int,
     """
     if y is None:
         y = forward(brdf.channel_first(), check_transform(transform), brdf.valid)
-    n1, n2, n3 = tuple(y.shape[1:])
+    return project_pruned_many(brdf, ens, {transform: y}, n_coeffs, max_error)[transform]
+
+
+def project_pruned_many(brdf: BRDF, ens: Ensemble, ys: dict[str, np.ndarray],
+                        n_coeffs: int, max_error: float | None = None
+                        ) -> dict[str, Projections]:
+    """:func:`project_pruned` of several transformed tensors ``ys`` (transform name:
+    channels (3, n1, n2, n3)) in one search: each tensor's channels are pruned on their
+    own, as by separate calls, with the same result, but every round's slices of all of
+    them share the thread pool, so that a round's few long tasks of one tensor overlap
+    those of another."""
+    names = list(ys)
+    n1, n2, n3 = tuple(ys[names[0]].shape[1:])
     n_dicts = ens.n_dicts
     n = int(n_coeffs)
-    yt = np.ascontiguousarray(np.moveaxis(y, -1, 1)).reshape(3, n3, n1 * n2)
-    norms = _energies(y)
+    yt = {t: np.ascontiguousarray(np.moveaxis(y, -1, 1)).reshape(3, n3, n1 * n2)
+          for t, y in ys.items()}
+    channels = [(t, c) for t in names for c in range(3)]
+    norms = dict(zip(channels, parallel_map(
+        lambda tc: _energy(ys[tc[0]][tc[1]]), channels), strict=True))
     u1t = [np.ascontiguousarray(ens.u1[k].T) for k in range(n_dicts)]
     u3t = [np.ascontiguousarray(ens.u3[k].T) for k in range(n_dicts)]
 
     # slice order per (channel, dictionary): energy of Y along each row of U3^T
-    def slice_orders(c):  # on the workers: small products on threaded BLAS stall under load
-        g = yt[c] @ yt[c].T
+    def slice_orders(tc):  # on the workers: small products on threaded BLAS stall under load
+        x = yt[tc[0]][tc[1]]
+        g = x @ x.T
         return [slice_order(g, ens.u3[k]) for k in range(n_dicts)]
 
-    order = list(parallel_map(slice_orders, range(3)))
+    order = dict(zip(channels, parallel_map(slice_orders, channels), strict=True))
 
     def chunk(key, lo, hi):
-        c, k = key
-        rows = order[c][k][lo:hi]
-        t = (u3t[k][rows] @ yt[c]).reshape(rows.size, n1, n2)
-        sv = np.matmul(np.matmul(u1t[k], t), ens.u2[k]).ravel()
+        t, c, k = key
+        rows = order[(t, c)][k][lo:hi]
+        m = (u3t[k][rows] @ yt[t][c]).reshape(rows.size, n1, n2)
+        sv = np.matmul(np.matmul(u1t[k], m), ens.u2[k]).ravel()
         e = sv * sv
         loc = top_k(e, n)
         slot, ab = np.divmod(loc, n1 * n2)
         return ab * n3 + rows[slot], sv[loc], float(e.sum(dtype=np.float64))
 
-    pairs = [(c, k) for c in range(3) for k in range(n_dicts)]
-    search = PrunedSearch.start(pairs, n3, n, max_error).run(
-        [([(c, k) for k in range(n_dicts)], norms[c], np.inf) for c in range(3)], chunk,
-        mapper=parallel_map)
-
+    keys = [(t, c, k) for t, c in channels for k in range(n_dicts)]
+    groups = [([(t, c, k) for k in range(n_dicts)], norms[(t, c)], np.inf)
+              for t, c in channels]
+    search = PrunedSearch.start(keys, n3, n, max_error).run(groups, chunk,
+                                                            mapper=parallel_map)
     k_keep = min(n, n1 * n2 * n3)
-    residual = np.full((3, n_dicts, k_keep), np.inf)
-    idx_out = [[np.zeros(0, np.int64) for _ in range(n_dicts)] for _ in range(3)]
-    val_out = [[np.zeros(0, np.float32) for _ in range(n_dicts)] for _ in range(3)]
-    for c, k in search.survivors():
-        idx, val = search.top[(c, k)]
-        e = val.astype(np.float32) ** 2
-        idx_out[c][k], val_out[c][k] = idx, val
-        residual[c, k, :idx.size] = norms[c] - np.cumsum(e, dtype=np.float64)
-    return Projections(transform, brdf.shape, ens.id, idx=idx_out, val=val_out,
-                       residual=residual, norms=norms, exact_for=(n_coeffs, max_error))
+    out = {}
+    for t in names:
+        norm = np.array([norms[(t, c)] for c in range(3)])
+        residual = np.full((3, n_dicts, k_keep), np.inf)
+        idx_out = [[np.zeros(0, np.int64) for _ in range(n_dicts)] for _ in range(3)]
+        val_out = [[np.zeros(0, np.float32) for _ in range(n_dicts)] for _ in range(3)]
+        for tt, c, k in search.survivors():
+            if tt != t:
+                continue
+            idx, val = search.top[(t, c, k)]
+            e = val.astype(np.float32) ** 2
+            idx_out[c][k], val_out[c][k] = idx, val
+            residual[c, k, :idx.size] = norm[c] - np.cumsum(e, dtype=np.float64)
+        out[t] = Projections(t, brdf.shape, ens.id, idx=idx_out, val=val_out,
+                             residual=residual, norms=norm, exact_for=(n_coeffs, max_error))
+    return out
 
 
 def select(p: Projections, n_coeffs: int, max_error: float | None = None,
@@ -484,16 +511,28 @@ def _search(brdf: BRDF, ens: Ensemble, transform: str, y: np.ndarray,
     """Each coded channel's dictionary by the (pruned) search over the ensemble, and its
     coefficients: the selection's own, or with a joint budget, re-coded on the chosen
     dictionaries (:func:`_code`)."""
-    p = project_pruned(brdf, ens, transform, o.n, o.max_error, y=y)
-    m = select(p, o.n, o.max_error, brdf.name)
-    m.basis = o.basis
+    return _search_many(brdf, ens, {transform: y}, o)[transform]
+
+
+def _search_many(brdf: BRDF, ens: Ensemble, ys: dict[str, np.ndarray],
+                 o: _Options) -> dict[str, SparseBRDF]:
+    """:func:`_search` of the channels of several transforms (name: channels), their
+    projections side by side on the thread pool."""
+    ps = project_pruned_many(brdf, ens, ys, o.n, o.max_error)
+    models = {}
+    for t, p in ps.items():
+        models[t] = select(p, o.n, o.max_error, brdf.name)
+        models[t].basis = o.basis
     if o.joint:
-        m = _code(y, ens, m, o, norms=p.norms)
+        coded = _code_many([(ys[t], models[t], ps[t].norms) for t in ys], ens, o)
+        models = dict(zip(ys, coded, strict=True))
     else:
-        m.stats["budget"] = _budget_stats(m, p.norms)
-    # (channel, dictionary) projections completed; the others were pruned
-    m.stats["projections_completed"] = int(np.isfinite(p.residual[:, :, 0]).sum())
-    return m
+        for t, m in models.items():
+            m.stats["budget"] = _budget_stats(m, ps[t].norms)
+    for t, m in models.items():
+        # (channel, dictionary) projections completed; the others were pruned
+        m.stats["projections_completed"] = int(np.isfinite(ps[t].residual[:, :, 0]).sum())
+    return models
 
 
 def _budget_stats(m: SparseBRDF, norms: np.ndarray) -> dict:
@@ -508,30 +547,48 @@ def _code(y: np.ndarray, ens: Ensemble, m: SparseBRDF, o: _Options,
     projected on its own dictionary, then the largest |s| kept, ``o.n`` per channel, or
     with a joint budget 3 ``o.n`` over the channels (largest first across them). With
     ``o.max_error``, coefficients are added until the relative residual (per channel, or
-    of the total for a joint budget) is reached."""
-    shape = tuple(y.shape[1:])
-    norms = _energies(y) if norms is None else norms
+    of the total for a joint budget) is reached. ``norms``: the channels' energies, if
+    known."""
+    return _code_many([(y, m, norms)], ens, o)[0]
+
+
+def _code_many(jobs: list[tuple[np.ndarray, SparseBRDF, np.ndarray | None]], ens: Ensemble,
+               o: _Options) -> list[SparseBRDF]:
+    """:func:`_code` of each job (channels, model, energies or None), the 3 x len(jobs)
+    projections side by side on the thread pool."""
     cap = 3 * o.n if o.joint else o.n
 
-    def one(c):
+    def one(task):
+        j, c = task
+        y, m, norms = jobs[j]
         s = project(y[c], *ens.dictionary(int(m.dict_index[c]))).ravel()
         idx = top_k(s * s, cap)
-        return idx, s[idx]
+        return idx, s[idx], _energy(y[c]) if norms is None else float(norms[c])
 
-    top = list(parallel_map(one, range(3)))
+    tasks = [(j, c) for j in range(len(jobs)) for c in range(3)]
+    done = list(parallel_map(one, tasks))
+    return [_keep(y, m, done[3 * j: 3 * j + 3], o) for j, (y, m, _) in enumerate(jobs)]
+
+
+def _keep(y: np.ndarray, m: SparseBRDF, top: list, o: _Options) -> SparseBRDF:
+    """The coefficients :func:`_code` keeps of each channel's largest (``top``: per
+    channel, flat indices, values and the channel's energy)."""
+    shape = tuple(y.shape[1:])
+    norms = np.array([e for _, _, e in top])
+    cap = 3 * o.n if o.joint else o.n
     if o.joint:
-        val = np.concatenate([v for _, v in top])
-        chan = np.concatenate([np.full(v.size, c) for c, (_, v) in enumerate(top)])
+        val = np.concatenate([v for _, v, _ in top])
+        chan = np.concatenate([np.full(v.size, c) for c, (_, v, _) in enumerate(top)])
         order = np.argsort(-(val * val), kind="stable")[:cap]
         need = _needed(np.cumsum(val[order].astype(np.float64) ** 2), float(norms.sum()),
                        o.max_error)
         keep = [np.sort(order[:need][chan[order[:need]] == c]) for c in range(3)]
-        starts = np.cumsum([0] + [v.size for _, v in top])
+        starts = np.cumsum([0] + [v.size for _, v, _ in top])
         locs = [top[c][0][keep[c] - starts[c]] for c in range(3)]
         vals = [top[c][1][keep[c] - starts[c]] for c in range(3)]
     else:
         locs, vals = [], []
-        for c, (idx, v) in enumerate(top):
+        for c, (idx, v, _) in enumerate(top):
             need = _needed(np.cumsum(v.astype(np.float64) ** 2), norms[c], o.max_error)
             locs.append(idx[:need])
             vals.append(v[:need])
@@ -574,7 +631,7 @@ def _fill_invalid(brdf: BRDF, ens: Ensemble, transforms: tuple[str, ...],
     invalid = ~brdf.valid
     ys = {t: _coded_channels(brdf, t, o.basis) for t in transforms}  # invalid bins are 0
     valid_energies = {t: _energies(y) for t, y in ys.items()}  # before any filling
-    models = {t: _search(brdf, ens, t, ys[t], o) for t in transforms}
+    models = _search_many(brdf, ens, ys, o)
     if not invalid.any() or o.fill_iters == 0:
         return models
     searched = {t: m.stats for t, m in models.items()}
@@ -588,9 +645,10 @@ def _fill_invalid(brdf: BRDF, ens: Ensemble, transforms: tuple[str, ...],
             history[t].append(float(r.sum()))
         if fit == o.fill_iters - 1:
             break
-        for t in list(active):
+        for t in active:
             np.copyto(ys[t], models[t].coded(ens), where=invalid)  # fill the invalid bins
-            new = _code(ys[t], ens, models[t], o)
+        recoded = _code_many([(ys[t], models[t], None) for t in active], ens, o)
+        for t, new in zip(list(active), recoded, strict=True):
             if all(np.array_equal(np.sort(a), np.sort(b))
                    for a, b in zip(models[t].locations, new.locations, strict=True)):
                 active.remove(t)  # the support has settled: its fit is done
