@@ -20,7 +20,9 @@ from hypothesis import strategies as st
 from conftest import SMALL, random_orthonormal
 from sparse_brdf.cli import main
 from sparse_brdf.errors import BRDFFileError, EnsembleMismatchError
+from sparse_brdf.model import budget
 from sparse_brdf.model.budget import encode_to_bytes, fit_bytes, truncate
+from sparse_brdf.model.encode import encode
 from sparse_brdf.model.ensemble import Ensemble
 from sparse_brdf.model.sbrdf import (
     VERSION,
@@ -250,6 +252,27 @@ def test_encode_to_bytes_fits_and_spends_the_budget(small_ensemble):
     assert kept[1] > 2 * int(v1.n_coeffs.sum())
     with pytest.raises(ValueError, match="--bytes 60: .* takes 9[0-9] bytes"):
         encode_to_bytes(brdf, small_ensemble, 60)
+
+
+def test_encode_to_bytes_trims_then_encodes_again(small_ensemble, monkeypatch):
+    """By default an overshooting first guess is trimmed and encoded again at the count
+    that fitted; with MAX_TRIM, a small enough trim is the result (one encoding); a first
+    guess that fits whole while the encoder was capped grows until a trim."""
+    brdf = load_brdf("mitsuba:plastic-red-ggx-0.3", shape=SMALL)
+    two = encode_to_bytes(brdf, small_ensemble, 700)
+    assert two.stats["byte_budget"]["passes"] == 2 and len(to_bytes(two)) <= 700
+    monkeypatch.setattr(budget, "MAX_TRIM", 0.5)
+    m = encode_to_bytes(brdf, small_ensemble, 700)
+    assert m.stats["byte_budget"]["passes"] == 1
+    guess = math.ceil((700 - min_file_size(len(brdf.name), 2)) / budget.BYTES_GUESS[2] / 3)
+    same = fit_bytes(encode(brdf, small_ensemble, guess), 700)
+    for a, b in zip(m.locations + m.values, same.locations + same.values, strict=True):
+        np.testing.assert_array_equal(a, b)
+    monkeypatch.setitem(budget.BYTES_GUESS, 2, 40.0)  # a first guess far too small
+    grown = encode_to_bytes(brdf, small_ensemble, 700)
+    assert grown.stats["byte_budget"]["passes"] >= 2
+    assert sum(grown.stats["byte_budget"]["kept"]) < sum(grown.stats["byte_budget"]["encoded"])
+    assert len(to_bytes(grown)) <= 700
 
 
 def test_cli_encode_bytes(tmp_path, capsys, small_ensemble):

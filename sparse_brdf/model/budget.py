@@ -8,10 +8,12 @@ coefficients kept are the largest |s| over the three channels (:func:`fit_bytes`
 
 How (``docs/file-format.md``, "Byte budgets"): a first encoding at a coefficient count
 estimated from the budget (generous, so that it overshoots), then the largest |s| over
-the channels that fit (a binary search on the exact serialised size); then the encoder
-runs again at the count that fitted, so that its own choices (dictionaries, transform,
-joint budget, least-squares fill) are made for that count, and the result is trimmed the
-same way. An encoding that fits whole while the encoder was capped is grown instead.
+the channels that fit (a binary search on the exact serialised size); then, unless that
+trim dropped at most ``MAX_TRIM`` of the coefficients (by default: unless it dropped
+none), the encoder runs again at the count that fitted, so that its own choices
+(dictionaries, transform, joint budget, least-squares fill) are made for that count, and
+the result is trimmed the same way. An encoding that fits whole while the encoder was
+capped is grown instead.
 """
 
 from __future__ import annotations
@@ -35,7 +37,17 @@ PARAMETERS = {"n_bytes": Interval(int, 1)}
 #: the low side (measured 1.7-2.3 for version 2, docs/file-format.md) so that the first
 #: encoding overshoots the budget and is trimmed, rather than fitting whole.
 BYTES_GUESS = {1: 8.0, 2: 1.5}
-#: Encoder runs at most (a first guess, the count that fitted, growth if it fitted whole).
+#: The largest share of an encoding's coefficients a trim may drop and still be the
+#: result; a larger trim re-encodes at the count that fitted, so that the encoder's own
+#: choices (transform, dictionaries, least-squares fill) are made for that count. 0 (the
+#: default): every trimmed encoding is encoded again. Measured on the 14 merl test
+#: materials (benchmarks/bytes_passes.py, docs/benchmarks.md "Encode time"), keeping the
+#: first encoding's trim (0.25) halves the time but loses 0.33 dB of mean cosine-weighted
+#: SNR at 1,600 bytes and 0.21 dB at 6,300, up to 10.6 dB on one material where the two
+#: counts choose different transforms.
+MAX_TRIM = 0.0
+#: Encoder runs at most (a first guess, a re-encoding after a large trim, or growth
+#: while an encoding fits whole).
 MAX_PASSES = 4
 
 
@@ -154,13 +166,14 @@ def _clip(n: int, atoms: int) -> int:
 
 def _next_count(model: SparseBRDF, fit: SparseBRDF, n: int, n_bytes: int, floor: int,
                 version: int, atoms: int, trimmed: bool) -> tuple[int, bool]:
-    """The encoder's next count and whether a pass was trimmed yet: after a trim, the
-    count that fitted (once); if a first guess fitted whole while the encoder used its
-    whole budget, a larger count; else ``n`` (done)."""
+    """The encoder's next count and whether a pass was trimmed: ``n`` (done) once an
+    encoding was trimmed by at most ``MAX_TRIM`` (or a second time), the count that
+    fitted after a larger trim; if one fitted whole while the encoder used its whole
+    budget, a larger count; else ``n`` (done: the encoder stopped by itself)."""
     kept, total = fit.n_coeffs, int(model.n_coeffs.sum())
     joint = model.stats.get("options", {}).get("budget") == "joint"
-    if int(kept.sum()) < total:  # trimmed: encode at the count that fitted
-        if trimmed:
+    if int(kept.sum()) < total:  # trimmed: done, or encode once at the count that fitted
+        if trimmed or kept.sum() >= (1 - MAX_TRIM) * total:
             return n, True
         return _clip(math.ceil(kept.sum() / 3) if joint else int(kept.max()), atoms), True
     capped = total >= 3 * n if joint else int(model.n_coeffs.max()) >= n

@@ -47,7 +47,13 @@ from ..transforms import (
 from .ensemble import Ensemble, resolve_ensemble
 from .pruning import PrunedSearch, slice_order
 from .sparse import SparseBRDF
-from .tensor import phi_major_to_flat, project, project_phi_major, top_k
+from .tensor import (
+    phi_major_to_flat,
+    project,
+    project_phi_major,
+    reconstruct_sparse,
+    top_k,
+)
 
 DEFAULT_N_COEFFS = 262
 
@@ -115,6 +121,23 @@ def _energy(x: np.ndarray) -> float:
 def _energies(y: np.ndarray) -> np.ndarray:
     """||Y_c||^2 of each channel (:func:`_energy`)."""
     return np.array([_energy(ch) for ch in y])
+
+
+def _energies_many(ys: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """:func:`_energies` of each entry's channels, side by side on the thread pool."""
+    tasks = [(t, c) for t in ys for c in range(3)]
+    e = list(parallel_map(lambda tc: _energy(ys[tc[0]][tc[1]]), tasks))
+    return {t: np.array(e[3 * i: 3 * i + 3]) for i, t in enumerate(ys)}
+
+
+def _coded_many(models: list[SparseBRDF], ens: Ensemble) -> list[np.ndarray]:
+    """``m.coded(ens)`` of each model, the 3 x len(models) channels side by side on the
+    thread pool."""
+    tasks = [(m, c) for m in models for c in range(3)]
+    out = list(parallel_map(lambda mc: reconstruct_sparse(
+        mc[0].locations[mc[1]], mc[0].values[mc[1]], mc[0].shape,
+        *ens.dictionary(int(mc[0].dict_index[mc[1]]))), tasks))
+    return [np.stack(out[3 * i: 3 * i + 3]) for i in range(len(models))]
 
 
 def project_all(brdf: BRDF, ens: Ensemble, transform: str, max_coeffs: int,
@@ -331,7 +354,10 @@ def choose_transform(brdf: BRDF, models: dict[str, SparseBRDF], ens: Ensemble,
                    strict=True))
     chosen = pick_transform(sel, selector)
     rest = tuple(k for k in SELECTOR_KEYS.values() if k != key) + ("mse", "rae")
-    stats = {t: {**sel[t], **(errors(t, rest) if t == chosen else {}),
+    more = {}  # the chosen model's other errors, side by side
+    for part in parallel_map(lambda k: errors(chosen, (k,)), rest, limit_blas=False):
+        more.update(part)
+    stats = {t: {**sel[t], **(more if t == chosen else {}),
                  **{k: models[t].stats[k] for k in _MODEL_STATS if k in models[t].stats}}
              for t in names}
     model = models[chosen]
@@ -629,8 +655,9 @@ def _fill_invalid(brdf: BRDF, ens: Ensemble, transforms: tuple[str, ...],
     problems are independent: the fits of every transform and channel run side by side.
     """
     invalid = ~brdf.valid
-    ys = {t: _coded_channels(brdf, t, o.basis) for t in transforms}  # invalid bins are 0
-    valid_energies = {t: _energies(y) for t, y in ys.items()}  # before any filling
+    ys = dict(zip(transforms, parallel_map(  # invalid bins are 0
+        lambda t: _coded_channels(brdf, t, o.basis), transforms), strict=True))
+    valid_energies = _energies_many(ys)  # before any filling
     models = _search_many(brdf, ens, ys, o)
     if not invalid.any() or o.fill_iters == 0:
         return models
@@ -645,8 +672,9 @@ def _fill_invalid(brdf: BRDF, ens: Ensemble, transforms: tuple[str, ...],
             history[t].append(float(r.sum()))
         if fit == o.fill_iters - 1:
             break
-        for t in active:
-            np.copyto(ys[t], models[t].coded(ens), where=invalid)  # fill the invalid bins
+        for t, coded in zip(active, _coded_many([models[t] for t in active], ens),
+                            strict=True):
+            np.copyto(ys[t], coded, where=invalid)  # fill the invalid bins
         recoded = _code_many([(ys[t], models[t], None) for t in active], ens, o)
         for t, new in zip(list(active), recoded, strict=True):
             if all(np.array_equal(np.sort(a), np.sort(b))
@@ -656,12 +684,13 @@ def _fill_invalid(brdf: BRDF, ens: Ensemble, transforms: tuple[str, ...],
                 models[t] = new
         if not active:
             break
+    filled_energies = _energies_many(ys)
     for t, m in models.items():
         valid_energy = valid_energies[t]
         m.stats = {
             "relative_residual": [float(r / n) if n > 0 else 0.0
                                   for r, n in zip(residual[t], valid_energy, strict=True)],
-            "budget": _budget_stats(m, _energies(ys[t])),
+            "budget": _budget_stats(m, filled_energies[t]),
             "projections_completed": searched[t]["projections_completed"],
             "fill": {"fits": len(history[t]), "valid_residual": history[t],
                      "valid_residual_unfilled": float(np.sum(
