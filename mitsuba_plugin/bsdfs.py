@@ -56,6 +56,7 @@ from sparse_brdf.model.layouts import (
     table_profile,
     term_values,
 )
+from sparse_brdf.model.lookups import GroupedLookup, StrictLookup
 from sparse_brdf.model.sbrdf import decode_file, load_sbrdf
 from sparse_brdf.sources.load import load_brdf
 from sparse_brdf.sources.nbrdf import read_nbrdf_weights
@@ -68,7 +69,6 @@ from .kernels import (
     angle_coords,
     bin_weight,
     bin_weight_from_cos,
-    expm1,
     interp_weight,
     linear_bins,
     lobe_pdf,
@@ -77,6 +77,7 @@ from .kernels import (
     nbrdf_rho,
     nearest_bins,
     power_cosine_sample,
+    rho_from_x,
 )
 
 _ENSEMBLES: dict = {}
@@ -659,6 +660,8 @@ class SparseBSDF(GlossyBSDF):
         self.distinct_atoms = tuple(c.k for c in chans)
         self.packets = lay.packets
         self.grouped_modes = tuple(c.mode_g + 1 for c in chans)
+        if not self._ops.jit:  # the scalar variants' lookup reads the same table buffer
+            self._lookup = GroupedLookup(lay, chans[0], self._mix, self._grouped.tables)
 
     def _build_strict(self, model, ens) -> None:
         chans = [strict_channel(*channel_terms(model, ens, c)) for c in range(3)]
@@ -667,6 +670,8 @@ class SparseBSDF(GlossyBSDF):
         self.memory_bytes = sum(self._ops.nbytes(b) for b in (
             self._strict.values, self._strict.packed, self._strict.rows))
         self.distinct_atoms = tuple(tuple(r.shape[0] for r in ch.rows) for ch in chans)
+        if not self._ops.jit:
+            self._lookup = StrictLookup(chans, self._mix)
 
     # differentiable values -----------------------------------------------------------
     # Both decoders' buffers are linear in the values, but a buffer derived from a
@@ -737,6 +742,8 @@ class SparseBSDF(GlossyBSDF):
                         grad=(self._values[c], orders[c]))
 
     def _rho(self, wi, wo, active):
+        if not self._ops.jit:
+            return self._rho_point(wi, wo, active)
         ops, sh = self._ops, self._shape
         coords = angle_coords(ops, sh, wi, wo)
         grouped = self.decoder == "grouped"
@@ -765,12 +772,33 @@ class SparseBSDF(GlossyBSDF):
             xs = [x + self._x_grad(c, bins, lin, active) for c, x in enumerate(xs)]
         if self._mix is not None:  # a Python branch: rgb materials trace no mix
             xs = mix_colour(xs, self._mix)
-        scale = valid * dr.rcp(w)
-        # a select, not only the product: an invalid bin gives 0 even where the
-        # model's X there is large enough for expm1 to overflow (inf * 0 = nan)
-        out = [dr.select(scale > 0.0, dr.maximum(expm1(x) * scale, 0.0), 0.0)
-               for x in xs]
-        return self._m.Color3f(*out)
+        return self._m.Color3f(*rho_from_x(ops, xs, valid, w))
+
+    def _rho_point(self, wi, wo, active):
+        """:meth:`_rho` in the scalar variants, one direction pair per call: the same
+        bins, weights and inverse transform, with X (already mixed to the transformed R,
+        G, B) from the numpy lookups of :mod:`sparse_brdf.model.lookups`, which read the
+        same decoder data in a few numpy calls instead of the kernels' per-float Python
+        loops."""
+        ops, sh = self._ops, self._shape
+        coords = angle_coords(ops, sh, wi, wo)
+        if self.interpolate:
+            lin = linear_bins(ops, sh, coords)
+            w, valid = interp_weight(ops, sh, lin, self._use_cos)
+            if not active:
+                return self._zero3
+            xs = self._lookup.point_linear(lin)
+        else:
+            bins = nearest_bins(ops, sh, coords)
+            if not active:
+                return self._zero3
+            xs = self._lookup.point(*bins)
+            if self.decoder == "grouped":  # the rows carry the bins' cos_i cos_o
+                w, ok = bin_weight_from_cos(xs[3], self._use_cos)
+            else:
+                w, ok = bin_weight(ops, sh, *bins, self._use_cos)
+            valid = 1.0 if ok else 0.0
+        return self._m.Color3f(*rho_from_x(ops, xs[:3], valid, w))
 
     def to_string(self):
         return (f"{type(self).__name__}[filename={self.filename!r}, transform={self.transform}, "

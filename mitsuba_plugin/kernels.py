@@ -137,6 +137,26 @@ def expm1(x):
     return dr.select(dr.abs(x) < 0.1, p * x, dr.exp(x) - 1.0)
 
 
+def rho_from_x(ops: Ops, xs, valid, w) -> list:
+    """The inverse transform of the three transformed values ``xs`` at a bin (or point)
+    of validity ``valid`` (1 or 0, or interpolated) and weight ``w``:
+    ``max((exp(X) - 1) valid / w, 0)`` per channel (1/sr), 0 where ``valid / w`` is 0.
+
+    A select, not only the product: an invalid bin gives 0 even where the model's X
+    there is large enough for exp to overflow (inf * 0 = nan). In scalar variants (plain
+    Python floats, one lookup per call) ``math.expm1`` in double precision instead of
+    :func:`expm1`'s float32 polynomial, X capped at 700 so that it returns inf (as float32
+    does, past 88.7) rather than raising.
+    """
+    if not ops.jit:
+        scale = valid / w
+        if not scale > 0.0:
+            return [0.0, 0.0, 0.0]
+        return [max(math.expm1(min(x, 700.0)) * scale, 0.0) for x in xs]
+    scale = valid * dr.rcp(w)
+    return [dr.select(scale > 0.0, dr.maximum(expm1(x) * scale, 0.0), 0.0) for x in xs]
+
+
 def mix_colour(xs, mt):
     """Transformed R, G, B from the three coded values ``xs``: ``M^T @ xs`` for the
     constant matrix ``mt`` (M^T as nested Python floats, from

@@ -29,14 +29,12 @@ from sparse_brdf.model.layouts import (
     grouped_channel,
     grouped_eval,
     grouped_layout,
-    layout_eval,
     mix_channels,
-    model_x,
     n_slots,
     sparse_profile,
     strict_channel,
-    strict_eval,
 )
+from sparse_brdf.model.lookups import layout_eval, model_x, strict_eval
 from sparse_brdf.model.sbrdf import load_sbrdf, save_sbrdf
 from sparse_brdf.model.sparse import SparseBRDF
 from sparse_brdf.model.tensor import hosvd_factors, mode_grams
