@@ -145,14 +145,20 @@ def rho_from_x(ops: Ops, xs, valid, w) -> list:
     A select, not only the product: an invalid bin gives 0 even where the model's X
     there is large enough for exp to overflow (inf * 0 = nan). In scalar variants (plain
     Python floats, one lookup per call) ``math.expm1`` in double precision instead of
-    :func:`expm1`'s float32 polynomial, X capped at 700 so that it returns inf (as float32
-    does, past 88.7) rather than raising.
+    :func:`expm1`'s float32 polynomial; where it would overflow a double, X is capped at
+    700 (the value is then inf once stored as float32, as the kernel's is past 88.7).
     """
     if not ops.jit:
         scale = valid / w
         if not scale > 0.0:
             return [0.0, 0.0, 0.0]
-        return [max(math.expm1(min(x, 700.0)) * scale, 0.0) for x in xs]
+        x0, x1, x2 = xs
+        try:  # unrolled: this runs once per BSDF call
+            r0, r1, r2 = (math.expm1(x0) * scale, math.expm1(x1) * scale,
+                          math.expm1(x2) * scale)
+        except OverflowError:
+            r0, r1, r2 = (math.expm1(min(x, 700.0)) * scale for x in xs)
+        return [r0 if r0 > 0.0 else 0.0, r1 if r1 > 0.0 else 0.0, r2 if r2 > 0.0 else 0.0]
     scale = valid * dr.rcp(w)
     return [dr.select(scale > 0.0, dr.maximum(expm1(x) * scale, 0.0), 0.0) for x in xs]
 

@@ -10,18 +10,23 @@ sparse model's terms (docs/method.md):
 
 - **grouped** (:class:`GroupedLookup`): the layout's row of the bin pair (ip, iq)
   (:func:`~sparse_brdf.model.layouts.grouped_layout`, ``L`` floats, read in place)
-  times the atom values at the bin of mode g spread under those floats (``L`` floats per
-  bin, built once), summed per channel by one ``(L, 4)`` matrix of 0s and 1s:
-  ``[X_0, X_1, X_2, cos_i cos_o] = (table[pair] * values[ig]) @ select``.
+  against, per sum, the atom values at the bin of mode g under the floats that add to
+  that sum (0 under the others; ``(4, L)`` floats per bin, built once):
+  ``[X_0, X_1, X_2, cos_i cos_o] = values[ig] . table[pair]``.
 - **strict** (:class:`StrictLookup`): every term's ``U1[i, a_t] U2[j, b_t] U3[k, c_t]``
   from the three modes' distinct atom rows, times its coefficient in its channel's
-  column: ``X = (r1[i][ia] * r2[j][ib] * r3[k][ic]) @ coeffs``, ``coeffs`` (T, 3).
+  row: ``X = coeffs . (r1[i][ia] * r2[j][ib] * r3[k][ic])``, ``coeffs`` (3, T).
+
+Both contract over the last axis with ``np.vecdot`` (a ufunc; ``np.einsum`` before numpy
+2.0), not ``np.dot`` or ``@``: called from Mitsuba's render threads, OpenBLAS took
+10-40 us per tiny product (measured 2026-12-03, sphere scene in ``scalar_rgb``), einsum
+5-8 us, vecdot about 4 us, on a loaded machine.
 
 Colour basis: given the basis's matrix M^T (:func:`~sparse_brdf.model.layouts.
-colour_mix`), the lookups fold it into ``select`` and ``coeffs`` (the columns of
-transformed R, G, B are M^T times those of the coded channels), so one matrix product
-gives the transformed R, G, B; without it they give the coded channels, as the kernels
-do before their mix.
+colour_mix`), the lookups fold it into ``values`` and ``coeffs`` (the rows of transformed
+R, G, B are M^T times those of the coded channels), so one contraction gives the
+transformed R, G, B; without it they give the coded channels, as the kernels do before
+their mix.
 """
 
 from __future__ import annotations
@@ -43,11 +48,14 @@ from .layouts import (
     strict_channel,
 )
 
+#: ``a . b`` over the last axis, broadcasting the others (no BLAS: see the module docstring)
+_vecdot = getattr(np, "vecdot", None) or (lambda a, b: np.einsum("...f,...f->...", a, b))
 
-def _mixed(cols: np.ndarray, mix) -> np.ndarray:
-    """Columns of coded channels (..., 3) as columns of transformed R, G, B: ``cols @
-    M`` for the colour basis's M^T ``mix`` (nested floats; None: unchanged)."""
-    return cols if mix is None else cols @ np.asarray(mix, np.float64).T
+
+def _mixed(rows: np.ndarray, mix) -> np.ndarray:
+    """Rows of coded channels (3, ...) as rows of transformed R, G, B: ``M^T rows`` for
+    the colour basis's M^T ``mix`` (nested floats; None: unchanged)."""
+    return rows if mix is None else np.tensordot(np.asarray(mix, np.float64), rows, axes=1)
 
 
 class GroupedLookup:
@@ -59,12 +67,10 @@ class GroupedLookup:
     tables : np.ndarray
         (n_p * n_q, L) float32: the layout's rows, per bin pair, read in place.
     values : np.ndarray
-        (n_g, L) float64: per bin of mode g, the atom value (or the weight's atom factor)
-        that multiplies each float of a table row.
-    select : np.ndarray
-        (L, 4) float64: which sum each product adds to: columns 0-2 the channels (coded,
-        or transformed R, G, B when built with the basis's mix), column 3 the bin's
-        ``cos_i cos_o``.
+        (n_g, 4, L) float32: per bin of mode g and per sum (the three channels: coded, or
+        transformed R, G, B when built with the basis's mix; then the bin's ``cos_i
+        cos_o``), the atom value (or the weight's atom factor) that multiplies each
+        float of a table row adding to that sum, 0 under the other floats.
     modes : tuple of int
         (p, q, g): the contracted modes and the grouped one.
     n_q : int
@@ -74,7 +80,7 @@ class GroupedLookup:
     def __init__(self, layout: GroupedLayout, ch, mix=None, tables=None) -> None:
         """``layout`` with the modes of channel ``ch`` (a :class:`~sparse_brdf.model.
         layouts.GroupedChannel`); ``mix``: the colour basis's M^T (folded into
-        ``select``); ``tables``: the layout's tables as already held (e.g. the buffer a
+        ``values``); ``tables``: the layout's tables as already held (e.g. the buffer a
         plugin uploaded), read instead of ``layout.tables``."""
         flat = layout.tables if tables is None else tables
         n_g = ch.rows.shape[1]
@@ -93,12 +99,13 @@ class GroupedLookup:
             src = chunk * PACKET + np.where(weight, UNION_ATOMS, pos // 3)
             values = layout.values.reshape(n_g, n * PACKET)[:, src]
             sums = np.where(weight, 3, pos % 3)
-        select = np.zeros((width, 4))
-        select[np.arange(width), sums] = 1.0
-        select[:, :3] = _mixed(select[:, :3], mix)
+        select = np.zeros((4, width))  # which sum each float of a table row adds to
+        select[sums, np.arange(width)] = 1.0
+        select[:3] = _mixed(select[:3], mix)
         self.tables = flat.reshape(-1, width)
-        self.values = np.ascontiguousarray(values, np.float64)
-        self.select = select
+        # float32 like the tables and the kernel (the mix matrix's entries are float32
+        # numbers, colour_mix: a mixed value is rounded once)
+        self.values = (select[None] * values[:, None, :].astype(np.float64)).astype(np.float32)
         self.modes = (ch.mode_p, ch.mode_q, ch.mode_g)
         self.n_q = int(ch.n_q)
 
@@ -107,14 +114,15 @@ class GroupedLookup:
         channels' X and the bins' ``cos_i cos_o``."""
         p, q, g = self.modes
         pair = np.asarray(bins[p]) * self.n_q + np.asarray(bins[q])
-        return (self.tables[pair] * self.values[np.asarray(bins[g])]) @ self.select
+        return _vecdot(self.values[np.asarray(bins[g])].astype(np.float64),
+                       self.tables[pair][:, None, :].astype(np.float64))
 
     def point(self, i: int, j: int, k: int) -> list:
-        """:meth:`eval` at one bin (Python ints): a list of 4 floats."""
+        """:meth:`eval` at one bin (Python ints), in float32 like the kernel: a list of 4
+        floats."""
         b = (i, j, k)
         p, q, g = self.modes
-        return ((self.tables[b[p] * self.n_q + b[q]] * self.values[b[g]])
-                @ self.select).tolist()
+        return _vecdot(self.values[b[g]], self.tables[b[p] * self.n_q + b[q]]).tolist()
 
     def point_linear(self, lin) -> list:
         """The sums interpolated trilinearly at one point: ``lin`` per mode (i0, i1, t),
@@ -126,9 +134,10 @@ class GroupedLookup:
         (p0, p1, tp), (q0, q1, tq), (g0, g1, tg) = lin[p], lin[q], lin[g]
         nq = self.n_q
         rows = self.tables[[p0 * nq + q0, p0 * nq + q1, p1 * nq + q0, p1 * nq + q1]]
-        wts = [(1.0 - tp) * (1.0 - tq), (1.0 - tp) * tq, tp * (1.0 - tq), tp * tq]
+        wts = np.array([(1.0 - tp) * (1.0 - tq), (1.0 - tp) * tq, tp * (1.0 - tq), tp * tq],
+                       np.float32)
         vals = (1.0 - tg) * self.values[g0] + tg * self.values[g1]
-        return ((np.dot(wts, rows) * vals) @ self.select).tolist()
+        return _vecdot(vals, _vecdot(wts, rows.T)).tolist()
 
 
 class StrictLookup:
@@ -144,8 +153,8 @@ class StrictLookup:
         Per mode, (T,) int64: each term's column in ``rows[m]`` (T: the terms of all the
         channels).
     coeffs : np.ndarray
-        (T, 3) float64: each term's coefficient in its channel's column (coded channels,
-        or transformed R, G, B when built with the basis's mix).
+        (3, T) float64: each term's coefficient in its channel's row (coded channels, or
+        transformed R, G, B when built with the basis's mix), 0 in the others.
     """
 
     def __init__(self, chans, mix=None) -> None:
@@ -160,10 +169,10 @@ class StrictLookup:
             index.append(np.concatenate(
                 [((ch.packed.astype(np.int64) >> (m * PACK_BITS)) & mask) + offs[c]
                  for c, ch in enumerate(chans)]))
-        coeffs = np.zeros((sum(ch.n_terms for ch in chans), 3))
+        coeffs = np.zeros((3, sum(ch.n_terms for ch in chans)))
         start = 0
         for c, ch in enumerate(chans):
-            coeffs[start:start + ch.n_terms, c] = ch.values
+            coeffs[c, start:start + ch.n_terms] = ch.values
             start += ch.n_terms
         self.rows, self.index = tuple(rows), tuple(index)
         self.coeffs = _mixed(coeffs, mix)
@@ -172,12 +181,12 @@ class StrictLookup:
         """(N, 3) X of the channels at integer bins ``bins`` = (i, j, k) (arrays of N)."""
         (r1, r2, r3), (ia, ib, ic) = self.rows, self.index
         i, j, k = (np.asarray(b) for b in bins)
-        return (r1[i][:, ia] * r2[j][:, ib] * r3[k][:, ic]) @ self.coeffs
+        return (r1[i][:, ia] * r2[j][:, ib] * r3[k][:, ic]) @ self.coeffs.T
 
     def point(self, i: int, j: int, k: int) -> list:
         """:meth:`eval` at one bin (Python ints): a list of 3 floats."""
         (r1, r2, r3), (ia, ib, ic) = self.rows, self.index
-        return ((r1[i][ia] * r2[j][ib] * r3[k][ic]) @ self.coeffs).tolist()
+        return _vecdot(self.coeffs, r1[i][ia] * r2[j][ib] * r3[k][ic]).tolist()
 
     def point_linear(self, lin) -> list:
         """X interpolated trilinearly at one point (``lin`` as for
@@ -186,7 +195,7 @@ class StrictLookup:
         prod = 1.0
         for r, idx, (i0, i1, t) in zip(self.rows, self.index, lin, strict=True):
             prod = prod * ((1.0 - t) * r[i0][idx] + t * r[i1][idx])
-        return (prod @ self.coeffs).tolist()
+        return _vecdot(self.coeffs, prod).tolist()
 
 
 # ----------------------------------------------------------------------- numpy mirrors
