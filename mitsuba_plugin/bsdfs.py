@@ -647,6 +647,8 @@ class SparseBSDF(GlossyBSDF):
         # the coded channels' values, as mi.traverse exposes them (``values_0`` ...)
         self._values = [self._value_array(v) for v in model.values]
         self._setup_sampling(self.sampling, sparse_profile(model, ens), model.shape)
+        if not ops.jit:  # scalar variants: each call goes straight to the numpy lookups
+            self._rho = self._rho_point
 
     # data ----------------------------------------------------------------------------
     def _build_grouped(self, model, ens, layout: str) -> None:
@@ -742,7 +744,7 @@ class SparseBSDF(GlossyBSDF):
                         grad=(self._values[c], orders[c]))
 
     def _rho(self, wi, wo, active):
-        if not self._ops.jit:
+        if not self._ops.jit:  # (an instance binds _rho_point itself, see __init__)
             return self._rho_point(wi, wo, active)
         ops, sh = self._ops, self._shape
         coords = angle_coords(ops, sh, wi, wo)
@@ -798,7 +800,7 @@ class SparseBSDF(GlossyBSDF):
             else:
                 w, ok = bin_weight(ops, sh, *bins, self._use_cos)
             valid = 1.0 if ok else 0.0
-        return self._m.Color3f(*rho_from_x(ops, xs[:3], valid, w))
+        return self._m.Color3f(*rho_from_x(ops, xs, valid, w))
 
     def to_string(self):
         return (f"{type(self).__name__}[filename={self.filename!r}, transform={self.transform}, "

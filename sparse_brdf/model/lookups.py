@@ -75,6 +75,10 @@ class GroupedLookup:
         (p, q, g): the contracted modes and the grouped one.
     n_q : int
         Size of mode q (the table's row stride in bin pairs).
+    point : callable
+        ``point(i, j, k)``: :meth:`eval` at one bin (Python ints), in float32 like the
+        kernel, as a list of 4 floats (a closure over the arrays: it runs once per BSDF
+        call in the scalar variants).
     """
 
     def __init__(self, layout: GroupedLayout, ch, mix=None, tables=None) -> None:
@@ -108,6 +112,7 @@ class GroupedLookup:
         self.values = (select[None] * values[:, None, :].astype(np.float64)).astype(np.float32)
         self.modes = (ch.mode_p, ch.mode_q, ch.mode_g)
         self.n_q = int(ch.n_q)
+        self.point = _grouped_point(self.tables, self.values, self.modes, self.n_q)
 
     def eval(self, bins) -> np.ndarray:
         """(N, 4) sums at integer bins ``bins`` = (i, j, k) (arrays of N): the three
@@ -116,13 +121,6 @@ class GroupedLookup:
         pair = np.asarray(bins[p]) * self.n_q + np.asarray(bins[q])
         return _vecdot(self.values[np.asarray(bins[g])].astype(np.float64),
                        self.tables[pair][:, None, :].astype(np.float64))
-
-    def point(self, i: int, j: int, k: int) -> list:
-        """:meth:`eval` at one bin (Python ints), in float32 like the kernel: a list of 4
-        floats."""
-        b = (i, j, k)
-        p, q, g = self.modes
-        return _vecdot(self.values[b[g]], self.tables[b[p] * self.n_q + b[q]]).tolist()
 
     def point_linear(self, lin) -> list:
         """The sums interpolated trilinearly at one point: ``lin`` per mode (i0, i1, t),
@@ -138,6 +136,17 @@ class GroupedLookup:
                        np.float32)
         vals = (1.0 - tg) * self.values[g0] + tg * self.values[g1]
         return _vecdot(vals, _vecdot(wts, rows.T)).tolist()
+
+
+def _grouped_point(tables, values, modes, n_q):
+    """:attr:`GroupedLookup.point` of these arrays, modes (p, q, g) and stride ``n_q``."""
+    p, q, g = modes
+
+    def point(i: int, j: int, k: int) -> list:
+        b = (i, j, k)
+        return _vecdot(values[b[g]], tables[b[p] * n_q + b[q]]).tolist()
+
+    return point
 
 
 class StrictLookup:
