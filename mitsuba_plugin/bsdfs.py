@@ -14,7 +14,9 @@ bodies onto subclasses of one variant's ``mi.BSDF`` (cached per variant by
 variant's names; ``_ops``, its :class:`~mitsuba_plugin.kernels.Ops`; a few constants).
 
 The per-material data the kernels read is built with numpy by
-:mod:`sparse_brdf.model.layouts`, which also holds numpy twins of both kernels.
+:mod:`sparse_brdf.model.layouts`; :mod:`sparse_brdf.model.lookups` holds numpy twins of
+both kernels, which ``sparse_brdf`` itself evaluates with in the scalar variants
+(:meth:`SparseBSDF._rho_point`).
 """
 
 from __future__ import annotations
@@ -263,7 +265,7 @@ def _union_chunk(ops: Ops, tv, vv, acc):
 def grouped_x(ops: Ops, buf: GroupedBuffers, bins, lin, active):
     """X of the three channels and the bins' cos_i cos_o from the shared rows (see
     :func:`sparse_brdf.model.layouts.grouped_layout`; its numpy twin is
-    :func:`~sparse_brdf.model.layouts.layout_eval`). Two loops, one per layout; a
+    :func:`~sparse_brdf.model.lookups.layout_eval`). Two loops, one per layout; a
     material's data has one of them, and the other's count is 0.
 
     slots: a chunk is one packet of table row and one of atom values, float 4 s + c of
@@ -323,7 +325,7 @@ def strict_x(ops: Ops, buf: StrictBuffers, shape: Shape, c: int, bins, lin, acti
     """X of channel ``c``: one loop over its terms, sorted by (c, b, a), evaluating
     ``sum_c U3[k, c] sum_b U2[j, b] sum_a s U1[i, a]``; the partial sums are closed at
     the flagged ends of each b-group and c-group, so U2 and U3 are read once per group
-    (numpy twin: :func:`~sparse_brdf.model.layouts.strict_eval`). At the nearest bin
+    (numpy twin: :func:`~sparse_brdf.model.lookups.strict_eval`). At the nearest bin
     (``bins``) or interpolated (``lin``, bins is None).
 
     ``grad`` = (values, order): instead, the derivative carrier
