@@ -5,7 +5,9 @@ Each function takes an :class:`Ops` bound to one Mitsuba variant module. In JIT 
 scalar variants buffers are numpy arrays indexed with Python ints, so the same code
 serves both. Everything here is traced once into a kernel: no Python ``if`` on arrays,
 and per-material numbers only as buffers or ``dr.opaque`` scalars (see :meth:`Ops.u`,
-:meth:`Ops.f`), never as Python constants.
+:meth:`Ops.f`), never as Python constants. The few functions a scalar variant runs once
+per BSDF call on plain Python floats (:func:`rho_from_x`, :func:`bin_weight_from_cos`)
+branch to Python arithmetic there, the same formula in the same function.
 """
 
 from __future__ import annotations
@@ -143,9 +145,9 @@ def expm1(x):
 
 def rho_from_x(ops: Ops, xs, valid, w) -> list:
     """The inverse transform of the transformed values ``xs`` (R, G, B: its first three
-    items) at a bin (or point)
-    of validity ``valid`` (1 or 0, or interpolated) and weight ``w``:
-    ``max((exp(X) - 1) valid / w, 0)`` per channel (1/sr), 0 where ``valid / w`` is 0.
+    items) at a bin (or point) of validity ``valid`` (1 or 0, or interpolated) and weight
+    ``w``: ``max((exp(X) - 1) valid / w, 0)`` per channel (1/sr), 0 where ``valid / w``
+    is 0. Returns a list of three values (Floats, or Python floats in scalar variants).
 
     A select, not only the product: an invalid bin gives 0 even where the model's X
     there is large enough for exp to overflow (inf * 0 = nan). In scalar variants (plain
