@@ -13,6 +13,8 @@ cost an undifferentiated render: extract the commit before them
 (``mkdir /tmp/before && git archive dad82e7~1 | tar -x -C /tmp/before``), run this script
 with ``--plugin-root /tmp/before`` (that tree's ``mitsuba_plugin`` and ``sparse_brdf``
 come first on the import path) and compare its sparse / table ratios with a run without.
+The scalar variants (every BSDF call a Python call) render ``--scalar-res`` at
+``--scalar-spp``; their renders are short, so on a loaded machine use more rounds.
 
     .venv/bin/python benchmarks/bench_variants.py [--material SOURCE] [--json PATH]
         [--variants llvm_ad_rgb,...] [--no-neural]
@@ -40,7 +42,8 @@ from sparse_brdf.model.sbrdf import save_sbrdf  # noqa: E402
 from sparse_brdf.paths import SCENES_DIR  # noqa: E402
 from sparse_brdf.sources.load import load_brdf  # noqa: E402
 
-VARIANTS = ("llvm_ad_rgb", "llvm_ad_spectral", "scalar_spectral")
+VARIANTS = ("llvm_ad_rgb", "llvm_ad_spectral", "scalar_rgb", "scalar_spectral",
+            "scalar_spectral_polarized")
 
 
 def _time(scene, spp: int, seed: int) -> float:

@@ -14,7 +14,9 @@ bodies onto subclasses of one variant's ``mi.BSDF`` (cached per variant by
 variant's names; ``_ops``, its :class:`~mitsuba_plugin.kernels.Ops`; a few constants).
 
 The per-material data the kernels read is built with numpy by
-:mod:`sparse_brdf.model.layouts`, which also holds numpy twins of both kernels.
+:mod:`sparse_brdf.model.layouts`; :mod:`sparse_brdf.model.lookups` holds numpy twins of
+both kernels, which ``sparse_brdf`` itself evaluates with in the scalar variants
+(:meth:`SparseBSDF._rho_point`).
 """
 
 from __future__ import annotations
@@ -56,6 +58,7 @@ from sparse_brdf.model.layouts import (
     table_profile,
     term_values,
 )
+from sparse_brdf.model.lookups import GroupedLookup, StrictLookup
 from sparse_brdf.model.sbrdf import decode_file, load_sbrdf
 from sparse_brdf.sources.load import load_brdf
 from sparse_brdf.sources.nbrdf import read_nbrdf_weights
@@ -68,7 +71,6 @@ from .kernels import (
     angle_coords,
     bin_weight,
     bin_weight_from_cos,
-    expm1,
     interp_weight,
     linear_bins,
     lobe_pdf,
@@ -77,6 +79,7 @@ from .kernels import (
     nbrdf_rho,
     nearest_bins,
     power_cosine_sample,
+    rho_from_x,
 )
 
 _ENSEMBLES: dict = {}
@@ -262,7 +265,7 @@ def _union_chunk(ops: Ops, tv, vv, acc):
 def grouped_x(ops: Ops, buf: GroupedBuffers, bins, lin, active):
     """X of the three channels and the bins' cos_i cos_o from the shared rows (see
     :func:`sparse_brdf.model.layouts.grouped_layout`; its numpy twin is
-    :func:`~sparse_brdf.model.layouts.layout_eval`). Two loops, one per layout; a
+    :func:`~sparse_brdf.model.lookups.layout_eval`). Two loops, one per layout; a
     material's data has one of them, and the other's count is 0.
 
     slots: a chunk is one packet of table row and one of atom values, float 4 s + c of
@@ -322,7 +325,7 @@ def strict_x(ops: Ops, buf: StrictBuffers, shape: Shape, c: int, bins, lin, acti
     """X of channel ``c``: one loop over its terms, sorted by (c, b, a), evaluating
     ``sum_c U3[k, c] sum_b U2[j, b] sum_a s U1[i, a]``; the partial sums are closed at
     the flagged ends of each b-group and c-group, so U2 and U3 are read once per group
-    (numpy twin: :func:`~sparse_brdf.model.layouts.strict_eval`). At the nearest bin
+    (numpy twin: :func:`~sparse_brdf.model.lookups.strict_eval`). At the nearest bin
     (``bins``) or interpolated (``lin``, bins is None).
 
     ``grad`` = (values, order): instead, the derivative carrier
@@ -646,6 +649,8 @@ class SparseBSDF(GlossyBSDF):
         # the coded channels' values, as mi.traverse exposes them (``values_0`` ...)
         self._values = [self._value_array(v) for v in model.values]
         self._setup_sampling(self.sampling, sparse_profile(model, ens), model.shape)
+        if not ops.jit:  # scalar variants: each call goes straight to the numpy lookups
+            self._rho = self._rho_point
 
     # data ----------------------------------------------------------------------------
     def _build_grouped(self, model, ens, layout: str) -> None:
@@ -659,6 +664,8 @@ class SparseBSDF(GlossyBSDF):
         self.distinct_atoms = tuple(c.k for c in chans)
         self.packets = lay.packets
         self.grouped_modes = tuple(c.mode_g + 1 for c in chans)
+        if not self._ops.jit:  # the scalar variants' lookup reads the same table buffer
+            self._lookup = GroupedLookup(lay, chans[0], self._mix, self._grouped.tables)
 
     def _build_strict(self, model, ens) -> None:
         chans = [strict_channel(*channel_terms(model, ens, c)) for c in range(3)]
@@ -667,6 +674,8 @@ class SparseBSDF(GlossyBSDF):
         self.memory_bytes = sum(self._ops.nbytes(b) for b in (
             self._strict.values, self._strict.packed, self._strict.rows))
         self.distinct_atoms = tuple(tuple(r.shape[0] for r in ch.rows) for ch in chans)
+        if not self._ops.jit:
+            self._lookup = StrictLookup(chans, self._mix)
 
     # differentiable values -----------------------------------------------------------
     # Both decoders' buffers are linear in the values, but a buffer derived from a
@@ -737,6 +746,8 @@ class SparseBSDF(GlossyBSDF):
                         grad=(self._values[c], orders[c]))
 
     def _rho(self, wi, wo, active):
+        if not self._ops.jit:  # (an instance binds _rho_point itself, see __init__)
+            return self._rho_point(wi, wo, active)
         ops, sh = self._ops, self._shape
         coords = angle_coords(ops, sh, wi, wo)
         grouped = self.decoder == "grouped"
@@ -765,12 +776,33 @@ class SparseBSDF(GlossyBSDF):
             xs = [x + self._x_grad(c, bins, lin, active) for c, x in enumerate(xs)]
         if self._mix is not None:  # a Python branch: rgb materials trace no mix
             xs = mix_colour(xs, self._mix)
-        scale = valid * dr.rcp(w)
-        # a select, not only the product: an invalid bin gives 0 even where the
-        # model's X there is large enough for expm1 to overflow (inf * 0 = nan)
-        out = [dr.select(scale > 0.0, dr.maximum(expm1(x) * scale, 0.0), 0.0)
-               for x in xs]
-        return self._m.Color3f(*out)
+        return self._m.Color3f(*rho_from_x(ops, xs, valid, w))
+
+    def _rho_point(self, wi, wo, active):
+        """:meth:`_rho` in the scalar variants, one direction pair per call: the same
+        bins, weights and inverse transform, with X (already mixed to the transformed R,
+        G, B) from the numpy lookups of :mod:`sparse_brdf.model.lookups`, which read the
+        same decoder data in a few numpy calls instead of the kernels' per-float Python
+        loops."""
+        ops, sh = self._ops, self._shape
+        coords = angle_coords(ops, sh, wi, wo)
+        if self.interpolate:
+            lin = linear_bins(ops, sh, coords)
+            w, valid = interp_weight(ops, sh, lin, self._use_cos)
+            if not active:
+                return self._zero3
+            xs = self._lookup.point_linear(lin)
+        else:
+            bins = nearest_bins(ops, sh, coords)
+            if not active:
+                return self._zero3
+            xs = self._lookup.point(*bins)
+            if self.decoder == "grouped":  # the rows carry the bins' cos_i cos_o
+                w, ok = bin_weight_from_cos(xs[3], self._use_cos)
+            else:
+                w, ok = bin_weight(ops, sh, *bins, self._use_cos)
+            valid = 1.0 if ok else 0.0
+        return self._m.Color3f(*rho_from_x(ops, xs, valid, w))
 
     def to_string(self):
         return (f"{type(self).__name__}[filename={self.filename!r}, transform={self.transform}, "

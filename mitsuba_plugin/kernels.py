@@ -5,7 +5,9 @@ Each function takes an :class:`Ops` bound to one Mitsuba variant module. In JIT 
 scalar variants buffers are numpy arrays indexed with Python ints, so the same code
 serves both. Everything here is traced once into a kernel: no Python ``if`` on arrays,
 and per-material numbers only as buffers or ``dr.opaque`` scalars (see :meth:`Ops.u`,
-:meth:`Ops.f`), never as Python constants.
+:meth:`Ops.f`), never as Python constants. The few functions a scalar variant runs once
+per BSDF call on plain Python floats (:func:`rho_from_x`, :func:`bin_weight_from_cos`)
+branch to Python arithmetic there, the same formula in the same function.
 """
 
 from __future__ import annotations
@@ -31,9 +33,13 @@ class VariantNamespace:
 
     def __getattr__(self, name: str):
         try:
-            return getattr(self._module, name)
+            value = getattr(self._module, name)
         except AttributeError:
-            return getattr(self._ext, name)
+            value = getattr(self._ext, name)
+        # kept: the next lookup is a plain attribute read (a scalar variant's BSDF looks
+        # up e.g. Color3f on every call; through this method it took 0.7 us)
+        setattr(self, name, value)
+        return value
 
 
 class Ops:
@@ -135,6 +141,33 @@ def expm1(x):
     for c in (1.0 / 120.0, 1.0 / 24.0, 1.0 / 6.0, 0.5, 1.0):
         p = dr.fma(p, x, c)
     return dr.select(dr.abs(x) < 0.1, p * x, dr.exp(x) - 1.0)
+
+
+def rho_from_x(ops: Ops, xs, valid, w) -> list:
+    """The inverse transform of the transformed values ``xs`` (R, G, B: its first three
+    items) at a bin (or point) of validity ``valid`` (1 or 0, or interpolated) and weight
+    ``w``: ``max((exp(X) - 1) valid / w, 0)`` per channel (1/sr), 0 where ``valid / w``
+    is 0. Returns a list of three values (Floats, or Python floats in scalar variants).
+
+    A select, not only the product: an invalid bin gives 0 even where the model's X
+    there is large enough for exp to overflow (inf * 0 = nan). In scalar variants (plain
+    Python floats, one lookup per call) ``math.expm1`` in double precision instead of
+    :func:`expm1`'s float32 polynomial; where it would overflow a double, X is capped at
+    700 (the value is then inf once stored as float32, as the kernel's is past 88.7).
+    """
+    if not ops.jit:
+        scale = valid / w
+        if not scale > 0.0:
+            return [0.0, 0.0, 0.0]
+        x0, x1, x2 = xs[0], xs[1], xs[2]
+        try:  # unrolled: this runs once per BSDF call
+            r0, r1, r2 = (math.expm1(x0) * scale, math.expm1(x1) * scale,
+                          math.expm1(x2) * scale)
+        except OverflowError:
+            r0, r1, r2 = (math.expm1(min(x, 700.0)) * scale for x in (x0, x1, x2))
+        return [r0 if r0 > 0.0 else 0.0, r1 if r1 > 0.0 else 0.0, r2 if r2 > 0.0 else 0.0]
+    scale = valid * dr.rcp(w)
+    return [dr.select(scale > 0.0, dr.maximum(expm1(x) * scale, 0.0), 0.0) for x in xs[:3]]
 
 
 def mix_colour(xs, mt):
@@ -289,7 +322,10 @@ def bin_weight_from_cos(c, use_cos):
     """(w, valid) of a bin from its ``c = cos_i cos_o``: the transform weight clip(c,
     0.01, 1) (or 1 for log-plus) and whether both directions are above the horizon at
     the bin's angles (a bin is invalid otherwise, docs/method.md; since cos_i + cos_o
-    >= 0 on the grid, c > 0 means both are positive)."""
+    >= 0 on the grid, c > 0 means both are positive). In scalar variants (``c`` a
+    Python float) with Python's conditionals: this runs once per BSDF call."""
+    if isinstance(c, float):
+        return (min(max(c, 0.01), 1.0) if use_cos > 0.5 else 1.0), c > 0.0
     return dr.select(use_cos > 0.5, dr.clip(c, 0.01, 1.0), 1.0), c > 0.0
 
 

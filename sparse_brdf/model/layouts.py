@@ -4,9 +4,10 @@ reference decoders for testing without a renderer.
 Everything here is plain numpy, prepared at scene-load time: the ``sparse_brdf`` Mitsuba
 plugin (:mod:`mitsuba_plugin.bsdfs`) uploads these arrays to Dr.Jit as they are
 (:func:`grouped_layout`, :func:`strict_layout`, :func:`float_buffer`), their byte counts
-are known without a renderer (:func:`grouped_bytes`, ``StrictChannel.nbytes``), and the
-numpy evaluators below (``grouped_eval``, ``strict_eval``, ``layout_eval``) mirror its
-Dr.Jit kernels so the decoders can be checked without Mitsuba. The decoder, layout and
+are known without a renderer (:func:`grouped_bytes`, ``StrictChannel.nbytes``), and
+numpy evaluators (``grouped_eval`` below; the uploaded layouts' lookups, vectorised
+and one point at a time, in :mod:`sparse_brdf.model.lookups`) mirror its Dr.Jit
+kernels so the decoders can be checked without Mitsuba. The decoder, layout and
 sampling names the plugin accepts are defined here (:data:`DECODERS`, :data:`LAYOUTS`,
 :data:`SAMPLING`), as is the glossy sampling lobe fitted at load time (:func:`fit_lobe`).
 
@@ -407,24 +408,6 @@ def grouped_layout(chans, shape, kind: str | None = None) -> GroupedLayout:
     return union_layout(chans, shape)
 
 
-def layout_eval(layout: GroupedLayout, ch: GroupedChannel, bins):
-    """(X of the three channels (3, N), cos_i cos_o (N,)) at integer bins from an
-    uploaded layout (numpy mirror of the kernel)."""
-    pair = bins[ch.mode_p] * ch.n_q + bins[ch.mode_q]
-    n = layout.chunks
-    if layout.kind == "slots":
-        tab = layout.tables.reshape(-1, n * PACKET // SLOT, SLOT)[pair].astype(np.float64)
-        val = layout.values.reshape(-1, n * PACKET // SLOT, SLOT)[bins[ch.mode_g]]
-        acc = np.einsum("nsc,nsc->cn", tab, val)
-        return acc[:3], acc[3]
-    tab = layout.tables.reshape(-1, n, 3 * UNION_ATOMS + 1)[pair].astype(np.float64)
-    val = layout.values.reshape(-1, n, PACKET)[bins[ch.mode_g]]
-    atoms = tab[:, :, :3 * UNION_ATOMS].reshape(-1, n, UNION_ATOMS, 3)
-    xs = np.einsum("nuac,nua->cn", atoms, val[:, :, :UNION_ATOMS])
-    cc = np.einsum("nu,nu->n", tab[:, :, 3 * UNION_ATOMS], val[:, :, UNION_ATOMS])
-    return xs, cc
-
-
 def grouped_bytes(model, ensemble) -> int:
     """Bytes the grouped decoder holds for ``model`` (the layout of
     :func:`grouped_layout`), without building the tables."""
@@ -506,39 +489,10 @@ def mix_channels(xs, basis: str) -> np.ndarray:
     return np.tensordot(np.array(mt, np.float64), xs.astype(np.float64), axes=1)
 
 
-def model_x(model, ensemble, bins, decoder: str = "grouped",
-            kind: str | None = None) -> np.ndarray:
-    """Transformed R, G, B (3, N) of ``model`` at integer bins (i, j, k), as the plugin's
-    ``decoder`` computes them at the nearest bin: the three coded channels from the
-    uploaded data (grouped: the layout ``kind``, default the automatic one), then the
-    colour mix of the model's basis (numpy mirror of the whole lookup before the inverse
-    transform)."""
-    if decoder == "grouped":
-        chans = grouped_channels(model, ensemble)
-        xs, _ = layout_eval(grouped_layout(chans, tuple(model.shape), kind), chans[0], bins)
-    elif decoder == "strict":
-        xs = np.stack([strict_eval(strict_channel(*channel_terms(model, ensemble, c)), bins)
-                       for c in range(3)])
-    else:
-        check_choice("decoder", decoder, DECODERS[:2])
-    return mix_channels(xs, model.basis)
-
-
 def grouped_eval(ch: GroupedChannel, bins) -> np.ndarray:
     """X at integer bins (i, j, k) from a grouped channel (numpy mirror of the kernel)."""
     pair = bins[ch.mode_p] * ch.n_q + bins[ch.mode_q]
     return np.einsum("ng,gn->n", ch.table[pair], ch.rows[:, bins[ch.mode_g]])
-
-
-def strict_eval(ch: StrictChannel, bins) -> np.ndarray:
-    """X at integer bins from a strict channel (numpy mirror of the kernel)."""
-    mask = (1 << PACK_BITS) - 1
-    ia = ch.packed & mask
-    ib = (ch.packed >> PACK_BITS) & mask
-    ic = (ch.packed >> (2 * PACK_BITS)) & mask
-    r1, r2, r3 = ch.rows
-    g = r1[ia][:, bins[0]] * r2[ib][:, bins[1]] * r3[ic][:, bins[2]]  # (T, N)
-    return ch.values @ g
 
 
 # ---------------------------------------------------------------------- sampling lobe
