@@ -80,12 +80,15 @@ def study(args) -> list[dict]:
     # fitting view's i (its reference rendered with it): more sampled directions
     seeds = ({v: i for i, v in enumerate(args.fit_views)} if args.view_seeds == "distinct"
              else {})
+    # the fitting views' spp (their references', the fit's): --fit-spp, or --spp
+    fit_spp = args.fit_spp or args.spp
+    spps = {v: fit_spp for v in args.fit_views}
     models = {m: encode(load_brdf(DEMO_MATERIALS_DIR / f"{m}.h5")) for m in args.materials}
     rows = []
     for i, name in enumerate(args.materials):
         brdf_path = write_merl(tmp / f"{name}.binary", load_brdf(DEMO_MATERIALS_DIR /
                                                                  f"{name}.h5"))
-        refs = {v: render_scene(scene, {"material": str(brdf_path)}, spp=args.spp,
+        refs = {v: render_scene(scene, {"material": str(brdf_path)}, spp=spps.get(v, args.spp),
                                 seed=seeds.get(v, 0), res=args.res, params=_params(v))
                 for v in specs}
         model = models[name]
@@ -105,18 +108,18 @@ def study(args) -> list[dict]:
                                   args.spp, args.res),
                # the unperturbed encoding on the fitting views (is a fit over-fitting?)
                "clean_fit_views": _held_out(scene, refs, mask, args.fit_views,
-                                            files["clean"], args.spp, args.res, seeds)}
+                                            files["clean"], fit_spp, args.res, seeds)}
         for start in args.starts:
             t0 = time.perf_counter()
             fit = fit_images(scene, views, files[start], iterations=args.iterations,
-                             lr=args.lr, lr_end=args.lr_end, spp=args.spp, seed=0,
+                             lr=args.lr, lr_end=args.lr_end, spp=fit_spp, seed=0,
                              optimizer=args.optimizer, loss=args.loss,
                              progress=True)
             fitted = save_sbrdf(tmp / f"{name}-fit-{start}.sbrdf", fit.model)
             row[f"fit_{start}"] = _held_out(scene, refs, mask, args.held_out, fitted,
                                             args.spp, args.res)
             row[f"fit_{start}_fit_views"] = _held_out(scene, refs, mask, args.fit_views,
-                                                      fitted, args.spp, args.res, seeds)
+                                                      fitted, fit_spp, args.res, seeds)
             row[f"seconds_{start}"] = time.perf_counter() - t0
             row[f"seconds_per_iteration_{start}"] = fit.seconds_per_iteration
             row[f"fit_views_snr_{start}"] = fit.snr_db
@@ -168,12 +171,16 @@ def main() -> None:
                    default=["noisy", "other"],
                    help="the fits to run: from the perturbed encoding, from the next "
                         "material's encoding")
+    p.add_argument("--fit-spp", type=int, default=None,
+                   help="spp of the fitting views and their references (default --spp; "
+                        "the held-out views always use --spp)")
     p.add_argument("--seed", type=int, default=1, help="seed of the 30 %% noise")
     args = p.parse_args()
     print(header())
     opt = (f"adam, lr {args.lr} -> {args.lr * args.lr_end:g}" if args.optimizer == "adam"
            else args.optimizer) + f", {args.loss} loss, {args.view_seeds} view seeds"
-    print(f"sphere.xml, {args.res}x{args.res}, {args.spp} spp, fitting views "
+    print(f"sphere.xml, {args.res}x{args.res}, {args.spp} spp (fitting views "
+          f"{args.fit_spp or args.spp}), fitting views "
           f"{args.fit_views}, held out {args.held_out}, {args.iterations} iterations "
           f"({opt}); SNR in dB, object-only / whole-image, mean over the held-out views")
     print("| material | unperturbed | perturbed (start) | fitted | fitted - unperturbed | "
