@@ -1,11 +1,16 @@
 """Recovering a material from images with ``fit_images`` (docs/fit-images.md).
 
     .venv/bin/python benchmarks/fit_images_study.py [--materials silver-paint ...]
-        [--iterations 150] [--res 64] [--spp 16] [--json out.json]
+        [--fit-views envrot=0 envmap=forest.exr,envrot=90 envrot=60,envtilt=30 ...]
+        [--held-out envrot=45 envrot=225] [--iterations 150] [--res 64] [--spp 16]
+        [--json out.json]
 
 For each material (the shipped demo materials: MERL test-split networks the ensemble
-never saw): references are rendered from the full tabulated BRDF in ``sphere.xml`` (the
-CC0 studio map) at several map rotations, some used for fitting and some held out. The
+never saw): references are rendered from the full tabulated BRDF in ``sphere.xml`` under
+several views, each a set of the scene's defaults: the map (``envmap``, the CC0 studio
+map by default; the shared maps by name, e.g. ``forest.exr``), its rotation about the
+vertical (``envrot``) and its tilt (``envtilt``); a bare number is an ``envrot`` of the
+studio map. Some views are used for fitting and some held out. The
 material's encoding (262 per channel) has every value multiplied by 1 + 0.3 z (z
 standard normal, seeded), and ``fit_images`` fits the noisy values back from the
 fitting views. Reported on the held-out views, object-only and whole-image SNR against
@@ -25,19 +30,39 @@ import numpy as np
 from harness import header, parser, write_json
 
 from sparse_brdf import encode, load_brdf
-from sparse_brdf.evaluation.fit_images import DEFAULT_LR, DEFAULT_LR_END, fit_images, views_for
-from sparse_brdf.evaluation.render import find_scene, object_mask, render_scene
+from sparse_brdf.evaluation.fit_images import (
+    DEFAULT_LR,
+    DEFAULT_LR_END,
+    LOSSES,
+    OPTIMIZERS,
+    fit_images,
+    views_for,
+)
+from sparse_brdf.evaluation.render import find_scene, object_mask, parse_defaults, render_scene
 from sparse_brdf.metrics import snr_forms
 from sparse_brdf.model.sbrdf import save_sbrdf
 from sparse_brdf.paths import DEMO_MATERIALS_DIR
 from sparse_brdf.sources.merl import write_merl
 
 
-def _held_out(scene, refs, mask, rots, src, spp, res) -> tuple[float, float]:
-    """Mean (object-only, whole-image) SNR of ``src`` over the views ``rots``."""
-    forms = [snr_forms(refs[r], render_scene(scene, {"material": str(src)}, spp=spp, seed=0,
-                                             res=res, params={"envrot": r}), mask)
-             for r in rots]
+def view_spec(text: str) -> str:
+    """A view as given on the command line, normalised: ``45`` -> ``envrot=45``."""
+    text = str(text).strip()
+    return f"envrot={text}" if "=" not in text else text
+
+
+def _params(spec: str) -> dict:
+    return parse_defaults(spec.split(","), f"view {spec!r}:")
+
+
+def _held_out(scene, refs, mask, specs, src, spp, res, seeds=None) -> tuple[float, float]:
+    """Mean (object-only, whole-image) SNR of ``src`` over the views ``specs`` (rendered
+    with ``seeds``, those of their references; 0 by default)."""
+    seeds = seeds or {}
+    forms = [snr_forms(refs[v], render_scene(scene, {"material": str(src)}, spp=spp,
+                                             seed=seeds.get(v, 0), res=res,
+                                             params=_params(v)), mask)
+             for v in specs]
     return (float(np.mean([f.object for f in forms])),
             float(np.mean([f.whole for f in forms])))
 
@@ -46,14 +71,26 @@ def study(args) -> list[dict]:
     scene = find_scene("sphere.xml")
     mask = object_mask(scene, res=args.res)
     tmp = Path(tempfile.mkdtemp(prefix="fit-images-study-"))
-    rots = [*args.fit_views, *args.held_out]
+    specs = [*args.fit_views, *args.held_out]
+    both = {v for v in args.fit_views
+            if any(_params(v) == _params(h) for h in args.held_out)}
+    if both:
+        raise SystemExit(f"views both fitted and held out: {sorted(both)}")
+    # the fitting views' render seeds: all 0 (the held-out views' too), or the i-th
+    # fitting view's i (its reference rendered with it): more sampled directions
+    seeds = ({v: i for i, v in enumerate(args.fit_views)} if args.view_seeds == "distinct"
+             else {})
+    # the fitting views' spp (their references', the fit's): --fit-spp, or --spp
+    fit_spp = args.fit_spp or args.spp
+    spps = {v: fit_spp for v in args.fit_views}
     models = {m: encode(load_brdf(DEMO_MATERIALS_DIR / f"{m}.h5")) for m in args.materials}
     rows = []
     for i, name in enumerate(args.materials):
         brdf_path = write_merl(tmp / f"{name}.binary", load_brdf(DEMO_MATERIALS_DIR /
                                                                  f"{name}.h5"))
-        refs = {r: render_scene(scene, {"material": str(brdf_path)}, spp=args.spp, seed=0,
-                                res=args.res, params={"envrot": r}) for r in rots}
+        refs = {v: render_scene(scene, {"material": str(brdf_path)}, spp=spps.get(v, args.spp),
+                                seed=seeds.get(v, 0), res=args.res, params=_params(v))
+                for v in specs}
         model = models[name]
         rng = np.random.default_rng(args.seed)
         noisy = dataclasses.replace(model, values=[
@@ -62,20 +99,27 @@ def study(args) -> list[dict]:
         other = models[args.materials[(i + 1) % len(args.materials)]]
         files = {k: save_sbrdf(tmp / f"{name}-{k}.sbrdf", m) for k, m in
                  (("clean", model), ("noisy", noisy), ("other", other))}
-        views = views_for([{"envrot": r} for r in args.fit_views],
-                          [refs[r] for r in args.fit_views])
+        views = views_for([_params(v) for v in args.fit_views],
+                          [refs[v] for v in args.fit_views],
+                          [seeds.get(v, 0) for v in args.fit_views])
         row = {"material": name, "clean": _held_out(scene, refs, mask, args.held_out,
                                                     files["clean"], args.spp, args.res),
                "noisy": _held_out(scene, refs, mask, args.held_out, files["noisy"],
-                                  args.spp, args.res)}
-        for start in ("noisy", "other"):
+                                  args.spp, args.res),
+               # the unperturbed encoding on the fitting views (is a fit over-fitting?)
+               "clean_fit_views": _held_out(scene, refs, mask, args.fit_views,
+                                            files["clean"], fit_spp, args.res, seeds)}
+        for start in args.starts:
             t0 = time.perf_counter()
             fit = fit_images(scene, views, files[start], iterations=args.iterations,
-                             lr=args.lr, lr_end=args.lr_end, spp=args.spp, seed=0,
+                             lr=args.lr, lr_end=args.lr_end, spp=fit_spp, seed=0,
+                             optimizer=args.optimizer, loss=args.loss,
                              progress=True)
             fitted = save_sbrdf(tmp / f"{name}-fit-{start}.sbrdf", fit.model)
             row[f"fit_{start}"] = _held_out(scene, refs, mask, args.held_out, fitted,
                                             args.spp, args.res)
+            row[f"fit_{start}_fit_views"] = _held_out(scene, refs, mask, args.fit_views,
+                                                      fitted, fit_spp, args.res, seeds)
             row[f"seconds_{start}"] = time.perf_counter() - t0
             row[f"seconds_per_iteration_{start}"] = fit.seconds_per_iteration
             row[f"fit_views_snr_{start}"] = fit.snr_db
@@ -89,10 +133,15 @@ def _pair(p: tuple[float, float]) -> str:
 
 
 def _line(r: dict) -> str:
+    if "fit_noisy" not in r:
+        return (f"| {r['material']} | {_pair(r['clean'])} | {_pair(r['noisy'])} | - | - | "
+                f"{_pair(r['fit_other'])} | {r['seconds_per_iteration_other']:.2f} | "
+                f"{r['seconds_other']:.0f} |")
     gap = (r["fit_noisy"][0] - r["clean"][0], r["fit_noisy"][1] - r["clean"][1])
     return (f"| {r['material']} | {_pair(r['clean'])} | {_pair(r['noisy'])} | "
             f"{_pair(r['fit_noisy'])} | {gap[0]:+.1f} / {gap[1]:+.1f} | "
-            f"{_pair(r['fit_other'])} | {r['seconds_per_iteration_noisy']:.2f} | "
+            f"{_pair(r['fit_other']) if 'fit_other' in r else '-'} | "
+            f"{r['seconds_per_iteration_noisy']:.2f} | "
             f"{r['seconds_noisy']:.0f} |")
 
 
@@ -101,22 +150,39 @@ def main() -> None:
     p.add_argument("--materials", nargs="+", default=["silver-paint", "blue-metallic-paint2",
                                                       "red-specular-plastic"],
                    help="shipped demo materials (names in sparse_brdf/data/materials)")
-    p.add_argument("--fit-views", nargs="+", type=int, default=[0, 90, 180, 270],
-                   metavar="DEG", help="map rotations (envrot) of the fitting views")
-    p.add_argument("--held-out", nargs="+", type=int, default=[45, 225], metavar="DEG",
-                   help="map rotations of the held-out views")
+    p.add_argument("--fit-views", nargs="+", type=view_spec, default=["envrot=0", "envrot=90",
+                   "envrot=180", "envrot=270"], metavar="K=V[,K=V]",
+                   help="the fitting views' scene defaults (a bare number: envrot)")
+    p.add_argument("--held-out", nargs="+", type=view_spec, default=["envrot=45",
+                   "envrot=225"], metavar="K=V[,K=V]", help="the held-out views")
     p.add_argument("--iterations", type=int, default=150)
+    p.add_argument("--optimizer", choices=OPTIMIZERS, default="adam",
+                   help="adam, or lbfgs (then --iterations counts its evaluations)")
+    p.add_argument("--view-seeds", choices=["same", "distinct"], default="same",
+                   help="render every view with seed 0, or the i-th fitting view (and "
+                        "its reference) with seed i; held-out views always use 0")
+    p.add_argument("--loss", choices=LOSSES, default="relative",
+                   help="relative (mean relative squared error) or log (mean SNR in dB)")
     p.add_argument("--lr", type=float, default=DEFAULT_LR)
     p.add_argument("--lr-end", type=float, default=DEFAULT_LR_END)
     p.add_argument("--res", type=int, default=64)
     p.add_argument("--spp", type=int, default=16)
+    p.add_argument("--starts", nargs="+", choices=["noisy", "other"],
+                   default=["noisy", "other"],
+                   help="the fits to run: from the perturbed encoding, from the next "
+                        "material's encoding")
+    p.add_argument("--fit-spp", type=int, default=None,
+                   help="spp of the fitting views and their references (default --spp; "
+                        "the held-out views always use --spp)")
     p.add_argument("--seed", type=int, default=1, help="seed of the 30 %% noise")
     args = p.parse_args()
     print(header())
-    print(f"sphere.xml, {args.res}x{args.res}, {args.spp} spp, fitting views envrot "
-          f"{args.fit_views}, held out {args.held_out}, {args.iterations} iterations, lr "
-          f"{args.lr} -> {args.lr * args.lr_end:g}; SNR in dB, object-only / whole-image, "
-          "mean over the held-out views")
+    opt = (f"adam, lr {args.lr} -> {args.lr * args.lr_end:g}" if args.optimizer == "adam"
+           else args.optimizer) + f", {args.loss} loss, {args.view_seeds} view seeds"
+    print(f"sphere.xml, {args.res}x{args.res}, {args.spp} spp (fitting views "
+          f"{args.fit_spp or args.spp}), fitting views "
+          f"{args.fit_views}, held out {args.held_out}, {args.iterations} iterations "
+          f"({opt}); SNR in dB, object-only / whole-image, mean over the held-out views")
     print("| material | unperturbed | perturbed (start) | fitted | fitted - unperturbed | "
           "fitted from another material | s / iteration | s / fit |\n"
           "|---|---|---|---|---|---|---|---|")

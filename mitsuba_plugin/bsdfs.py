@@ -51,6 +51,7 @@ from sparse_brdf.model.layouts import (
     float_buffer,
     grouped_channels,
     grouped_layout,
+    model_digest,
     sparse_profile,
     strict_channel,
     strict_layout,
@@ -84,6 +85,16 @@ from .kernels import (
 
 _ENSEMBLES: dict = {}
 _ENSEMBLE_LOCK = threading.Lock()
+# The last grouped build, keyed by its model's support, values, ensemble, layout and
+# variant: the several scenes of an image fit (one per view) hold one model whose values
+# change together, and each rebuilds its buffers on ``params.update()``; the second and
+# later scenes of a step reuse the first one's (read-only) buffers.
+_LAST_GROUPED: list = [None, None]
+_GROUPED_LOCK = threading.Lock()
+
+
+def _grouped_key(model, ens, layout, ops) -> tuple:
+    return (model_digest(model), id(ens), layout, getattr(ops.m, "__name__", str(ops.m)))
 
 
 def load_ensemble(path: str | None, for_id: str | None = None):
@@ -654,11 +665,19 @@ class SparseBSDF(GlossyBSDF):
 
     # data ----------------------------------------------------------------------------
     def _build_grouped(self, model, ens, layout: str) -> None:
-        chans = grouped_channels(model, ens)
+        key = _grouped_key(model, ens, layout, self._ops)
+        with _GROUPED_LOCK:
+            if _LAST_GROUPED[0] == key:
+                chans, lay, grouped, _ = _LAST_GROUPED[1]
+            else:
+                chans = grouped_channels(model, ens)
+                lay = grouped_layout(chans, model.shape,
+                                     None if layout in ("auto", None) else layout)
+                grouped = upload_grouped(self._ops, lay, chans[0])
+                _LAST_GROUPED[:] = [key, (chans, lay, grouped, ens)]  # kept: its id stays unique
         self.channels = chans
-        lay = grouped_layout(chans, model.shape, None if layout in ("auto", None) else layout)
         self.layout = lay.kind
-        self._grouped = upload_grouped(self._ops, lay, chans[0])
+        self._grouped = grouped
         self.memory_bytes = (self._ops.nbytes(self._grouped.tables)
                              + self._ops.nbytes(self._grouped.values))
         self.distinct_atoms = tuple(c.k for c in chans)

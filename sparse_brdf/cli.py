@@ -419,7 +419,8 @@ def cmd_fit_images(args: argparse.Namespace) -> int:
                         ensemble=args.ensemble, iterations=args.iterations, lr=args.lr,
                         lr_end=args.lr_end, spp=args.spp, seed=args.seed,
                         checkpoint_dir=args.checkpoint_dir, decoder=args.decoder,
-                        variant=args.variant)
+                        variant=args.variant, optimizer=args.optimizer,
+                        loss=args.loss)
     save_sbrdf(args.output, result.model)
     snr = result.snr_db
     print(f"wrote {args.output}: {result.iterations} iterations in {result.seconds:.0f} s "
@@ -763,7 +764,8 @@ def _add_fit_images(sub) -> None:
                     "that renders of SCENE match the reference images, with Mitsuba's "
                     "Adam through the plugin's differentiable values (docs/fit-images.md)."
                     " Each --view is an EXR image and the scene defaults it was taken "
-                    "with, e.g. ref.exr:envrot=90; square images set the scene's res.")
+                    "with, e.g. ref.exr:envrot=90 or ref.exr:envmap=forest.exr,envrot=90,"
+                    "envtilt=30; square images set the scene's res.")
     fi.add_argument("scene", help="scene XML (a path, or a name in the shipped scenes/)")
     fi.add_argument("--view", action="append", required=True, metavar="IMAGE.exr[:K=V,...]",
                     help="a reference image and its scene defaults (repeatable)")
@@ -775,6 +777,14 @@ def _add_fit_images(sub) -> None:
     fip = fit_images_module.PARAMETERS
     fi.add_argument("--iterations", type=_typed(fip["iterations"]),
                     default=_default(fit_images, "iterations"))
+    fi.add_argument("--optimizer", choices=fit_images_module.OPTIMIZERS,
+                    default=_default(fit_images, "optimizer"),
+                    help="adam, or lbfgs (L-BFGS-B on the shared-path loss; --iterations "
+                         "then counts its evaluations, --lr and --lr-end are not used)")
+    fi.add_argument("--loss", choices=fit_images_module.LOSSES,
+                    default=_default(fit_images, "loss"),
+                    help="relative: the views' mean relative squared error; log: its "
+                         "mean logarithm (the views' mean SNR in dB)")
     fi.add_argument("--lr", type=_typed(fip["lr"]), default=_default(fit_images, "lr"),
                     help="Adam's first learning rate, a relative step per value")
     fi.add_argument("--lr-end", type=_typed(fip["lr_end"]),

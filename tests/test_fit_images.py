@@ -3,6 +3,7 @@ the fit moves a perturbed encoding towards the references, keeps the support, re
 from its checkpoint, and refuses bad input in one line (exit 2, no output)."""
 
 import dataclasses
+import re
 from pathlib import Path
 
 import numpy as np
@@ -100,7 +101,8 @@ def test_fit_resumes_from_its_checkpoint(case, monkeypatch):
 
 
 @pytest.mark.parametrize("bad", ["missing-view", "wrong-size", "variant", "lr-end",
-                                 "output-is-start", "corrupt-start"])
+                                 "output-is-start", "corrupt-start", "view-key",
+                                 "view-own-option", "view-no-key", "view-missing-map"])
 def test_fit_images_bad_input_is_one_line(capsys, case, tmp_path, bad):
     view, start = f"{case['paths'][0]}:envrot=0", case["start"]
     extra: list = []
@@ -115,6 +117,14 @@ def test_fit_images_bad_input_is_one_line(capsys, case, tmp_path, bad):
         extra, named = ["--variant", "scalar_rgb"], "scalar_rgb"
     elif bad == "lr-end":
         extra, named = ["--lr-end", "0"], "--lr-end"
+    elif bad == "view-key":  # not a default of the scene
+        view, named = f"{case['paths'][0]}:envrot=0,bogus=1", "--view"
+    elif bad == "view-own-option":  # spp has an option of its own
+        view, named = f"{case['paths'][0]}:spp=4", "--spp"
+    elif bad == "view-no-key":
+        view, named = f"{case['paths'][0]}:=4", "--view"
+    elif bad == "view-missing-map":  # a view's own map that is not on this machine
+        view, named = f"{case['paths'][0]}:envmap=no-such-map.exr", "no-such-map.exr"
     elif bad == "corrupt-start":
         start = tmp_path / "broken.sbrdf"
         start.write_bytes(case["start"].read_bytes()[:100])
@@ -126,6 +136,8 @@ def test_fit_images_bad_input_is_one_line(capsys, case, tmp_path, bad):
     assert code == 2, err
     assert len(err.splitlines()) == 1 and "Traceback" not in err, err
     assert named in err or bad == "output-is-start", err
+    if bad.startswith("view-"):
+        assert "--view" in err, err
     assert sorted(p.name for p in tmp_path.iterdir()) == before  # nothing written
 
 
@@ -169,3 +181,120 @@ def test_render_sets_scene_defaults(capsys, tmp_path):
         code, _, err = run(capsys, "render", "sphere.xml", "-o", tmp_path / "x.exr", "-D", bad)
         assert code == 2 and len(err.splitlines()) == 1 and named in err, err
     assert not (tmp_path / "x.exr").exists()
+
+
+def _uniform_map(path: Path, rgb) -> str:
+    """A small constant environment map (an EXR file) at ``path``; its absolute path."""
+    return str(write_exr(path, np.broadcast_to(np.float32(rgb), (8, 16, 3)).copy()))
+
+
+def test_views_carry_their_own_envmap(capsys, case, tmp_path):
+    """A view's ``envmap`` is rendered with that map: the start's own render under a red
+    map is matched exactly (shared sample paths) by a view that names the map, and not by
+    one that keeps the scene's studio map; both parse from ``--view`` specs."""
+    from sparse_brdf.evaluation.fit_images import parse_view
+
+    red = _uniform_map(tmp_path / "red.exr", (1.0, 0.1, 0.1))
+    path, params = parse_view(f"ref.exr:envmap={red},envrot=90,envtilt=30")
+    assert path == "ref.exr" and params == {"envmap": red, "envrot": "90", "envtilt": "30"}
+    own = render_scene(case["scene"], {"material": str(case["start"])}, spp=SPP, seed=0,
+                       res=RES, params=params)
+    kw = dict(iterations=1, spp=SPP, seed=0, progress=False)
+    # snr_db[0] is the views' SNR before the first step, i.e. of the start itself
+    exact = fit_images(case["scene"], views_for([params], [own]), case["start"], **kw)
+    studio = fit_images(case["scene"], views_for([{"envrot": 90, "envtilt": 30}], [own]),
+                        case["start"], **kw)
+    assert exact.snr_db[0] > 60.0, exact.snr_db
+    assert studio.snr_db[0] < 20.0, studio.snr_db
+    # and on the command line
+    ref = write_exr(tmp_path / "red-ref.exr", own)
+    out = tmp_path / "fitted.sbrdf"
+    code, stdout, err = run(capsys, "fit-images", "sphere.xml", "--view",
+                            f"{ref}:envmap={red},envrot=90,envtilt=30", "--start",
+                            case["start"], "-o", out, "--iterations", 1, "--spp", SPP)
+    assert code == 0, err
+    assert re.search(r"SNR (\d+\.\d) dB at the start", stdout), stdout
+    assert float(re.search(r"SNR (\d+\.\d) dB at the start", stdout).group(1)) > 60.0
+
+
+def test_envtilt_default_leaves_the_scene_unchanged(tmp_path):
+    """``sphere.xml``'s ``envtilt`` (a rotation of the map about +x after ``envrot``)
+    is 0 by default, and then renders bit for bit as the scene without it; a tilt moves
+    the lighting."""
+    from sparse_brdf.paths import SCENES_DIR
+
+    text = (SCENES_DIR / "sphere.xml").read_text()
+    line = '            <rotate x="1" angle="$envtilt"/>\n'
+    assert line in text
+    untilted = tmp_path / "sphere-untilted.xml"
+    untilted.write_text(text.replace(line, ""))
+    studio = str(SCENES_DIR / "envmaps" / "studio.exr")
+    kw = dict(spp=2, seed=0, res=RES)
+    new = render_scene(find_scene("sphere.xml"), {"material": str(MATERIAL)},
+                       params={"envrot": 90}, **kw)
+    old = render_scene(untilted, {"material": str(MATERIAL)},
+                       params={"envrot": 90, "envmap": studio}, **kw)
+    assert np.array_equal(new, old)
+    tilted = render_scene(find_scene("sphere.xml"), {"material": str(MATERIAL)},
+                          params={"envrot": 90, "envtilt": 30}, **kw)
+    assert not np.allclose(new, tilted, rtol=0.05)
+
+
+def test_scenes_sharing_a_model_keep_their_own_values(case):
+    """The plugin reuses the last grouped build for scenes holding the same model and
+    values (an image fit's views): new values in one scene do not leak into another."""
+    import mitsuba as mi
+
+    from sparse_brdf.evaluation.render import load_scene
+
+    scenes = [load_scene(case["scene"], {"material": str(case["start"])}, spp=SPP, seed=0,
+                         res=RES) for _ in range(2)]
+    before = [np.array(mi.render(s, spp=SPP, seed=0)) for s in scenes]
+    assert np.array_equal(before[0], before[1])
+    params = mi.traverse(scenes[0])
+    key = next(k for k in params.keys() if k.endswith("values_0"))
+    params[key] = mi.Float(np.array(params[key]) * 2.0)
+    params.update()
+    brighter = np.array(mi.render(scenes[0], spp=SPP, seed=0))
+    again = np.array(mi.render(scenes[1], spp=SPP, seed=0))
+    assert not np.allclose(brighter, before[0], rtol=0.01)
+    assert np.array_equal(again, before[1])
+
+
+def test_lbfgs_fit_improves_and_resumes(case):
+    """``optimizer="lbfgs"``: L-BFGS-B on the shared-path loss lifts the views' SNR from
+    the perturbed start within a few evaluations; its checkpoint holds the best values,
+    which a rerun of the same fit returns; an unknown optimizer is a UsageError."""
+    views = views_for([{"envrot": r} for r in ROTS], [case["refs"][r] for r in ROTS])
+    kw = dict(iterations=8, spp=SPP, seed=0, progress=False, optimizer="lbfgs",
+              checkpoint_every=4)
+    ckpt = case["work"] / "ckpt-lbfgs"
+    fit = fit_images(case["scene"], views, case["start"], checkpoint_dir=ckpt, **kw)
+    assert 1 < len(fit.snr_db) <= 8 and fit.iterations == len(fit.snr_db)
+    assert max(fit.snr_db) > fit.snr_db[0] + 3.0, fit.snr_db
+    out = save_sbrdf(case["work"] / "lbfgs.sbrdf", fit.model)
+    assert _snr(case, out) > _snr(case, case["start"]) + 3.0
+    again = fit_images(case["scene"], views, case["start"], checkpoint_dir=ckpt, **kw)
+    assert again.resumed_from == 8 and again.snr_db == fit.snr_db
+    for a, b in zip(fit.model.values, again.model.values, strict=True):
+        np.testing.assert_array_equal(a, b)
+    with pytest.raises(UsageError, match="optimizer"):
+        fit_images(case["scene"], views, case["start"], **{**kw, "optimizer": "sgd"})
+
+
+def test_log_loss_is_the_views_mean_snr(case):
+    """``loss="log"`` optimises the mean of the views' SNRs in dB: its first record is
+    exactly that mean for the start (the views' renders share the references' paths),
+    while the relative loss records the SNR of the views' mean relative error."""
+    views = views_for([{"envrot": r} for r in ROTS], [case["refs"][r] for r in ROTS])
+    kw = dict(iterations=1, spp=SPP, seed=0, progress=False)
+    per_view = [render_snr(case["refs"][r], render_scene(
+        case["scene"], {"material": str(case["start"])}, spp=SPP, seed=0, res=RES,
+        params={"envrot": r})) for r in ROTS]
+    log = fit_images(case["scene"], views, case["start"], loss="log", **kw)
+    rel = fit_images(case["scene"], views, case["start"], **kw)
+    assert log.snr_db[0] == pytest.approx(np.mean(per_view), abs=1e-3)
+    mean_error = np.mean([10 ** (-s / 10) for s in per_view])
+    assert rel.snr_db[0] == pytest.approx(-10 * np.log10(mean_error), abs=1e-3)
+    with pytest.raises(UsageError, match="loss"):
+        fit_images(case["scene"], views, case["start"], loss="l1", **kw)

@@ -2,9 +2,12 @@
 
 :func:`fit_images` takes a scene, reference images of a material in that scene under
 known lighting and views (:class:`View`: an image and the scene defaults it was taken
-with, e.g. ``{"envrot": "90"}``), and a starting ``.sbrdf``. It keeps the starting
+with, e.g. ``{"envrot": "90"}`` or ``{"envmap": "forest.exr", "envtilt": "30"}``: each
+view may carry its own map), and a starting ``.sbrdf``. It keeps the starting
 file's support (its dictionaries and atoms) and optimises the coefficient values of the
-three coded channels with Mitsuba's Adam (``mi.ad.Adam``), differentiating the renders
+three coded channels with Mitsuba's Adam (``mi.ad.Adam``) or SciPy's L-BFGS-B
+(``optimizer="lbfgs"``: the shared-path loss is a smooth deterministic function of the
+values, and a quasi-Newton method converges in far fewer renders), differentiating the renders
 through the ``sparse_brdf`` plugin's ``values_0`` .. ``values_2`` parameters
 (``docs/fit-images.md``). The loss is the mean over views of the relative squared error
 ``sum (img - ref)^2 / sum ref^2``, so its ``-10 log10`` is the views' mean whole-image
@@ -33,14 +36,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ImageFileError, RenderError, UsageError
+from ..errors import ImageFileError, RenderError, SparseBRDFError, UsageError
 from ..fileio import atomic_path
 from ..mitsuba_env import DEFAULT_VARIANT
 from ..model.ensemble import Ensemble, resolve_ensemble
 from ..model.sbrdf import load_sbrdf, save_sbrdf
 from ..model.sparse import SparseBRDF
 from ..params import Interval, check
-from .render import load_scene, parse_defaults
+from .render import load_scene, parse_defaults, parse_scene
 
 #: Keys under which the plugin exposes the coded channels' values (``mi.traverse``).
 VALUE_KEYS = ("values_0", "values_1", "values_2")
@@ -50,6 +53,10 @@ DEFAULT_ITERATIONS, DEFAULT_LR, DEFAULT_LR_END, DEFAULT_SPP = 150, 0.02, 0.1, 4
 #: The fit's numeric options and their ranges (the CLI takes its bounds from here).
 PARAMETERS = {"iterations": Interval(int, 1, 1 << 20), "lr": Interval(float, 0, 10, "right"),
               "lr_end": Interval(float, 0, 1, "right"), "spp": Interval(int, 1, 1 << 16)}
+#: The optimisers of :func:`fit_images`.
+OPTIMIZERS = ("adam", "lbfgs")
+#: The losses of :func:`fit_images` (see its ``loss`` parameter).
+LOSSES = ("relative", "log")
 #: A value's scale is at least this fraction of its channel's largest magnitude.
 SCALE_FLOOR = 1e-3
 
@@ -62,6 +69,10 @@ class View:
     image: np.ndarray
     params: dict = field(default_factory=dict)
     name: str = "view"
+    #: The seed the reference was rendered with (None: the fit's ``seed``). Views of
+    #: several seeds sample the material at more directions, each still along its
+    #: reference's own sample paths.
+    seed: int | None = None
 
 
 @dataclass
@@ -93,12 +104,25 @@ def parse_view(text: str) -> tuple[str, dict]:
     return path, params
 
 
+def check_view_params(scene, params: Mapping[str, object], where: str) -> None:
+    """A :class:`UsageError` naming ``where`` (e.g. ``--view ref.exr:envrot=90``) when a
+    view sets a key that is not one of the scene's ``<default>`` names (a view may set
+    any of them, e.g. ``envmap``, ``envrot`` and ``envtilt`` in ``sphere.xml``)."""
+    names = {d.get("name") for d in parse_scene(scene).getroot().iter("default")}
+    unknown = sorted(set(params) - names)
+    if unknown:
+        raise UsageError(f"{where}: {', '.join(unknown)} is not a default of "
+                         f"{Path(scene).name} (it has {', '.join(sorted(names))})")
+
+
 def _fingerprint(scene, views: Sequence[View], model: SparseBRDF, settings: dict) -> str:
     """A hash of what a checkpoint belongs to: scene, views, start values, settings."""
     h = hashlib.sha256(str(Path(scene).resolve()).encode())
     for v in views:
         h.update(np.ascontiguousarray(v.image, np.float32).tobytes())
         h.update(json.dumps(v.params, sort_keys=True).encode())
+        if v.seed is not None:
+            h.update(f"seed={int(v.seed)}".encode())
     for a in model.values:
         h.update(np.ascontiguousarray(a, np.float32).tobytes())
     h.update(json.dumps(settings, sort_keys=True).encode())
@@ -126,6 +150,7 @@ class _Scene:
     keys: list
     reference: object  # mi.TensorXf
     norm: float
+    seed: int
 
 
 def _load_views(scene, views, material, start_path, spp, seed, variant, options):
@@ -138,8 +163,13 @@ def _load_views(scene, views, material, start_path, spp, seed, variant, options)
             raise ImageFileError(f"{v.name}: a reference must be a finite RGB image, got "
                                  f"shape {img.shape}")
         res = img.shape[0] if img.shape[0] == img.shape[1] else None
-        sc = load_scene(scene, {material: str(start_path)}, spp=spp, seed=seed, res=res,
-                        variant=variant, params=v.params, sparse_options=options)
+        check_view_params(scene, v.params, v.name)
+        try:
+            vseed = seed if v.seed is None else int(v.seed)
+            sc = load_scene(scene, {material: str(start_path)}, spp=spp, seed=vseed, res=res,
+                            variant=variant, params=v.params, sparse_options=options)
+        except SparseBRDFError as exc:  # e.g. a view's envmap that is not on this machine
+            raise type(exc)(f"{v.name}: {exc}") from exc
         size = tuple(int(x) for x in sc.sensors()[0].film().crop_size())
         if size != (img.shape[1], img.shape[0]):
             raise ImageFileError(f"{v.name}: {img.shape[1]}x{img.shape[0]}, but the scene "
@@ -148,7 +178,8 @@ def _load_views(scene, views, material, start_path, spp, seed, variant, options)
         norm = float(np.sum(np.square(img, dtype=np.float64)))
         if norm <= 0:
             raise ImageFileError(f"{v.name}: the reference image is black")
-        out.append(_Scene(sc, params, _value_keys(params, material), mi.TensorXf(img), norm))
+        out.append(_Scene(sc, params, _value_keys(params, material), mi.TensorXf(img), norm,
+                          vseed))
     return out
 
 
@@ -187,41 +218,151 @@ def _read_checkpoint(path: Path, opt, fp: str):
     return int(data["iteration"]), [float(x) for x in data["snr_db"]]
 
 
-def _step(views: list[_Scene], opt, scales, seed: int, grad_seed: int, spp: int) -> float:
-    """One Adam step over all views; returns their mean whole-image SNR (dB) before it.
+def _evaluate(views: list[_Scene], values: Sequence[np.ndarray], seed: int, grad_seed: int,
+              spp: int, log_loss: bool = False) -> tuple[float, list]:
+    """The loss at ``values`` (the three channels' values, host arrays) and its gradient
+    (three Dr.Jit Floats): the mean over the views of the relative squared error, or with
+    ``log_loss`` the mean of its natural logarithm (then every view weighs by its own
+    error, as the mean of the views' SNRs in dB does; :func:`_snr_of`).
 
-    Per view: a primal render (seed ``seed``), the loss's image gradient
+    Per view: a primal render (the view's seed, ``seed`` unless it has its own), the
+    loss's image gradient
     ``2 (img - ref) / sum ref^2``, and the integrator's ``render_backward`` with seed
-    ``grad_seed`` (the primal's for the shared-path gradient), which accumulates
-    d loss / d values on the plugin's parameters; the chain rule through ``scale * u``
-    is applied here."""
+    ``grad_seed`` (the primal's for the shared-path gradient, the exact gradient of the
+    very estimate the loss compares), which accumulates d loss / d values on the
+    plugin's parameters. The values reach every view as the same host arrays: each
+    view's plugin rebuilds its buffers from them (the later views reuse the first one's
+    build)."""
     import drjit as dr  # lazy: Dr.Jit is slow to import (see the module doc)
     import mitsuba as mi
 
     losses = []
-    grads = [dr.zeros(mi.Float, dr.width(opt[k])) for k in VALUE_KEYS]
+    grads = [dr.zeros(mi.Float, len(v)) for v in values]
     for i, v in enumerate(views):
-        for key, name, s in zip(v.keys, VALUE_KEYS, scales, strict=True):
-            val = mi.Float(dr.detach(opt[name]) * s)
+        for key, host in zip(v.keys, values, strict=True):
+            val = mi.Float(np.asarray(host, np.float32))
             dr.enable_grad(val)
             v.params[key] = val
         v.params.update()
         with dr.suspend_grad():
-            img = mi.render(v.scene, spp=spp, seed=seed)
+            img = mi.render(v.scene, spp=spp, seed=v.seed)
             diff = img - v.reference
             loss = float(np.asarray(dr.sum(dr.square(diff), axis=None)).ravel()[0]) / v.norm
-        g_img = diff * (2.0 / (v.norm * len(views)))
+        g_img = diff * (2.0 / (v.norm * len(views) * (max(loss, 1e-30) if log_loss
+                                                       else 1.0)))
         v.scene.integrator().render_backward(v.scene, v.params, g_img,
                                              seed=grad_seed + i if grad_seed != seed
-                                             else seed, spp=spp)
+                                             else v.seed, spp=spp)
         for c, key in enumerate(v.keys):
             grads[c] = grads[c] + dr.grad(v.params[key])
             dr.disable_grad(v.params[key])
         losses.append(loss)
+    if log_loss:
+        return float(np.mean(np.log(np.maximum(losses, 1e-30)))), grads
+    return float(np.mean(losses)), grads
+
+
+def _snr_of(objective: float, log_loss: bool = False) -> float:
+    """The SNR (dB) an objective of :func:`_evaluate` stands for: of the views' mean
+    relative error, or (``log_loss``) the mean of the views' SNRs."""
+    if log_loss:
+        return float(-10.0 * objective / np.log(10.0))
+    return float(-10.0 * np.log10(max(objective, 1e-30)))
+
+
+def _step(views: list[_Scene], opt, scales, seed: int, grad_seed: int, spp: int,
+          log_loss: bool = False) -> float:
+    """One Adam step over all views (:func:`_evaluate`, then the chain rule through
+    ``scale * u``); returns their mean whole-image SNR (dB) before it."""
+    import drjit as dr  # lazy: Dr.Jit is slow to import (see the module doc)
+
+    # the values, evaluated once per step for all views
+    values = [np.array(dr.detach(opt[name]) * s, np.float32)
+              for name, s in zip(VALUE_KEYS, scales, strict=True)]
+    loss, grads = _evaluate(views, values, seed, grad_seed, spp, log_loss)
     for name, g, s in zip(VALUE_KEYS, grads, scales, strict=True):
         dr.set_grad(opt[name], g * s)
     opt.step()
-    return float(-10.0 * np.log10(max(float(np.mean(losses)), 1e-30)))
+    return _snr_of(loss, log_loss)
+
+
+def _lbfgs(views: list[_Scene], u0: np.ndarray, scales: np.ndarray, sizes: list[int],
+           evaluations: int, seed: int, spp: int, on_eval,
+           log_loss: bool = False) -> np.ndarray:
+    """Minimise the loss over ``u`` (values = ``scales * u``, the three channels
+    concatenated) with SciPy's L-BFGS-B, at most ``evaluations`` loss-and-gradient
+    evaluations (each renders every view once, forward and backward: an Adam iteration's
+    cost). The shared-path loss is a smooth deterministic function of the values, which
+    is what a quasi-Newton method needs; ``on_eval(u, loss)`` sees every evaluation.
+    Returns the best ``u`` evaluated."""
+    from scipy.optimize import minimize  # lazy: SciPy is slow to import
+
+    cuts = np.cumsum(sizes)[:-1]
+    best = {"loss": np.inf, "u": u0.copy(), "n": 0}
+
+    def fun(u):
+        if best["n"] >= evaluations:  # the budget is spent: stop the line search here
+            raise _BudgetSpent
+        values = np.split((u * scales).astype(np.float32), cuts)
+        loss, grads = _evaluate(views, values, seed, seed, spp, log_loss)
+        g = np.concatenate([np.asarray(x, np.float64) for x in grads]) * scales
+        best["n"] += 1
+        if loss < best["loss"]:
+            best["loss"], best["u"] = loss, u.copy()
+        on_eval(u, loss)
+        return loss, g
+
+    while best["n"] < evaluations:  # restarted from the best point if a line search fails
+        before = (best["n"], best["loss"])
+        try:
+            minimize(fun, best["u"].astype(np.float64), jac=True, method="L-BFGS-B",
+                     options={"maxfun": evaluations + 1, "maxiter": evaluations,
+                              "maxcor": 20, "ftol": 0.0, "gtol": 0.0})
+        except _BudgetSpent:
+            break
+        if best["loss"] >= before[1] or best["n"] == before[0]:
+            break  # no progress from a fresh start: converged to rounding
+    return best["u"]
+
+
+def _run_lbfgs(scenes, opt, scales, done, iterations, snr, seed, spp, bar, ckpt, every,
+               fp, log_loss) -> None:
+    """The L-BFGS fit from ``opt``'s values (``u``), writing the best ``u`` back into
+    ``opt`` and, every ``every`` evaluations, into the checkpoint (Adam's moments are
+    written as zeros: an L-BFGS checkpoint only ever resumes an L-BFGS fit)."""
+    import drjit as dr  # lazy: Dr.Jit is slow to import (see the module doc)
+    import mitsuba as mi
+
+    us = [np.array(dr.detach(opt[k]), np.float64) for k in VALUE_KEYS]
+    sizes = [len(u) for u in us]
+    sc = np.concatenate([np.array(s, np.float64) for s in scales])
+    cuts = np.cumsum(sizes)[:-1]
+    state = {"n": done, "best": np.inf, "u": np.concatenate(us)}
+
+    def put(u):
+        for k, part in zip(VALUE_KEYS, np.split(u, cuts), strict=True):
+            opt[k] = mi.Float(part.astype(np.float32))
+
+    def on_eval(u, loss):
+        snr.append(_snr_of(loss, log_loss))
+        state["n"] += 1
+        if loss < state["best"]:
+            state["best"], state["u"] = loss, u.copy()
+        bar.set_postfix(snr_db=f"{snr[-1]:.2f}")
+        bar.update(1)
+        if ckpt is not None and (state["n"] % every == 0 or state["n"] == iterations):
+            put(state["u"])
+            _write_checkpoint(ckpt, state["n"], opt, snr, fp)
+
+    u = _lbfgs(scenes, state["u"], sc, sizes, iterations - done, seed, spp, on_eval,
+               log_loss)
+    put(u)
+    if ckpt is not None and state["n"] > done:  # finished (or converged): a rerun is done
+        _write_checkpoint(ckpt, iterations, opt, snr, fp)
+
+
+class _BudgetSpent(Exception):
+    """Raised inside the L-BFGS objective once the evaluation budget is spent."""
 
 
 def fit_images(  # long: the fit loop with its checkpointing and progress bar
@@ -241,6 +382,8 @@ def fit_images(  # long: the fit loop with its checkpointing and progress bar
     decoder: str = "auto",
     variant: str = DEFAULT_VARIANT,
     shared_paths: bool = True,
+    optimizer: str = "adam",
+    loss: str = "relative",
     progress: bool = True,
 ) -> FitResult:
     """Optimise the coefficient values of ``start`` so that renders of ``scene`` match
@@ -279,6 +422,18 @@ def fit_images(  # long: the fit loop with its checkpointing and progress bar
         ``seed``: the gradient of the very estimate the loss compares, low in variance;
         the default) or along fresh ones each iteration (Mitsuba's decorrelated,
         unbiased gradient, noisier at low spp).
+    optimizer : str
+        ``"adam"`` (Mitsuba's Adam with the learning-rate schedule; the default) or
+        ``"lbfgs"`` (SciPy's L-BFGS-B on the shared-path loss, a smooth deterministic
+        function of the values; ``iterations`` then counts its loss-and-gradient
+        evaluations, each the cost of an Adam iteration, and ``lr``/``lr_end`` are not
+        used; it needs ``shared_paths``). A checkpoint then holds the best values so
+        far, and a resumed fit starts a fresh L-BFGS memory from them.
+    loss : str
+        ``"relative"``: the mean over the views of ``sum (img - ref)^2 / sum ref^2``
+        (the default); ``"log"``: the mean of its logarithm, i.e. the views' mean SNR in
+        dB, where a view already matched well still weighs as much as a poorly matched
+        one. ``snr_db`` records the SNR of the loss used.
     progress : bool
         Show a tqdm progress bar with the current SNR.
 
@@ -292,6 +447,14 @@ def fit_images(  # long: the fit loop with its checkpointing and progress bar
     for name, value in (("iterations", iterations), ("lr", lr), ("lr_end", lr_end),
                         ("spp", spp)):
         check(name, value, PARAMETERS[name])
+    if optimizer not in OPTIMIZERS:
+        raise UsageError(f"fit-images: optimizer {optimizer!r}: use one of "
+                         f"{', '.join(OPTIMIZERS)}")
+    if loss not in LOSSES:
+        raise UsageError(f"fit-images: loss {loss!r}: use one of {', '.join(LOSSES)}")
+    if optimizer == "lbfgs" and not shared_paths:
+        raise UsageError("fit-images: the lbfgs optimizer needs the shared-path loss "
+                         "(shared_paths=True)")
     if "_ad_" not in variant:
         raise UsageError(f"fit-images: variant {variant!r} is not differentiable: use an "
                          "llvm_ad_* or cuda_ad_* variant")
@@ -316,7 +479,9 @@ def fit_images(  # long: the fit loop with its checkpointing and progress bar
         scenes = _load_views(scene, views, material, start_path, spp, seed, variant,
                              options)
         settings = {"lr": lr, "lr_end": lr_end, "spp": spp, "seed": seed, "material": material,
-                    "decoder": decoder, "variant": variant, "shared_paths": shared_paths}
+                    "decoder": decoder, "variant": variant, "shared_paths": shared_paths,
+                    **({"optimizer": optimizer} if optimizer != "adam" else {}),
+                    **({"loss": loss} if loss != "relative" else {})}
         fp = _fingerprint(scene, views, model, settings)
         scales = []
         opt = mi.ad.Adam(lr=lr)
@@ -332,15 +497,24 @@ def fit_images(  # long: the fit loop with its checkpointing and progress bar
             done, snr = _read_checkpoint(ckpt, opt, fp)
         elif ckpt is not None:
             ckpt.parent.mkdir(parents=True, exist_ok=True)
-        t0 = time.perf_counter()
+        t0, start_len = time.perf_counter(), len(snr)
         bar = tqdm(total=iterations, initial=min(done, iterations), disable=not progress,
                    desc="fit-images", unit="it")
+        if optimizer == "lbfgs":
+            try:
+                _run_lbfgs(scenes, opt, scales, done, iterations, snr, seed, spp, bar,
+                           ckpt, checkpoint_every, fp, loss == "log")
+            except RuntimeError as exc:
+                raise RenderError(f"{scene}: rendering failed during the fit: "
+                                  f"{exc}") from exc
+            finally:
+                bar.close()
         try:
-            for it in range(done, iterations):
+            for it in range(done, iterations if optimizer == "adam" else done):
                 opt.set_learning_rate(lr * lr_end ** (it / max(iterations - 1, 1)))
                 try:
                     gseed = seed if shared_paths else seed + 1 + it * len(scenes)
-                    snr.append(_step(scenes, opt, scales, seed, gseed, spp))
+                    snr.append(_step(scenes, opt, scales, seed, gseed, spp, loss == "log"))
                 except RuntimeError as exc:
                     raise RenderError(f"{scene}: rendering failed during the fit: "
                                       f"{exc}") from exc
@@ -354,9 +528,10 @@ def fit_images(  # long: the fit loop with its checkpointing and progress bar
         seconds = time.perf_counter() - t0
         values = [np.array(dr.detach(opt[k] * s), np.float32)
                   for k, s in zip(VALUE_KEYS, scales, strict=True)]
-    ran = max(iterations - done, 0)
+    ran = len(snr) - start_len  # L-BFGS may stop before its budget, converged
     fitted = replace(model, values=values, name=model.name)
-    return FitResult(fitted, snr, seconds, seconds / max(ran, 1), iterations, done)
+    return FitResult(fitted, snr, seconds, seconds / max(ran, 1), max(len(snr), iterations
+                     if optimizer == "adam" else 0), done)
 
 
 def load_views(items: Sequence[str], read) -> list[View]:
@@ -365,13 +540,16 @@ def load_views(items: Sequence[str], read) -> list[View]:
     out = []
     for text in items:
         path, params = parse_view(text)
-        out.append(View(np.asarray(read(path), np.float32), params, name=path))
+        out.append(View(np.asarray(read(path), np.float32), params, name=f"--view {text}"))
     return out
 
 
 def views_for(scene_params: Sequence[Mapping[str, object]],
-              images: Sequence[np.ndarray]) -> list[View]:
-    """:class:`View` objects from parallel lists of scene defaults and images."""
+              images: Sequence[np.ndarray],
+              seeds: Sequence[int | None] | None = None) -> list[View]:
+    """:class:`View` objects from parallel lists of scene defaults, images and (optional)
+    the seeds the images were rendered with."""
+    seeds = [None] * len(images) if seeds is None else list(seeds)
     return [View(np.asarray(img, np.float32), {k: str(v) for k, v in p.items()},
-                 name=json.dumps(dict(p), sort_keys=True))
-            for p, img in zip(scene_params, images, strict=True)]
+                 name=json.dumps(dict(p), sort_keys=True), seed=sd)
+            for p, img, sd in zip(scene_params, images, seeds, strict=True)]

@@ -50,6 +50,7 @@ the inverse transform; a channel may hold no terms (its X is 0).
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -592,6 +593,19 @@ def strict_orders(model, ensemble) -> list[np.ndarray]:
         probe = np.arange(s.size, dtype=np.float32)
         out.append(strict_channel(probe, modes, us).values.astype(np.int64))
     return out
+
+
+def model_digest(model) -> bytes:
+    """A digest of everything a decoder's buffers are built from: the model's shape,
+    transform, colour basis, dictionaries, atoms and values (the plugin keys its last
+    grouped build by it, with the ensemble, layout and variant)."""
+    h = hashlib.sha256(repr((tuple(model.shape), model.transform, model.basis)).encode())
+    h.update(np.ascontiguousarray(model.dict_index, np.int64).tobytes())
+    for a in (*model.locations, *model.values):
+        a = np.asarray(a)
+        h.update(str(a.dtype).encode() + str(a.shape).encode())
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.digest()
 
 
 def term_values(arrays, n_terms) -> list[np.ndarray]:
