@@ -94,7 +94,9 @@ _GROUPED_LOCK = threading.Lock()
 
 
 def _grouped_key(model, ens, layout, ops) -> tuple:
-    return (model_digest(model), id(ens), layout, getattr(ops.m, "__name__", str(ops.m)))
+    # ``ops`` itself (one per variant, kept for the process) names the variant: the
+    # variant modules all report ``__name__ == "mitsuba"``
+    return (model_digest(model), id(ens), layout, ops)
 
 
 def load_ensemble(path: str | None, for_id: str | None = None):
