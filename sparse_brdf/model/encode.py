@@ -536,7 +536,7 @@ def _search(brdf: BRDF, ens: Ensemble, transform: str, y: np.ndarray,
             o: _Options) -> SparseBRDF:
     """Each coded channel's dictionary by the (pruned) search over the ensemble, and its
     coefficients: the selection's own, or with a joint budget, re-coded on the chosen
-    dictionaries (:func:`_code`)."""
+    dictionaries (:func:`_code_many`)."""
     return _search_many(brdf, ens, {transform: y}, o)[transform]
 
 
@@ -567,21 +567,15 @@ def _budget_stats(m: SparseBRDF, norms: np.ndarray) -> dict:
             "energy_share": [float(x / total) if total > 0 else 0.0 for x in norms]}
 
 
-def _code(y: np.ndarray, ens: Ensemble, m: SparseBRDF, o: _Options,
-          norms: np.ndarray | None = None) -> SparseBRDF:
-    """Re-code the channels ``y`` (3, n1, n2, n3) on the dictionaries ``m`` chose: each
-    projected on its own dictionary, then the largest |s| kept, ``o.n`` per channel, or
-    with a joint budget 3 ``o.n`` over the channels (largest first across them). With
-    ``o.max_error``, coefficients are added until the relative residual (per channel, or
-    of the total for a joint budget) is reached. ``norms``: the channels' energies, if
-    known."""
-    return _code_many([(y, m, norms)], ens, o)[0]
-
-
 def _code_many(jobs: list[tuple[np.ndarray, SparseBRDF, np.ndarray | None]], ens: Ensemble,
                o: _Options) -> list[SparseBRDF]:
-    """:func:`_code` of each job (channels, model, energies or None), the 3 x len(jobs)
-    projections side by side on the thread pool."""
+    """Re-code each job's channels y (3, n1, n2, n3) on the dictionaries its model m chose
+    (a job: y, m, the channels' energies or None): each channel projected on its own
+    dictionary, then the largest |s| kept, ``o.n`` per channel, or with a joint budget 3
+    ``o.n`` over the channels (largest first across them). With ``o.max_error``,
+    coefficients are added until the relative residual (per channel, or of the total for a
+    joint budget) is reached. The 3 x len(jobs) projections run side by side on the
+    thread pool."""
     cap = 3 * o.n if o.joint else o.n
 
     def one(task):
@@ -597,7 +591,7 @@ def _code_many(jobs: list[tuple[np.ndarray, SparseBRDF, np.ndarray | None]], ens
 
 
 def _keep(y: np.ndarray, m: SparseBRDF, top: list, o: _Options) -> SparseBRDF:
-    """The coefficients :func:`_code` keeps of each channel's largest (``top``: per
+    """The coefficients :func:`_code_many` keeps of each channel's largest (``top``: per
     channel, flat indices, values and the channel's energy)."""
     shape = tuple(y.shape[1:])
     norms = np.array([e for _, _, e in top])
@@ -648,7 +642,7 @@ def _fill_invalid(brdf: BRDF, ens: Ensemble, transforms: tuple[str, ...],
     once on the zero-filled channels): the values of the current support are the least
     squares fit to the valid bins (:func:`_fit_supports`, conjugate gradients); the
     invalid bins of Y are then set to that reconstruction, the channels re-projected on
-    their dictionaries and the largest |s| kept (:func:`_code`) as the next support.
+    their dictionaries and the largest |s| kept (:func:`_code_many`) as the next support.
     Stops when the support repeats or after ``o.fill_iters`` fits. The mask is the same
     for the three channels, so filling the coded channels is filling the transformed
     R, G, B (the basis is a per-bin 3 x 3 mix), and the channels' least squares
