@@ -31,6 +31,9 @@ $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip 'setuptools>=68' wheel
 	$(PY) -m pip install -q -e '.[test]'
+	@# bytecode now, as a non-editable install would have it: with PYTHONDONTWRITEBYTECODE
+	@# set, every command would otherwise compile the package again (0.3 s a command)
+	$(PY) -m compileall -q sparse_brdf mitsuba_plugin
 	@touch $(STAMP)
 
 lint: setup

@@ -11,7 +11,8 @@ loaded first).
 
 ``--whole``: times the commands a user runs, each a new process (imports, loading the
 material from the tabulation cache, encoding, writing the file): ``sparse-brdf encode SRC
--o OUT`` (262 per channel) and ``sparse-brdf encode SRC -o OUT --bytes 6300``. With
+-o OUT`` (262 per channel) and ``sparse-brdf encode SRC -o OUT --bytes 6300``. The
+package is compiled to bytecode first, as an installed package is. With
 ``--code DIR`` (another checkout, e.g. ``git worktree`` of an older commit) every command
 also runs with that checkout's package first on ``PYTHONPATH``, interleaved with this
 one's, and the files both write are compared byte for byte: on a machine loaded by
@@ -99,6 +100,14 @@ def _run(code: Path | None, src: str, out: Path, extra: list[str]) -> float:
     return time.perf_counter() - t0
 
 
+def _compile(root: Path) -> None:
+    """Compile a checkout's package to bytecode, as pip does when it installs one: where
+    PYTHONDONTWRITEBYTECODE is set (as on the machine of docs/benchmarks.md) Python would
+    otherwise compile the package's modules again in every command, about 0.3 s."""
+    subprocess.run([sys.executable, "-m", "compileall", "-q", str(root / "sparse_brdf")],
+                   check=True, stdout=subprocess.DEVNULL)
+
+
 def whole(args) -> None:
     corpus, mats = _materials(args)
     for m in mats:
@@ -106,6 +115,8 @@ def whole(args) -> None:
     codes: dict[str, Path | None] = {"this checkout": None}
     if args.code:
         codes["--code"] = Path(args.code).resolve()
+    for root in codes.values():
+        _compile(root or Path(__file__).resolve().parents[1])
     cases = [(c, k) for c in codes for k in COMMANDS]
     times = {case: np.zeros((args.repeats, len(mats))) for case in cases}
     same, compared = 0, 0

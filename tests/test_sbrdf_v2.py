@@ -22,7 +22,7 @@ from sparse_brdf.cli import main
 from sparse_brdf.errors import BRDFFileError, EnsembleMismatchError
 from sparse_brdf.model import budget
 from sparse_brdf.model.budget import encode_to_bytes, fit_bytes, truncate
-from sparse_brdf.model.encode import encode
+from sparse_brdf.model.encode import encode, encode_sized
 from sparse_brdf.model.ensemble import Ensemble
 from sparse_brdf.model.sbrdf import (
     VERSION,
@@ -40,6 +40,7 @@ from sparse_brdf.model.sparse import SparseBRDF
 from sparse_brdf.model.specs import make_model
 from sparse_brdf.sources.load import load_brdf
 from sparse_brdf.sources.merl import write_merl
+from sparse_brdf.transforms import forward, from_basis
 
 FUZZ = settings(max_examples=150, deadline=None, database=None)
 HEAD2 = struct.Struct("<8sHBB3H16s3H3IBB3hII")  # docs/file-format.md, version 2
@@ -254,21 +255,95 @@ def test_encode_to_bytes_fits_and_spends_the_budget(small_ensemble):
         encode_to_bytes(brdf, small_ensemble, 60)
 
 
-def test_encode_to_bytes_trims_then_encodes_again(small_ensemble, monkeypatch):
-    """By default an overshooting first guess is trimmed and encoded again at the count
-    that fitted; with MAX_TRIM, a small enough trim is the result (one encoding); a first
-    guess that fits whole while the encoder was capped grows until a trim."""
+def test_encode_to_bytes_revises_the_count_in_one_encoding(small_ensemble, monkeypatch):
+    """By default one encoding: after its first fit the count drops from the generous
+    guess to what fits, the fill ends on a support of that count, and the file fills the
+    budget; a guess far too small grows within the same encoding."""
     brdf = load_brdf("mitsuba:plastic-red-ggx-0.3", shape=SMALL)
+    monkeypatch.setitem(budget.BYTES_GUESS, 2, (1.2, 0.0))  # a first guess that overshoots
+    guess = math.ceil(budget.first_count(700 - min_file_size(len(brdf.name), 2)) / 3)
+    m = encode_to_bytes(brdf, small_ensemble, 700)
+    info = m.stats["byte_budget"]
+    assert info["passes"] == 1 and 660 <= len(to_bytes(m)) <= 700
+    revised = m.stats["transforms"][m.transform]["recount"]
+    assert max(revised) < guess and sum(info["encoded"]) <= 3 * revised[-1]
+    assert sum(info["kept"]) >= 0.97 * sum(info["encoded"])  # a small final trim, if any
+    monkeypatch.setitem(budget.BYTES_GUESS, 2, (40.0, 0.0))  # a first guess far too small
+    grown = encode_to_bytes(brdf, small_ensemble, 700)
+    assert grown.stats["byte_budget"]["passes"] == 1
+    assert sum(grown.stats["byte_budget"]["encoded"]) > 3 * math.ceil(
+        (700 - min_file_size(len(brdf.name), 2)) / 40.0 / 3)
+    assert 600 <= len(to_bytes(grown)) <= 700
+
+
+class _Steer:
+    """A SizeControl that asks for ``count`` per channel and keeps ``keep`` in the end."""
+
+    def __init__(self, count: int, keep: int) -> None:
+        self.count, self.keep, self.seen = count, keep, []
+
+    def recount(self, model):
+        self.seen.append(("recount", int(model.n_coeffs.sum())))
+        return self.count
+
+    def trim(self, model):
+        self.seen.append(("trim", int(model.n_coeffs.sum())))
+        return truncate(model, self.keep)
+
+
+def test_encode_sized_codes_the_revised_count_and_refits_the_trim(small_ensemble):
+    """The fill's later rounds use the count ``recount`` returns, the last fit's support
+    is trimmed and its values fitted again; ``size=None`` is ``encode``."""
+    brdf = load_brdf("mitsuba:plastic-red-ggx-0.3", shape=SMALL)
+    steer = _Steer(7, 15)
+    m = encode_sized(brdf, small_ensemble, 40, steer)
+    stats = m.stats["transforms"][m.transform]
+    # per transform: a recount after the first fit (3 x 40, joint budget) and the second
+    # (3 x 7), then the trim of the third fit's 21
+    assert sorted(steer.seen) == sorted([("recount", 120), ("recount", 21), ("trim", 21)] * 2)
+    assert int(m.n_coeffs.sum()) == 15 and stats["recount"] == [7, 7]
+    assert stats["fill"]["fits"] == 4  # three rounds and the refit of the trimmed support
+    cut = truncate(encode_sized(brdf, small_ensemble, 40, _Steer(7, 21),
+                                transform=m.transform), 15)  # the same support, not refitted
+    assert all(np.array_equal(np.sort(a), np.sort(b))
+               for a, b in zip(cut.locations, m.locations, strict=True))
+    y = forward(brdf.channel_first(), m.transform, brdf.valid)
+
+    def valid_residual(model):
+        return float(np.sum((y - from_basis(model.coded(small_ensemble), m.basis))[:, brdf.valid]
+                            ** 2))
+
+    assert valid_residual(m) < valid_residual(cut)  # the refit lowers it
+    plain, same = encode(brdf, small_ensemble, 40), encode_sized(brdf, small_ensemble, 40,
+                                                                 None)
+    for a, b in zip(plain.locations + plain.values, same.locations + same.values,
+                    strict=True):
+        np.testing.assert_array_equal(a, b)
+    steer = _Steer(7, 15)
+    m0 = encode_sized(brdf, small_ensemble, 40, steer, fill="missing")
+    assert not steer.seen and int(m0.n_coeffs.sum()) == 120  # no fill rounds: not steered
+
+
+def test_encode_to_bytes_trims_then_encodes_again(small_ensemble, monkeypatch):
+    """Without revising the count (RECOUNT off, or no fill rounds): an overshooting first
+    guess is trimmed and encoded again at the count that fitted; with MAX_TRIM, a small
+    enough trim is the result (one encoding); a first guess that fits whole while the
+    encoder was capped grows until a trim."""
+    brdf = load_brdf("mitsuba:plastic-red-ggx-0.3", shape=SMALL)
+    monkeypatch.setattr(budget, "RECOUNT", False)
+    monkeypatch.setitem(budget.BYTES_GUESS, 2, (1.2, 0.0))  # a first guess that overshoots
+    missing = encode_to_bytes(brdf, small_ensemble, 700, fill="missing")
+    assert missing.stats["byte_budget"]["passes"] == 2 and len(to_bytes(missing)) <= 700
     two = encode_to_bytes(brdf, small_ensemble, 700)
     assert two.stats["byte_budget"]["passes"] == 2 and len(to_bytes(two)) <= 700
     monkeypatch.setattr(budget, "MAX_TRIM", 0.5)
     m = encode_to_bytes(brdf, small_ensemble, 700)
     assert m.stats["byte_budget"]["passes"] == 1
-    guess = math.ceil((700 - min_file_size(len(brdf.name), 2)) / budget.BYTES_GUESS[2] / 3)
+    guess = math.ceil(budget.first_count(700 - min_file_size(len(brdf.name), 2)) / 3)
     same = fit_bytes(encode(brdf, small_ensemble, guess), 700)
     for a, b in zip(m.locations + m.values, same.locations + same.values, strict=True):
         np.testing.assert_array_equal(a, b)
-    monkeypatch.setitem(budget.BYTES_GUESS, 2, 40.0)  # a first guess far too small
+    monkeypatch.setitem(budget.BYTES_GUESS, 2, (40.0, 0.0))  # a first guess far too small
     grown = encode_to_bytes(brdf, small_ensemble, 700)
     assert grown.stats["byte_budget"]["passes"] >= 2
     assert sum(grown.stats["byte_budget"]["kept"]) < sum(grown.stats["byte_budget"]["encoded"])

@@ -6,14 +6,18 @@ bytes where they gain most: every coefficient costs about the same bytes and, th
 dictionaries being orthonormal, removes s^2 of squared error in the coded domain, so the
 coefficients kept are the largest |s| over the three channels (:func:`fit_bytes`).
 
-How (``docs/file-format.md``, "Byte budgets"): a first encoding at a coefficient count
-estimated from the budget (generous, so that it overshoots), then the largest |s| over
-the channels that fit (a binary search on the exact serialised size); then, unless that
-trim dropped at most ``MAX_TRIM`` of the coefficients (by default: unless it dropped
-none), the encoder runs again at the count that fitted, so that its own choices
-(dictionaries, transform, joint budget, least-squares fill) are made for that count, and
-the result is trimmed the same way. An encoding that fits whole while the encoder was
-capped is grown instead.
+How (``docs/file-format.md``, "Byte budgets"): one encoding
+(:func:`~sparse_brdf.model.encode.encode_sized`), whose dictionary search and first
+least-squares fit use a coefficient count estimated from the budget (``first_count``).
+Between the fill's fits, the file of the current fit is measured and the next round is
+coded at the count that would fill the budget, aimed ``OVERSHOOT`` above it; after the
+last fit, the largest |s| over the channels that fit are kept (a binary search on the
+exact serialised size, :func:`fit_bytes`) and their values fitted again. So the
+support, its values and the transform picked are chosen for the count that fits. Without
+fill rounds to steer (``fill="missing"``, ``fill_iters=0``, a BRDF without invalid bins)
+the encoder runs again instead: unless the first trim dropped at most ``MAX_TRIM`` of
+the coefficients, at the count that fitted; an encoding that fits whole while the
+encoder was capped is grown.
 """
 
 from __future__ import annotations
@@ -26,26 +30,39 @@ import numpy as np
 from ..brdf import BRDF
 from ..errors import UsageError
 from ..params import Interval
-from .encode import choose_transform, encode
+from .encode import ENCODE_OPTIONS, check_options, choose_transform, encode, encode_sized
 from .ensemble import Ensemble, resolve_ensemble
 from .sbrdf import VERSION, as_stored, check_version, min_file_size, to_bytes
 from .sparse import SparseBRDF
 
 #: The byte budget of a file (at least its header, name and checksum: :func:`check_budget`).
 PARAMETERS = {"n_bytes": Interval(int, 1)}
-#: First guess of the bytes per coefficient beyond the fixed part, per file version: on
-#: the low side (measured 1.7-2.3 for version 2, docs/file-format.md) so that the first
-#: encoding overshoots the budget and is trimmed, rather than fitting whole.
-BYTES_GUESS = {1: 8.0, 2: 1.5}
-#: The largest share of an encoding's coefficients a trim may drop and still be the
-#: result; a larger trim re-encodes at the count that fitted, so that the encoder's own
-#: choices (transform, dictionaries, least-squares fill) are made for that count. 0 (the
-#: default): every trimmed encoding is encoded again. Measured on the 14 merl test
-#: materials (benchmarks/bytes_passes.py, docs/benchmarks.md "Encode time"), keeping the
-#: first encoding's trim (0.25) halves the time but loses 0.33 dB of mean cosine-weighted
-#: SNR at 1,600 bytes and 0.21 dB at 6,300, up to 10.6 dB on one material where the two
-#: counts choose different transforms.
+#: First guess of the bytes per coefficient beyond the fixed part, per file version, as
+#: ``(a, b)``: a - b ln(total coefficients). Version 2 compresses: measured 2.2-2.4 bytes
+#: at 180 coefficients, 1.8-1.9 at 1,200 and 1.5-1.7 at 7,500 on six merl training
+#: materials (2026-12-03); the guess is 0.95 of that fit, a little on the low side, so
+#: that the first count tends to overshoot the budget by a few per cent and is trimmed
+#: rather than grown. The dictionary search runs at that count, so the closer the guess
+#: the better the dictionaries suit the count that fits. Version 1: 8 bytes, exactly.
+BYTES_GUESS = {1: (8.0, 0.0), 2: (3.07, 0.173)}
+#: Without fill rounds to revise the count in: the largest share of an encoding's
+#: coefficients a trim may drop and still be the result; a larger trim re-encodes at the
+#: count that fitted, so that the encoder's own choices (transform, dictionaries) are made
+#: for that count. 0 (the default): every trimmed encoding is encoded again. Measured on
+#: the 14 merl test materials with the default fill (docs/benchmarks.md "Encode time"),
+#: keeping the first encoding's trim (0.25) halved the time but lost 0.33 dB of mean
+#: cosine-weighted SNR at 1,600 bytes and 0.21 dB at 6,300, up to 10.6 dB on one material
+#: where the two counts choose different transforms.
 MAX_TRIM = 0.0
+#: How far above the budget the count of the fill's next round is aimed: the file of a
+#: round's fit is measured, and the next round's values (hence their compressed size)
+#: differ by a few per cent, so the count aims a little high and the last fit is trimmed
+#: to the budget and fitted again (:func:`~sparse_brdf.model.encode.encode_sized`).
+OVERSHOOT = 0.05
+#: Revise the count within the one encoding where the fill has rounds to do it in (the
+#: default); False: encode again at the count that fitted, as without fill rounds (the
+#: method before, kept so that benchmarks/bytes_passes.py can compare the two).
+RECOUNT = True
 #: Encoder runs at most (a first guess, a re-encoding after a large trim, or growth
 #: while an encoding fits whole).
 MAX_PASSES = 4
@@ -148,16 +165,62 @@ def encode_to_bytes(brdf: BRDF, ensemble: Ensemble | None = None, n_bytes: int |
     ens = resolve_ensemble(ensemble)
     floor = min_file_size(len(brdf.name.encode("utf-8")[:255]), version)
     atoms = int(np.prod(ens.shape))
-    n = _clip(math.ceil((n_bytes - floor) / BYTES_GUESS[version] / 3), atoms)
+    n = _clip(math.ceil(first_count(n_bytes - floor, version) / 3), atoms)
+    joint = check_options(**{k: v for k, v in encode_options.items()
+                             if k in ENCODE_OPTIONS})["budget"] == "joint"
+    size = _ByteSize(n_bytes, version, floor, atoms, joint) if RECOUNT else None
+    model = encode_sized(brdf, ens, n, size, **encode_options)
+    if "recount" in model.stats["transforms"][model.transform]:  # one encoding did it
+        return _finish(brdf, ens, model, fit_bytes(model, n_bytes, version), n_bytes,
+                       version, 1)
+    # no fill rounds to recount in: encode again at the count that fitted (or larger)
     passes: dict[int, tuple[SparseBRDF, SparseBRDF]] = {}  # count -> (encoded, fitted)
-    trimmed = False
+    passes[n] = (model, fit_bytes(model, n_bytes, version))
+    n, trimmed = _next_count(*passes[n], n, n_bytes, floor, version, atoms, False, joint)
     while len(passes) < MAX_PASSES and n not in passes:
         model = encode(brdf, ens, n, **encode_options)
         passes[n] = (model, fit_bytes(model, n_bytes, version))
-        n, trimmed = _next_count(*passes[n], n, n_bytes, floor, version, atoms, trimmed)
+        n, trimmed = _next_count(*passes[n], n, n_bytes, floor, version, atoms, trimmed,
+                                 joint)
     # the pass at the count the search settled on (else the last)
     model, fit = passes.get(n, list(passes.values())[-1])
     return _finish(brdf, ens, model, fit, n_bytes, version, len(passes))
+
+
+@dataclasses.dataclass(frozen=True)
+class _ByteSize:
+    """Steers one encoding to a byte budget (:class:`~sparse_brdf.model.encode.SizeControl`):
+    between the fill's fits, the count whose file would fill the budget, estimated from
+    the current fit's file (bytes in proportion to coefficients) and aimed ``OVERSHOOT``
+    above it; after the last fit, the largest coefficients that fit (:func:`fit_bytes`)."""
+
+    n_bytes: int
+    version: int
+    floor: int
+    atoms: int
+    joint: bool
+
+    def recount(self, model: SparseBRDF) -> int:
+        counts = model.n_coeffs
+        size = len(to_bytes(model, self.version))
+        scale = (1 + OVERSHOOT) * (self.n_bytes - self.floor) / max(size - self.floor, 1)
+        total = int(counts.sum()) if self.joint else int(counts.max())
+        return _clip(math.ceil(scale * total / (3 if self.joint else 1)), self.atoms)
+
+    def trim(self, model: SparseBRDF) -> SparseBRDF:
+        total = int(model.n_coeffs.sum())
+        keep = int(fit_bytes(model, self.n_bytes, self.version).n_coeffs.sum())
+        return truncate(model, keep) if keep < total else model
+
+
+def first_count(payload: int, version: int = VERSION) -> int:
+    """The first guess (``BYTES_GUESS``) of the coefficients, over the three channels,
+    that ``payload`` bytes beyond a file's fixed part hold."""
+    a, b = BYTES_GUESS[version]
+    total = max(payload / a, 1.0)
+    for _ in range(8):  # fixed point of total = payload / (a - b ln total)
+        total = payload / max(a - b * math.log(max(total, 1.0)), 0.5)
+    return max(int(total), 1)
 
 
 def _clip(n: int, atoms: int) -> int:
@@ -165,13 +228,12 @@ def _clip(n: int, atoms: int) -> int:
 
 
 def _next_count(model: SparseBRDF, fit: SparseBRDF, n: int, n_bytes: int, floor: int,
-                version: int, atoms: int, trimmed: bool) -> tuple[int, bool]:
+                version: int, atoms: int, trimmed: bool, joint: bool) -> tuple[int, bool]:
     """The encoder's next count and whether a pass was trimmed: ``n`` (done) once an
     encoding was trimmed by at most ``MAX_TRIM`` (or a second time), the count that
     fitted after a larger trim; if one fitted whole while the encoder used its whole
     budget, a larger count; else ``n`` (done: the encoder stopped by itself)."""
     kept, total = fit.n_coeffs, int(model.n_coeffs.sum())
-    joint = model.stats.get("options", {}).get("budget") == "joint"
     if int(kept.sum()) < total:  # trimmed: done, or encode once at the count that fitted
         if trimmed or kept.sum() >= (1 - MAX_TRIM) * total:
             return n, True
@@ -205,4 +267,5 @@ def _finish(brdf: BRDF, ens: Ensemble, model: SparseBRDF, fit: SparseBRDF, n_byt
     return out
 
 
-__all__ = ["BYTES_GUESS", "check_budget", "encode_to_bytes", "fit_bytes", "truncate"]
+__all__ = ["BYTES_GUESS", "check_budget", "encode_to_bytes", "first_count", "fit_bytes",
+           "truncate"]

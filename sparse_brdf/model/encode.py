@@ -18,7 +18,8 @@ basis with a joint budget of 3 ``n_coeffs``. ``PAPER_OPTIONS`` gives the paper's
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Protocol
 
 import numpy as np
 
@@ -366,7 +367,7 @@ def choose_transform(brdf: BRDF, models: dict[str, SparseBRDF], ens: Ensemble,
 
 
 #: Per-transform statistics of :func:`_encode_one` carried into ``stats["transforms"]``.
-_MODEL_STATS = ("relative_residual", "projections_completed", "budget", "fill")
+_MODEL_STATS = ("relative_residual", "projections_completed", "budget", "fill", "recount")
 
 
 def encode(
@@ -444,21 +445,74 @@ def encode(
     UsageError
         For an option out of its range or choices.
     """
+    return encode_sized(brdf, ensemble, n_coeffs, None, max_error=max_error,
+                        transform=transform, fill_iters=fill_iters, selector=selector,
+                        fill=fill, basis=basis, budget=budget)
+
+
+class SizeControl(Protocol):
+    """What :func:`encode_sized` asks while the fill runs, of one transform's model (its
+    support and fitted values)."""
+
+    def recount(self, model: SparseBRDF) -> int:
+        """The coefficient count (per channel, as ``n_coeffs``) of the next support."""
+
+    def trim(self, model: SparseBRDF) -> SparseBRDF:
+        """The model's final support: the model itself, or some of its coefficients."""
+
+
+def encode_sized(
+    brdf: BRDF,
+    ensemble: Ensemble | None,
+    n_coeffs: int,
+    size: SizeControl | None,
+    **options,
+) -> SparseBRDF:
+    """:func:`encode`, with the coefficient count steered while the fill runs.
+
+    With ``fill="invalid"`` and fill rounds to run, ``size.recount(model)`` is called for
+    each transform's model after each least-squares fit but the last; the next round
+    re-codes that transform's filled channels at the count it returns (smaller or larger
+    than ``n_coeffs``), so the support that results is chosen and fitted for that count.
+    After the last fit, ``size.trim(model)`` gives the final support; if it dropped
+    coefficients, the values of the rest are fitted to the valid bins again, as every fill
+    round fits them. This is how :func:`~sparse_brdf.model.budget.encode_to_bytes` meets a
+    byte budget in one encoding: ``recount`` estimates from the file of the current fit
+    the count that fills the budget (a little over it), and ``trim`` keeps the largest
+    coefficients that fit. Otherwise (``fill="missing"``, ``fill_iters=0``, a BRDF without
+    invalid bins, ``size=None``) this is :func:`encode`.
+
+    Parameters
+    ----------
+    brdf, ensemble, n_coeffs
+        As :func:`encode`; ``n_coeffs`` is the count of the search and the first fit.
+    size : SizeControl or None
+        ``recount(model) -> int`` (at least 1) and ``trim(model) -> SparseBRDF``.
+    **options
+        :func:`encode`'s other keywords.
+
+    Returns
+    -------
+    SparseBRDF
+        As :func:`encode`; with ``size`` and fill rounds, ``stats["recount"]`` holds each
+        transform's counts from ``recount``, in order.
+    """
+    max_error = options.pop("max_error", None)
+    transform = options.pop("transform", "auto")
     ens = resolve_ensemble(ensemble)
     check_grid_matches(brdf, ens)
     check("n_coeffs", n_coeffs, PARAMETERS["n_coeffs"])
     if max_error is not None:
         check("max_error", max_error, PARAMETERS["max_error"])
-    kw = check_options(selector=selector, fill=fill, fill_iters=fill_iters, basis=basis,
-                       budget=budget)
+    kw = check_options(**options)
     opts = _Options(n_coeffs, max_error, kw["fill"], kw["fill_iters"], kw["basis"],
                     kw["budget"] == "joint")
     names = TRANSFORMS if transform == "auto" else (check_transform(transform),)
     if opts.fill == "invalid":
-        models = _fill_invalid(brdf, ens, names, opts)
+        models = _fill_invalid(brdf, ens, names, opts, size)
     else:
         models = {t: _encode_one(brdf, ens, t, opts) for t in names}
-    model = choose_transform(brdf, models, ens, selector)
+    model = choose_transform(brdf, models, ens, kw["selector"])
     model.stats["options"] = kw
     return model
 
@@ -568,26 +622,26 @@ def _budget_stats(m: SparseBRDF, norms: np.ndarray) -> dict:
 
 
 def _code_many(jobs: list[tuple[np.ndarray, SparseBRDF, np.ndarray | None]], ens: Ensemble,
-               o: _Options) -> list[SparseBRDF]:
+               o: _Options, counts: list[int] | None = None) -> list[SparseBRDF]:
     """Re-code each job's channels y (3, n1, n2, n3) on the dictionaries its model m chose
     (a job: y, m, the channels' energies or None): each channel projected on its own
     dictionary, then the largest |s| kept, ``o.n`` per channel, or with a joint budget 3
     ``o.n`` over the channels (largest first across them). With ``o.max_error``,
     coefficients are added until the relative residual (per channel, or of the total for a
     joint budget) is reached. The 3 x len(jobs) projections run side by side on the
-    thread pool."""
-    cap = 3 * o.n if o.joint else o.n
+    thread pool. ``counts``: per job, its own ``o.n``."""
+    opts = [o if counts is None else replace(o, n=int(n)) for n in (counts or jobs)]
 
     def one(task):
         j, c = task
         y, m, norms = jobs[j]
         s = project(y[c], *ens.dictionary(int(m.dict_index[c]))).ravel()
-        idx = top_k(s * s, cap)
+        idx = top_k(s * s, 3 * opts[j].n if opts[j].joint else opts[j].n)
         return idx, s[idx], _energy(y[c]) if norms is None else float(norms[c])
 
     tasks = [(j, c) for j in range(len(jobs)) for c in range(3)]
     done = list(parallel_map(one, tasks))
-    return [_keep(y, m, done[3 * j: 3 * j + 3], o) for j, (y, m, _) in enumerate(jobs)]
+    return [_keep(y, m, done[3 * j: 3 * j + 3], opts[j]) for j, (y, m, _) in enumerate(jobs)]
 
 
 def _keep(y: np.ndarray, m: SparseBRDF, top: list, o: _Options) -> SparseBRDF:
@@ -633,7 +687,7 @@ def _needed(cum: np.ndarray, norm: float, max_error: float | None) -> int:
 
 
 def _fill_invalid(brdf: BRDF, ens: Ensemble, transforms: tuple[str, ...],
-                  o: _Options) -> dict[str, SparseBRDF]:
+                  o: _Options, size: SizeControl | None = None) -> dict[str, SparseBRDF]:
     """Encode with every invalid bin a free value (``docs/method.md``, "Encoding"), one
     model per transform.
 
@@ -647,6 +701,8 @@ def _fill_invalid(brdf: BRDF, ens: Ensemble, transforms: tuple[str, ...],
     for the three channels, so filling the coded channels is filling the transformed
     R, G, B (the basis is a per-bin 3 x 3 mix), and the channels' least squares
     problems are independent: the fits of every transform and channel run side by side.
+    ``size`` (:func:`encode_sized`) revises each transform's count between fits (a
+    revised support is never taken as settled) and trims the last fit's support.
     """
     invalid = ~brdf.valid
     ys = dict(zip(transforms, parallel_map(  # invalid bins are 0
@@ -659,6 +715,8 @@ def _fill_invalid(brdf: BRDF, ens: Ensemble, transforms: tuple[str, ...],
     history: dict[str, list[float]] = {t: [] for t in transforms}
     residual: dict[str, np.ndarray] = {}
     active = list(transforms)
+    counts = {t: o.n for t in transforms}
+    recounts: dict[str, list[int]] = {t: [] for t in transforms}
     for fit in range(o.fill_iters):
         fitted = _fit_supports([(ys[t], models[t]) for t in active], invalid, ens)
         for t, (m, r) in zip(active, fitted, strict=True):
@@ -669,15 +727,32 @@ def _fill_invalid(brdf: BRDF, ens: Ensemble, transforms: tuple[str, ...],
         for t, coded in zip(active, _coded_many([models[t] for t in active], ens),
                             strict=True):
             np.copyto(ys[t], coded, where=invalid)  # fill the invalid bins
-        recoded = _code_many([(ys[t], models[t], None) for t in active], ens, o)
+        revised = set()
+        if size is not None:
+            for t in active:
+                n = max(int(size.recount(models[t])), 1)
+                recounts[t].append(n)
+                if n != counts[t]:
+                    counts[t] = n
+                    revised.add(t)
+        recoded = _code_many([(ys[t], models[t], None) for t in active], ens, o,
+                             [counts[t] for t in active])
         for t, new in zip(list(active), recoded, strict=True):
-            if all(np.array_equal(np.sort(a), np.sort(b))
+            if t not in revised and all(np.array_equal(np.sort(a), np.sort(b))
                    for a, b in zip(models[t].locations, new.locations, strict=True)):
                 active.remove(t)  # the support has settled: its fit is done
             else:
                 models[t] = new
         if not active:
             break
+    if size is not None:  # the final support: trimmed to size, its values fitted again
+        trimmed = {t: size.trim(models[t]) for t in transforms}
+        cut = [t for t in transforms
+               if int(trimmed[t].n_coeffs.sum()) < int(models[t].n_coeffs.sum())]
+        for t, (m, r) in zip(cut, _fit_supports([(ys[t], trimmed[t]) for t in cut],
+                                                invalid, ens), strict=True):
+            models[t], residual[t] = m, r
+            history[t].append(float(r.sum()))
     filled_energies = _energies_many(ys)
     for t, m in models.items():
         valid_energy = valid_energies[t]
@@ -690,6 +765,8 @@ def _fill_invalid(brdf: BRDF, ens: Ensemble, transforms: tuple[str, ...],
                      "valid_residual_unfilled": float(np.sum(
                          np.asarray(searched[t]["relative_residual"]) * valid_energy))},
         }
+        if size is not None:
+            m.stats["recount"] = recounts[t]
     return models
 
 
