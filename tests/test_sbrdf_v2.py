@@ -253,6 +253,11 @@ def test_encode_to_bytes_fits_and_spends_the_budget(small_ensemble):
     assert kept[1] > 2 * int(v1.n_coeffs.sum())
     with pytest.raises(ValueError, match="--bytes 60: .* takes 9[0-9] bytes"):
         encode_to_bytes(brdf, small_ensemble, 60)
+    # the first guess: 8 bytes a coefficient in version 1; fewer bytes a coefficient the
+    # more there are in version 2 (within the range measured, 1.5-2.4)
+    assert budget.first_count(800, 1) == 100
+    per = [p / budget.first_count(p) for p in (400, 2000, 12_000)]
+    assert 2.4 > per[0] > per[1] > per[2] > 1.3
 
 
 def test_encode_to_bytes_revises_the_count_in_one_encoding(small_ensemble, monkeypatch):
