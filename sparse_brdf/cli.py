@@ -78,7 +78,7 @@ from .model.interpolate import interpolate
 from .model.layouts import DECODERS, PLUGIN_DEFAULTS, SAMPLING
 from .model.sbrdf import decode_file, load_sbrdf, save_sbrdf
 from .model.train import train_dictionaries, train_ensemble
-from .parallel import executor, reuse_freed_memory
+from .parallel import executor
 from .params import Interval
 from .sources.corpora import SPLITS, TRAINING_CORPORA, get_corpus, list_corpora
 from .sources.dataset import training_data
@@ -857,7 +857,6 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in argv or os.environ.get("SPARSE_BRDF_DEBUG", "") not in ("", "0")
     args = build_parser().parse_args([a for a in argv if a != "--debug"])
-    reuse_freed_memory()
     with warnings.catch_warnings(), cleanup_on_signals():
         if not debug:  # overflow etc. in numpy: the results are checked instead
             warnings.simplefilter("ignore", RuntimeWarning)

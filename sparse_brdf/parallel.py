@@ -32,7 +32,6 @@ it sends and receives (``stats``), measured with ``dask.sizeof``.
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import logging
 import os
 import threading
@@ -96,40 +95,6 @@ def blas_single_thread() -> contextlib.AbstractContextManager:
     if _CONTROLLER is None:
         _CONTROLLER = ThreadpoolController()
     return _CONTROLLER.limit(limits=1, user_api="blas")
-
-
-#: glibc's ``mallopt`` parameters (malloc.h): M_TRIM_THRESHOLD, M_TOP_PAD,
-#: M_MMAP_THRESHOLD.
-_M_TRIM_THRESHOLD, _M_TOP_PAD, _M_MMAP_THRESHOLD = -1, -2, -3
-#: Arrays up to this size come from the heap and are reused once freed (glibc's largest
-#: allowed mmap threshold on 64-bit systems: 32 MiB, above one float32 channel of a MERL
-#: table, 5.8 MB, and the three channels, 17.5 MB).
-REUSE_BYTES = 32 << 20
-
-
-def reuse_freed_memory() -> bool:
-    """Have the C allocator keep freed array memory for the next arrays, for a whole
-    command: glibc hands each array above its mmap threshold (128 kB at first) fresh
-    pages from the kernel and returns them when the array is freed, so a process that
-    makes hundreds of temporary tables (an encoding: about 50 arrays of 6-35 MB) spends
-    much of its system time zeroing pages. Raising the mmap threshold to
-    ``REUSE_BYTES`` and keeping freed heap memory (trim threshold 1 GiB, top pad 64 MiB)
-    cut a whole ``sparse-brdf encode`` by 0.1-0.2 s here (docs/benchmarks.md, "Encode
-    time"). The command line calls it; a library user's process is left as it is.
-
-    Returns
-    -------
-    bool
-        Whether it applied (glibc with ``mallopt``; elsewhere nothing is changed).
-    """
-    try:
-        mallopt = ctypes.CDLL(None).mallopt
-    except (OSError, AttributeError):  # pragma: no cover - not glibc
-        return False
-    mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
-    return all(mallopt(param, value) == 1 for param, value in (
-        (_M_MMAP_THRESHOLD, REUSE_BYTES), (_M_TRIM_THRESHOLD, 1 << 30),
-        (_M_TOP_PAD, 64 << 20)))
 
 
 def parallel_map(fn: Callable[[T], R], items: Iterable[T], limit_blas: bool = True
