@@ -59,6 +59,10 @@ MAX_TRIM = 0.0
 #: differ by a few per cent, so the count aims a little high and the last fit is trimmed
 #: to the budget and fitted again (:func:`~sparse_brdf.model.encode.encode_sized`).
 OVERSHOOT = 0.05
+#: The share of the budget (beyond the file's fixed part) the last fit is trimmed below
+#: the budget, so that its refit's new values still fit and the result is not trimmed
+#: again after its errors were computed.
+REFIT_SLACK = 0.005
 #: Revise the count within the one encoding where the fill has rounds to do it in (the
 #: default); False: encode again at the count that fitted, as without fill rounds (the
 #: method before, kept so that benchmarks/bytes_passes.py can compare the two).
@@ -88,17 +92,37 @@ def fit_bytes(model: SparseBRDF, n_bytes: int, version: int = VERSION) -> Sparse
     ``n_bytes``, as the file holds it (:func:`~sparse_brdf.model.sbrdf.as_stored`, so
     ``to_bytes(result, version)`` is that file). ValueError if no coefficient fits.
 
-    A binary search on the exact serialised size, which grows with the count kept (in
-    small steps where version 2's quantisation step gets finer, ``sbrdf.step_exponent``).
+    A search on the exact serialised size, which grows with the count kept (in small
+    steps where version 2's quantisation step gets finer, ``sbrdf.step_exponent``): a
+    bracket from the count the bytes would hold in proportion, then bisection in it.
     """
     check_budget(model.name, n_bytes, version)
     total = int(model.n_coeffs.sum())
 
-    def fits(k: int) -> bool:
-        return len(to_bytes(truncate(model, k), version)) <= n_bytes
+    def size(k: int) -> int:
+        return len(to_bytes(truncate(model, k) if k < total else model, version))
 
-    keep = total if fits(total) else _largest(0, total, fits)
-    return as_stored(truncate(model, keep) if keep < total else model, version)
+    whole = size(total)
+    if whole <= n_bytes:
+        return as_stored(model, version)
+    # bracket the count near the proportional estimate, then bisect within the bracket
+    floor = min_file_size(len(model.name.encode("utf-8")[:255]), version)
+    guess = min(max(total * (n_bytes - floor) // max(whole - floor, 1), 0), total - 1)
+    step = max(total // 64, 1)
+    lo, hi = guess, total
+    if size(guess) <= n_bytes:
+        while lo + step < hi and size(lo + step) <= n_bytes:
+            lo, step = lo + step, 2 * step
+        hi = min(lo + step, hi)
+    else:
+        hi = guess
+        while hi > 0:
+            lo = max(hi - step, 0)
+            if lo == 0 or size(lo) <= n_bytes:
+                break
+            hi, step = lo, 2 * step
+    keep = _largest(lo, hi, lambda k: size(k) <= n_bytes)
+    return as_stored(truncate(model, keep), version)
 
 
 def _largest(lo: int, hi: int, ok) -> int:
@@ -208,8 +232,13 @@ class _ByteSize:
         return _clip(math.ceil(scale * total / (3 if self.joint else 1)), self.atoms)
 
     def trim(self, model: SparseBRDF) -> SparseBRDF:
+        # REFIT_SLACK below the budget: the refit that follows moves the values, and with
+        # them the compressed size, by a few bytes (version 1's size is the count's alone)
+        slack = (0 if self.version == 1
+                 else max(4, math.ceil(REFIT_SLACK * (self.n_bytes - self.floor))))
         total = int(model.n_coeffs.sum())
-        keep = int(fit_bytes(model, self.n_bytes, self.version).n_coeffs.sum())
+        keep = int(fit_bytes(model, max(self.n_bytes - slack, self.floor + 1),
+                             self.version).n_coeffs.sum())
         return truncate(model, keep) if keep < total else model
 
 
