@@ -746,7 +746,8 @@ def _fill_invalid(brdf: BRDF, ens: Ensemble, transforms: tuple[str, ...],
         if not active:
             break
     if size is not None:  # the final support: trimmed to size, its values fitted again
-        trimmed = {t: size.trim(models[t]) for t in transforms}
+        trimmed = dict(zip(transforms, parallel_map(  # LZMA releases the GIL
+            lambda t: size.trim(models[t]), transforms, limit_blas=False), strict=True))
         cut = [t for t in transforms
                if int(trimmed[t].n_coeffs.sum()) < int(models[t].n_coeffs.sum())]
         for t, (m, r) in zip(cut, _fit_supports([(ys[t], trimmed[t]) for t in cut],
