@@ -17,6 +17,11 @@ fitting views. Reported on the held-out views, object-only and whole-image SNR a
 the references (same seed and spp, so the sample paths are shared): the unperturbed
 encoding, the perturbed start and the fit; and, without a target, a fit that starts from
 the encoding of the next material in the list. Also the time per iteration and per fit.
+
+``--track-every N`` records the held-out SNR along the fit (every N evaluations: never
+used by the fit, only reported); ``--validation`` views are rendered like the fitting
+views but only pick the returned iterate (early stopping); ``--prior-weight`` is
+``fit_images``'s penalty keeping the values near the (perturbed) start.
 """
 
 from __future__ import annotations
@@ -67,22 +72,34 @@ def _held_out(scene, refs, mask, specs, src, spp, res, seeds=None) -> tuple[floa
             float(np.mean([f.whole for f in forms])))
 
 
+def _tracker(track: list, scene, refs, mask, args, path: Path):
+    """A ``fit_images`` callback appending (evaluations, object-only, whole-image) held-out
+    SNR of each iterate it sees to ``track`` (a record only: the fit never sees it)."""
+    def tracked(n: int, model) -> None:
+        f = save_sbrdf(path, model)
+        track.append((n, *_held_out(scene, refs, mask, args.held_out, f, args.spp,
+                                    args.res)))
+    return tracked
+
+
 def study(args) -> list[dict]:
     scene = find_scene("sphere.xml")
     mask = object_mask(scene, res=args.res)
     tmp = Path(tempfile.mkdtemp(prefix="fit-images-study-"))
-    specs = [*args.fit_views, *args.held_out]
-    both = {v for v in args.fit_views
-            if any(_params(v) == _params(h) for h in args.held_out)}
-    if both:
-        raise SystemExit(f"views both fitted and held out: {sorted(both)}")
+    specs = [*args.fit_views, *args.validation, *args.held_out]
+    for a, b in ((args.fit_views, args.held_out), (args.validation, args.held_out),
+                 (args.fit_views, args.validation)):
+        both = {v for v in a if any(_params(v) == _params(h) for h in b)}
+        if both:
+            raise SystemExit(f"views in two roles: {sorted(both)}")
     # the fitting views' render seeds: all 0 (the held-out views' too), or the i-th
     # fitting view's i (its reference rendered with it): more sampled directions
-    seeds = ({v: i for i, v in enumerate(args.fit_views)} if args.view_seeds == "distinct"
-             else {})
-    # the fitting views' spp (their references', the fit's): --fit-spp, or --spp
+    seeds = ({v: i for i, v in enumerate([*args.fit_views, *args.validation])}
+             if args.view_seeds == "distinct" else {})
+    # the fitting (and validation) views' spp (their references', the fit's): --fit-spp,
+    # or --spp
     fit_spp = args.fit_spp or args.spp
-    spps = {v: fit_spp for v in args.fit_views}
+    spps = {v: fit_spp for v in [*args.fit_views, *args.validation]}
     models = {m: encode(load_brdf(DEMO_MATERIALS_DIR / f"{m}.h5")) for m in args.materials}
     rows = []
     for i, name in enumerate(args.materials):
@@ -102,6 +119,9 @@ def study(args) -> list[dict]:
         views = views_for([_params(v) for v in args.fit_views],
                           [refs[v] for v in args.fit_views],
                           [seeds.get(v, 0) for v in args.fit_views])
+        validation = views_for([_params(v) for v in args.validation],
+                               [refs[v] for v in args.validation],
+                               [seeds.get(v, 0) for v in args.validation])
         row = {"material": name, "clean": _held_out(scene, refs, mask, args.held_out,
                                                     files["clean"], args.spp, args.res),
                "noisy": _held_out(scene, refs, mask, args.held_out, files["noisy"],
@@ -110,17 +130,27 @@ def study(args) -> list[dict]:
                "clean_fit_views": _held_out(scene, refs, mask, args.fit_views,
                                             files["clean"], fit_spp, args.res, seeds)}
         for start in args.starts:
+            track: list[tuple[int, float, float]] = []
+            tracked = _tracker(track, scene, refs, mask, args,
+                               tmp / f"{name}-track-{start}.sbrdf")
             t0 = time.perf_counter()
             fit = fit_images(scene, views, files[start], iterations=args.iterations,
                              lr=args.lr, lr_end=args.lr_end, spp=fit_spp, seed=0,
                              optimizer=args.optimizer, loss=args.loss,
+                             prior_weight=args.prior_weight, validation=validation,
+                             validate_every=args.track_every or 10,
+                             callback=tracked if args.track_every else None,
                              progress=True)
+            seconds = time.perf_counter() - t0
             fitted = save_sbrdf(tmp / f"{name}-fit-{start}.sbrdf", fit.model)
             row[f"fit_{start}"] = _held_out(scene, refs, mask, args.held_out, fitted,
                                             args.spp, args.res)
             row[f"fit_{start}_fit_views"] = _held_out(scene, refs, mask, args.fit_views,
                                                       fitted, fit_spp, args.res, seeds)
-            row[f"seconds_{start}"] = time.perf_counter() - t0
+            row[f"seconds_{start}"] = seconds  # the fit, with its tracking and validation
+            row[f"held_out_track_{start}"] = track  # (evaluations, object, whole)
+            row[f"validation_snr_{start}"] = fit.validation_snr_db
+            row[f"best_evaluation_{start}"] = fit.best_evaluation
             row[f"seconds_per_iteration_{start}"] = fit.seconds_per_iteration
             row[f"fit_views_snr_{start}"] = fit.snr_db
         rows.append(row)
@@ -175,13 +205,23 @@ def main() -> None:
                    help="spp of the fitting views and their references (default --spp; "
                         "the held-out views always use --spp)")
     p.add_argument("--seed", type=int, default=1, help="seed of the 30 %% noise")
+    p.add_argument("--validation", nargs="*", type=view_spec, default=[],
+                   metavar="K=V[,K=V]",
+                   help="views rendered like the fitting views (their spp and seeds) that "
+                        "only pick the returned iterate (fit_images' validation)")
+    p.add_argument("--prior-weight", type=float, default=0.0,
+                   help="fit_images' prior_weight (penalty on the values' relative change)")
+    p.add_argument("--track-every", type=int, default=0,
+                   help="record the held-out SNR every N evaluations (0: not at all); "
+                        "also the validation cadence")
     args = p.parse_args()
     print(header())
     opt = (f"adam, lr {args.lr} -> {args.lr * args.lr_end:g}" if args.optimizer == "adam"
            else args.optimizer) + f", {args.loss} loss, {args.view_seeds} view seeds"
     print(f"sphere.xml, {args.res}x{args.res}, {args.spp} spp (fitting views "
           f"{args.fit_spp or args.spp}), fitting views "
-          f"{args.fit_views}, held out {args.held_out}, {args.iterations} iterations "
+          f"{args.fit_views}, validation {args.validation}, prior weight "
+          f"{args.prior_weight:g}, held out {args.held_out}, {args.iterations} iterations "
           f"({opt}); SNR in dB, object-only / whole-image, mean over the held-out views")
     print("| material | unperturbed | perturbed (start) | fitted | fitted - unperturbed | "
           "fitted from another material | s / iteration | s / fit |\n"
