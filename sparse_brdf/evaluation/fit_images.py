@@ -103,12 +103,13 @@ class FitResult:
                 "best_evaluation": self.best_evaluation}
 
 
-def parse_view(text: str) -> tuple[str, dict]:
-    """``IMAGE.exr[:KEY=VALUE[,KEY=VALUE...]]`` -> (image path, scene defaults)."""
+def parse_view(text: str, option: str = "--view") -> tuple[str, dict]:
+    """``IMAGE.exr[:KEY=VALUE[,KEY=VALUE...]]`` -> (image path, scene defaults); an error
+    names ``option``."""
     path, sep, tail = str(text).rpartition(":")
     if not sep or "=" not in tail:
         return str(text), {}
-    params = parse_defaults(tail.split(","), f"--view {text!r}:")
+    params = parse_defaults(tail.split(","), f"{option} {text!r}:")
     return path, params
 
 
@@ -335,10 +336,11 @@ class _Monitor:
                                    for c in range(len(VALUE_KEYS))])
 
 
-def _prior(u: np.ndarray, weight: float) -> tuple[float, np.ndarray]:
-    """The penalty ``weight * mean((u - 1)^2)`` on the relative values ``u`` (1 at the
-    start) and its gradient."""
-    d = np.asarray(u, np.float64) - 1.0
+def _prior(u: np.ndarray, u0: np.ndarray | None, weight: float) -> tuple[float, np.ndarray]:
+    """The penalty ``weight * mean((u - u0)^2)`` on the relative values ``u`` (``u0`` at
+    the start: 1, or less for a value below its channel's scale floor) and its
+    gradient."""
+    d = np.asarray(u, np.float64) - (1.0 if u0 is None else u0)
     return float(weight * np.mean(np.square(d))), (2.0 * weight / max(d.size, 1)) * d
 
 
@@ -351,7 +353,8 @@ def _snr_of(objective: float, log_loss: bool = False) -> float:
 
 
 def _step(views: list[_Scene], opt, scales, seed: int, grad_seed: int, spp: int,
-          log_loss: bool = False, prior_weight: float = 0.0) -> float:
+          log_loss: bool = False, prior_weight: float = 0.0,
+          u0: np.ndarray | None = None) -> float:
     """One Adam step over all views (:func:`_evaluate`, then the chain rule through
     ``scale * u``, plus the gradient of :func:`_prior`); returns their mean whole-image
     SNR (dB) before it (of the views' loss, without the prior)."""
@@ -363,7 +366,7 @@ def _step(views: list[_Scene], opt, scales, seed: int, grad_seed: int, spp: int,
               for name, s in zip(VALUE_KEYS, scales, strict=True)]
     loss, grads = _evaluate(views, values, seed, grad_seed, spp, log_loss)
     us = [np.array(dr.detach(opt[name]), np.float64) for name in VALUE_KEYS]
-    _, pg = _prior(np.concatenate(us), prior_weight)
+    _, pg = _prior(np.concatenate(us), u0, prior_weight)
     pgs = np.split(pg, np.cumsum([len(u) for u in us])[:-1])
     for name, g, s, p in zip(VALUE_KEYS, grads, scales, pgs, strict=True):
         dr.set_grad(opt[name], g * s + mi.Float(p.astype(np.float32)))
@@ -373,12 +376,14 @@ def _step(views: list[_Scene], opt, scales, seed: int, grad_seed: int, spp: int,
 
 def _lbfgs(views: list[_Scene], u0: np.ndarray, scales: np.ndarray, sizes: list[int],
            evaluations: int, seed: int, spp: int, on_eval,
-           log_loss: bool = False, prior_weight: float = 0.0) -> np.ndarray:
+           log_loss: bool = False, prior_weight: float = 0.0,
+           centre: np.ndarray | None = None) -> np.ndarray:
     """Minimise the loss over ``u`` (values = ``scales * u``, the three channels
     concatenated) with SciPy's L-BFGS-B, at most ``evaluations`` loss-and-gradient
     evaluations (each renders every view once, forward and backward: an Adam iteration's
     cost). The shared-path loss is a smooth deterministic function of the values, which
-    is what a quasi-Newton method needs; the objective adds :func:`_prior` to the loss.
+    is what a quasi-Newton method needs; the objective adds :func:`_prior` (about
+    ``centre``, the start's ``u``) to the loss.
     ``on_eval(u, loss, objective)`` sees every evaluation. Returns the ``u`` of the best
     objective evaluated."""
     from scipy.optimize import minimize  # lazy: SciPy is slow to import
@@ -392,7 +397,7 @@ def _lbfgs(views: list[_Scene], u0: np.ndarray, scales: np.ndarray, sizes: list[
         values = np.split((u * scales).astype(np.float32), cuts)
         loss, grads = _evaluate(views, values, seed, seed, spp, log_loss)
         g = np.concatenate([np.asarray(x, np.float64) for x in grads]) * scales
-        penalty, pg = _prior(u, prior_weight)
+        penalty, pg = _prior(u, centre, prior_weight)
         objective, g = loss + penalty, g + pg
         best["n"] += 1
         if objective < best["loss"]:
@@ -414,7 +419,7 @@ def _lbfgs(views: list[_Scene], u0: np.ndarray, scales: np.ndarray, sizes: list[
 
 
 def _run_lbfgs(scenes, opt, scales, done, iterations, snr, seed, spp, bar, ckpt, every,
-               fp, log_loss, prior_weight, monitor) -> None:
+               fp, log_loss, prior_weight, u0, monitor) -> None:
     """The L-BFGS fit from ``opt``'s values (``u``), writing the best ``u`` back into
     ``opt`` and, every ``every`` evaluations, into the checkpoint (Adam's moments are
     written as zeros: an L-BFGS checkpoint only ever resumes an L-BFGS fit); ``monitor``
@@ -445,7 +450,7 @@ def _run_lbfgs(scenes, opt, scales, done, iterations, snr, seed, spp, bar, ckpt,
             _write_checkpoint(ckpt, state["n"], opt, snr, fp, monitor.state())
 
     u = _lbfgs(scenes, state["u"], sc, sizes, iterations - done, seed, spp, on_eval,
-               log_loss, prior_weight)
+               log_loss, prior_weight, u0)
     monitor(state["n"], np.split(u * sc, cuts), force=True)  # the returned iterate
     put(u)
     if ckpt is not None and state["n"] > done:  # finished (or converged): a rerun is done
@@ -531,9 +536,10 @@ def fit_images(  # long: the fit loop with its checkpointing and progress bar
         one. ``snr_db`` records the SNR of the loss used.
     prior_weight : float
         Weight (>= 0, dimensionless, like the loss) of a penalty
-        ``prior_weight * mean((u - 1)^2)`` added to the loss, ``u`` being each value
-        relative to its start (value = scale * u, u = 1 at the start): it keeps the
-        values that the views constrain little near the start. The loss is a relative
+        ``prior_weight * mean(((value - start) / scale)^2)`` added to the loss, over all
+        values, ``scale`` being each value's starting magnitude floored at 1e-3 of its
+        channel's largest (the optimised ``u = value / scale``): it keeps the values
+        that the views constrain little near the start. The loss is a relative
         squared error (1e-4 at 40 dB), so useful weights are small (1e-6 .. 1e-4); 0 (the
         default) fits the views alone. ``snr_db`` records the views' loss without it.
     validation : sequence of View
@@ -614,6 +620,8 @@ def fit_images(  # long: the fit loop with its checkpointing and progress bar
             s = np.maximum(np.abs(v), SCALE_FLOOR * max(top, 1e-30)).astype(np.float32)
             scales.append(mi.Float(s))
             opt[key] = mi.Float((v / s).astype(np.float32))
+        # the start's relative values (1, or less below the scale floor): the prior's centre
+        u0 = np.concatenate([np.array(dr.detach(opt[k]), np.float64) for k in VALUE_KEYS])
         ckpt = Path(checkpoint_dir) / "fit-images.npz" if checkpoint_dir else None
         done, snr = 0, []
         if ckpt is not None and ckpt.is_file():
@@ -634,7 +642,8 @@ def fit_images(  # long: the fit loop with its checkpointing and progress bar
         if optimizer == "lbfgs":
             try:
                 _run_lbfgs(scenes, opt, scales, done, iterations, snr, seed, spp, bar,
-                           ckpt, checkpoint_every, fp, loss == "log", prior_weight, monitor)
+                           ckpt, checkpoint_every, fp, loss == "log", prior_weight, u0,
+                           monitor)
             except RuntimeError as exc:
                 raise RenderError(f"{scene}: rendering failed during the fit: "
                                   f"{exc}") from exc
@@ -646,7 +655,7 @@ def fit_images(  # long: the fit loop with its checkpointing and progress bar
                 try:
                     gseed = seed if shared_paths else seed + 1 + it * len(scenes)
                     snr.append(_step(scenes, opt, scales, seed, gseed, spp, loss == "log",
-                                     prior_weight))
+                                     prior_weight, u0))
                     monitor(it + 1, current(), force=it + 1 == iterations)
                 except RuntimeError as exc:
                     raise RenderError(f"{scene}: rendering failed during the fit: "
@@ -669,13 +678,14 @@ def fit_images(  # long: the fit loop with its checkpointing and progress bar
                      monitor.best[1] if monitor.best is not None else None)
 
 
-def load_views(items: Sequence[str], read) -> list[View]:
+def load_views(items: Sequence[str], read, option: str = "--view") -> list[View]:
     """:class:`View` objects from ``IMAGE.exr[:KEY=VALUE,...]`` strings, reading each
-    image with ``read`` (e.g. :func:`sparse_brdf.evaluation.render.read_exr`)."""
+    image with ``read`` (e.g. :func:`sparse_brdf.evaluation.render.read_exr`); errors
+    name ``option`` (the command-line option that gave them)."""
     out = []
     for text in items:
-        path, params = parse_view(text)
-        out.append(View(np.asarray(read(path), np.float32), params, name=f"--view {text}"))
+        path, params = parse_view(text, option)
+        out.append(View(np.asarray(read(path), np.float32), params, name=f"{option} {text}"))
     return out
 
 
