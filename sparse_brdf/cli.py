@@ -796,10 +796,12 @@ def _add_fit_images(sub) -> None:
                          "mean logarithm (the views' mean SNR in dB)")
     fi.add_argument("--prior-weight", type=_typed(fip["prior_weight"]),
                     default=_default(fit_images, "prior_weight"),
-                    help="weight of a penalty prior_weight * mean((u - 1)^2) on each "
-                         "value's change relative to its start (u = value / start value); "
-                         "the loss is a relative squared error (1e-4 at 40 dB), so useful "
-                         "weights are small, e.g. 1e-6 to 1e-4; 0: the views alone")
+                    help="weight (>= 0) of a penalty W * mean(((value - start) / scale)^2) "
+                         "on the values' change relative to the start (scale: each "
+                         "value's starting magnitude, floored at 1e-3 of its channel's "
+                         "largest); the loss is a relative squared error (1e-4 at 40 dB), "
+                         "so useful weights are small, e.g. 1e-6 to 1e-4; 0: the views "
+                         "alone")
     fi.add_argument("--validation-view", action="append", metavar="IMAGE.exr[:K=V,...]",
                     help="a reference never fitted, as --view: every --validate-every "
                          "evaluations the fit renders these, and writes the iterate they "
