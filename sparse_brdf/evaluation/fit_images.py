@@ -18,8 +18,9 @@ Each value is optimised as ``scale * u`` with ``scale`` its starting magnitude (
 low-order coefficients and the small high-order ones. Optionally a penalty on ``u``'s
 change from the start (``prior_weight``) joins the loss, and validation views that are
 never optimised pick the iterate the fit returns (``validation``: early stopping).
-The primal renders use the references' seed (the same sample paths when the references were rendered by Mitsuba
-with that seed); each gradient pass uses a fresh seed, as Mitsuba requires.
+The primal renders use the references' seed (the same sample paths when the references
+were rendered by Mitsuba with that seed); each gradient pass uses a fresh seed, as
+Mitsuba requires.
 
 Mitsuba and Dr.Jit are imported inside the functions, so importing this module stays
 fast; the scenes are loaded through :func:`sparse_brdf.evaluation.render.load_scene`.
