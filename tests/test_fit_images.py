@@ -388,6 +388,14 @@ def test_validation_returns_the_iterate_it_rates_best(case, tmp_path):
         np.testing.assert_array_equal(a, b)
     again = fit_images(case["scene"], views, case["start"], checkpoint_dir=ckpt,
                        validation=views_for([{"envrot": 90}], [ref90]), **kw)
+    # with the log loss, the validation's SNR is its views' mean SNR (as the loss's)
+    refs = views_for([{"envrot": 90}, {"envrot": 0}], [ref90, case["refs"][0]])
+    log = fit_images(case["scene"], views[1:], case["start"], validation=refs, loss="log",
+                     **{**kw, "iterations": 1})
+    per_view = [render_snr(v.image, render_scene(
+        case["scene"], {"material": str(case["start"])}, spp=SPP, seed=0, res=RES,
+        params=v.params)) for v in refs]
+    assert log.validation_snr_db[0][1] == pytest.approx(np.mean(per_view), abs=1e-3)
     assert again.resumed_from == 6 and again.best_evaluation == fit.best_evaluation
     assert again.validation_snr_db == fit.validation_snr_db
     for a, b in zip(fit.model.values, again.model.values, strict=True):

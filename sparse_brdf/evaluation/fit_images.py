@@ -90,8 +90,9 @@ class FitResult:
     seconds_per_iteration: float
     iterations: int
     resumed_from: int = 0
-    #: With validation views: (evaluations done, the validation views' SNR in dB, that of
-    #: their mean relative squared error) of each validated iterate, in order.
+    #: With validation views: (evaluations done, the validation views' SNR in dB, in the
+    #: form of the loss: of their mean relative squared error, or with ``loss="log"``
+    #: their mean SNR) of each validated iterate, in order.
     validation_snr_db: list[tuple[int, float]] = field(default_factory=list)
     #: With validation views: the evaluation count of the returned iterate (the one the
     #: validation views liked best); None without them.
@@ -275,9 +276,11 @@ def _evaluate(views: list[_Scene], values: Sequence[np.ndarray], seed: int, grad
     return float(np.mean(losses)), grads
 
 
-def _primal_loss(views: list[_Scene], values: Sequence[np.ndarray], spp: int) -> float:
+def _primal_loss(views: list[_Scene], values: Sequence[np.ndarray], spp: int,
+                 log_loss: bool = False) -> float:
     """The views' mean relative squared error ``sum (img - ref)^2 / sum ref^2`` at
-    ``values`` (primal renders only, each at its view's seed)."""
+    ``values``, or (``log_loss``) the mean of its natural logarithm, as in
+    :func:`_evaluate` (primal renders only, each at its view's seed)."""
     import drjit as dr  # lazy: Dr.Jit is slow to import (see the module doc)
     import mitsuba as mi
 
@@ -290,17 +293,21 @@ def _primal_loss(views: list[_Scene], values: Sequence[np.ndarray], spp: int) ->
             img = mi.render(v.scene, spp=spp, seed=v.seed)
             err = dr.sum(dr.square(img - v.reference), axis=None)
         losses.append(float(np.asarray(err).ravel()[0]) / v.norm)
+    if log_loss:
+        return float(np.mean(np.log(np.maximum(losses, 1e-30))))
     return float(np.mean(losses))
 
 
 class _Monitor:
     """Every ``every`` evaluations: ``callback(evaluations, values)`` (three float32
-    arrays) and the SNR (dB, of
+    arrays) and the SNR (dB, in the form of the fit's loss, :func:`_snr_of`: of
     the views' mean relative squared error) of the validation ``views`` at the iterate;
     keeps the iterate they like best (early stopping on views the fit never sees)."""
 
-    def __init__(self, views: list[_Scene], callback, every: int, spp: int) -> None:
+    def __init__(self, views: list[_Scene], callback, every: int, spp: int,
+                 log_loss: bool = False) -> None:
         self.views, self.callback, self.every, self.spp = views, callback, every, spp
+        self.log_loss = log_loss
         self.record: list[tuple[int, float]] = []
         self.best: tuple[float, int, list[np.ndarray]] | None = None
         self.last: int | None = None
@@ -313,7 +320,8 @@ class _Monitor:
         if self.callback is not None:
             self.callback(n, [v.copy() for v in values])
         if self.views:
-            snr = _snr_of(_primal_loss(self.views, values, self.spp))
+            snr = _snr_of(_primal_loss(self.views, values, self.spp, self.log_loss),
+                          self.log_loss)
             self.record.append((n, snr))
             if self.best is None or snr > self.best[0]:
                 self.best = (snr, n, values)
@@ -547,8 +555,9 @@ def fit_images(  # long: the fit loop with its checkpointing and progress bar
         default) fits the views alone. ``snr_db`` records the views' loss without it.
     validation : sequence of View
         Views the fit never optimises: every ``validate_every`` evaluations (iterations)
-        and at the end, their SNR (dB, of their mean relative squared error; each view
-        at its own seed) is measured at the current iterate (L-BFGS: the best so far),
+        and at the end, their SNR (dB, in the form of ``loss``: of their mean relative
+        squared error, or their mean SNR with ``"log"``; each view at its own seed) is
+        measured at the current iterate (L-BFGS: the best so far),
         and the fit returns the iterate they rate best (early stopping). Empty (the
         default): the fit's own last (Adam) or best (L-BFGS) iterate.
     validate_every : int
@@ -606,7 +615,7 @@ def fit_images(  # long: the fit loop with its checkpointing and progress bar
                                        variant, options),
                            None if callback is None else
                            (lambda n, vals: callback(n, replace(model, values=vals))),
-                           validate_every, spp)
+                           validate_every, spp, loss == "log")
         settings = {"lr": lr, "lr_end": lr_end, "spp": spp, "seed": seed, "material": material,
                     "decoder": decoder, "variant": variant, "shared_paths": shared_paths,
                     **({"optimizer": optimizer} if optimizer != "adam" else {}),
