@@ -60,14 +60,18 @@ def _params(spec: str) -> dict:
     return parse_defaults(spec.split(","), f"view {spec!r}:")
 
 
-def _held_out(scene, refs, mask, specs, src, spp, res, seeds=None) -> tuple[float, float]:
+def _held_out(scene, refs, mask, specs, src, spp, res, seeds=None,
+              per_view: dict | None = None) -> tuple[float, float]:
     """Mean (object-only, whole-image) SNR of ``src`` over the views ``specs`` (rendered
-    with ``seeds``, those of their references; 0 by default)."""
+    with ``seeds``, those of their references; 0 by default); each view's pair goes
+    into ``per_view`` when given."""
     seeds = seeds or {}
     forms = [snr_forms(refs[v], render_scene(scene, {"material": str(src)}, spp=spp,
                                              seed=seeds.get(v, 0), res=res,
                                              params=_params(v)), mask)
              for v in specs]
+    if per_view is not None:
+        per_view.update({v: [f.object, f.whole] for v, f in zip(specs, forms, strict=True)})
     return (float(np.mean([f.object for f in forms])),
             float(np.mean([f.whole for f in forms])))
 
@@ -122,13 +126,18 @@ def study(args) -> list[dict]:
         validation = views_for([_params(v) for v in args.validation],
                                [refs[v] for v in args.validation],
                                [seeds.get(v, 0) for v in args.validation])
+        # each view's (object-only, whole-image) SNR, per model
+        per_view: dict[str, dict] = {k: {} for k in ("clean", "noisy", "clean_fit_views")}
         row = {"material": name, "clean": _held_out(scene, refs, mask, args.held_out,
-                                                    files["clean"], args.spp, args.res),
+                                                    files["clean"], args.spp, args.res,
+                                                    per_view=per_view["clean"]),
                "noisy": _held_out(scene, refs, mask, args.held_out, files["noisy"],
-                                  args.spp, args.res),
+                                  args.spp, args.res, per_view=per_view["noisy"]),
                # the unperturbed encoding on the fitting views (is a fit over-fitting?)
                "clean_fit_views": _held_out(scene, refs, mask, args.fit_views,
-                                            files["clean"], fit_spp, args.res, seeds)}
+                                            files["clean"], fit_spp, args.res, seeds,
+                                            per_view["clean_fit_views"]),
+               "per_view": per_view}
         for start in args.starts:
             track: list[tuple[int, float, float]] = []
             tracked = _tracker(track, scene, refs, mask, args,
@@ -143,10 +152,13 @@ def study(args) -> list[dict]:
                              progress=True)
             seconds = time.perf_counter() - t0
             fitted = save_sbrdf(tmp / f"{name}-fit-{start}.sbrdf", fit.model)
+            per_view[f"fit_{start}"], per_view[f"fit_{start}_fit_views"] = {}, {}
             row[f"fit_{start}"] = _held_out(scene, refs, mask, args.held_out, fitted,
-                                            args.spp, args.res)
+                                            args.spp, args.res,
+                                            per_view=per_view[f"fit_{start}"])
             row[f"fit_{start}_fit_views"] = _held_out(scene, refs, mask, args.fit_views,
-                                                      fitted, fit_spp, args.res, seeds)
+                                                      fitted, fit_spp, args.res, seeds,
+                                                      per_view[f"fit_{start}_fit_views"])
             row[f"seconds_{start}"] = seconds  # the fit, with its tracking and validation
             row[f"held_out_track_{start}"] = track  # (evaluations, object, whole)
             row[f"validation_snr_{start}"] = fit.validation_snr_db
