@@ -799,9 +799,10 @@ def _add_fit_images(sub) -> None:
                     help="weight (>= 0) of a penalty W * mean(((value - start) / scale)^2) "
                          "on the values' change relative to the start (scale: each "
                          "value's starting magnitude, floored at 1e-3 of its channel's "
-                         "largest); the loss is a relative squared error (1e-4 at 40 dB), "
-                         "so useful weights are small, e.g. 1e-6 to 1e-4; 0: the views "
-                         "alone")
+                         "largest); the relative loss is a relative squared error (1e-4 "
+                         "at 40 dB), so useful weights are small, e.g. 1e-6 to 1e-4; with "
+                         "--loss log 1 dB is 0.23 of the loss, so weights are larger; 0: "
+                         "the views alone")
     fi.add_argument("--validation-view", action="append", metavar="IMAGE.exr[:K=V,...]",
                     help="a reference never fitted, as --view: every --validate-every "
                          "evaluations the fit renders these, and writes the iterate they "

@@ -550,9 +550,10 @@ def fit_images(  # long: the fit loop with its checkpointing and progress bar
         ``prior_weight * mean(((value - start) / scale)^2)`` added to the loss, over all
         values, ``scale`` being each value's starting magnitude floored at 1e-3 of its
         channel's largest (the optimised ``u = value / scale``): it keeps the values
-        that the views constrain little near the start. The loss is a relative
-        squared error (1e-4 at 40 dB), so useful weights are small (1e-6 .. 1e-4); 0 (the
-        default) fits the views alone. ``snr_db`` records the views' loss without it.
+        that the views constrain little near the start. The relative loss is a
+        relative squared error (1e-4 at 40 dB), so useful weights are small (1e-6 ..
+        1e-4); the log loss is in natural-log units (1 dB of SNR is 0.23 of it), so its
+        weights are larger; 0 (the default) fits the views alone. ``snr_db`` records the views' loss without it.
     validation : sequence of View
         Views the fit never optimises: every ``validate_every`` evaluations (iterations)
         and at the end, their SNR (dB, in the form of ``loss``: of their mean relative
