@@ -553,7 +553,8 @@ def fit_images(  # long: the fit loop with its checkpointing and progress bar
         that the views constrain little near the start. The relative loss is a
         relative squared error (1e-4 at 40 dB), so useful weights are small (1e-6 ..
         1e-4); the log loss is in natural-log units (1 dB of SNR is 0.23 of it), so its
-        weights are larger; 0 (the default) fits the views alone. ``snr_db`` records the views' loss without it.
+        weights are larger; 0 (the default) fits the views alone. ``snr_db`` records
+        the views' loss without it.
     validation : sequence of View
         Views the fit never optimises: every ``validate_every`` evaluations (iterations)
         and at the end, their SNR (dB, in the form of ``loss``: of their mean relative
