@@ -86,6 +86,17 @@ def _tracker(track: list, scene, refs, mask, args, path: Path):
     return tracked
 
 
+def _run_fit(scene, views, validation, start_file, args, fit_spp, tracked):
+    """``fit_images`` with the study's settings: (its result, seconds)."""
+    t0 = time.perf_counter()
+    fit = fit_images(scene, views, start_file, iterations=args.iterations, lr=args.lr,
+                     lr_end=args.lr_end, spp=fit_spp, seed=0, optimizer=args.optimizer,
+                     loss=args.loss, prior_weight=args.prior_weight, validation=validation,
+                     validate_every=args.track_every or 10,
+                     callback=tracked if args.track_every else None, progress=True)
+    return fit, time.perf_counter() - t0
+
+
 def study(args) -> list[dict]:
     scene = find_scene("sphere.xml")
     mask = object_mask(scene, res=args.res)
@@ -142,15 +153,8 @@ def study(args) -> list[dict]:
             track: list[tuple[int, float, float]] = []
             tracked = _tracker(track, scene, refs, mask, args,
                                tmp / f"{name}-track-{start}.sbrdf")
-            t0 = time.perf_counter()
-            fit = fit_images(scene, views, files[start], iterations=args.iterations,
-                             lr=args.lr, lr_end=args.lr_end, spp=fit_spp, seed=0,
-                             optimizer=args.optimizer, loss=args.loss,
-                             prior_weight=args.prior_weight, validation=validation,
-                             validate_every=args.track_every or 10,
-                             callback=tracked if args.track_every else None,
-                             progress=True)
-            seconds = time.perf_counter() - t0
+            fit, seconds = _run_fit(scene, views, validation, files[start], args, fit_spp,
+                                    tracked)
             fitted = save_sbrdf(tmp / f"{name}-fit-{start}.sbrdf", fit.model)
             per_view[f"fit_{start}"], per_view[f"fit_{start}_fit_views"] = {}, {}
             row[f"fit_{start}"] = _held_out(scene, refs, mask, args.held_out, fitted,
