@@ -17,6 +17,11 @@ fitting views. Reported on the held-out views, object-only and whole-image SNR a
 the references (same seed and spp, so the sample paths are shared): the unperturbed
 encoding, the perturbed start and the fit; and, without a target, a fit that starts from
 the encoding of the next material in the list. Also the time per iteration and per fit.
+
+``--track-every N`` records the held-out SNR along the fit (every N evaluations: never
+used by the fit, only reported); ``--validation`` views are rendered like the fitting
+views but only pick the returned iterate (early stopping); ``--prior-weight`` is
+``fit_images``'s penalty keeping the values near the (perturbed) start.
 """
 
 from __future__ import annotations
@@ -55,34 +60,61 @@ def _params(spec: str) -> dict:
     return parse_defaults(spec.split(","), f"view {spec!r}:")
 
 
-def _held_out(scene, refs, mask, specs, src, spp, res, seeds=None) -> tuple[float, float]:
+def _held_out(scene, refs, mask, specs, src, spp, res, seeds=None,
+              per_view: dict | None = None) -> tuple[float, float]:
     """Mean (object-only, whole-image) SNR of ``src`` over the views ``specs`` (rendered
-    with ``seeds``, those of their references; 0 by default)."""
+    with ``seeds``, those of their references; 0 by default); each view's pair goes
+    into ``per_view`` when given."""
     seeds = seeds or {}
     forms = [snr_forms(refs[v], render_scene(scene, {"material": str(src)}, spp=spp,
                                              seed=seeds.get(v, 0), res=res,
                                              params=_params(v)), mask)
              for v in specs]
+    if per_view is not None:
+        per_view.update({v: [f.object, f.whole] for v, f in zip(specs, forms, strict=True)})
     return (float(np.mean([f.object for f in forms])),
             float(np.mean([f.whole for f in forms])))
+
+
+def _tracker(track: list, scene, refs, mask, args, path: Path):
+    """A ``fit_images`` callback appending (evaluations, object-only, whole-image) held-out
+    SNR of each iterate it sees to ``track`` (a record only: the fit never sees it)."""
+    def tracked(n: int, model) -> None:
+        f = save_sbrdf(path, model)
+        track.append((n, *_held_out(scene, refs, mask, args.held_out, f, args.spp,
+                                    args.res)))
+    return tracked
+
+
+def _run_fit(scene, views, validation, start_file, args, fit_spp, tracked):
+    """``fit_images`` with the study's settings: (its result, seconds)."""
+    t0 = time.perf_counter()
+    fit = fit_images(scene, views, start_file, iterations=args.iterations, lr=args.lr,
+                     lr_end=args.lr_end, spp=fit_spp, seed=0, optimizer=args.optimizer,
+                     loss=args.loss, prior_weight=args.prior_weight, validation=validation,
+                     validate_every=args.track_every or 10,
+                     callback=tracked if args.track_every else None, progress=True)
+    return fit, time.perf_counter() - t0
 
 
 def study(args) -> list[dict]:
     scene = find_scene("sphere.xml")
     mask = object_mask(scene, res=args.res)
     tmp = Path(tempfile.mkdtemp(prefix="fit-images-study-"))
-    specs = [*args.fit_views, *args.held_out]
-    both = {v for v in args.fit_views
-            if any(_params(v) == _params(h) for h in args.held_out)}
-    if both:
-        raise SystemExit(f"views both fitted and held out: {sorted(both)}")
+    specs = [*args.fit_views, *args.validation, *args.held_out]
+    for a, b in ((args.fit_views, args.held_out), (args.validation, args.held_out),
+                 (args.fit_views, args.validation)):
+        both = {v for v in a if any(_params(v) == _params(h) for h in b)}
+        if both:
+            raise SystemExit(f"views in two roles: {sorted(both)}")
     # the fitting views' render seeds: all 0 (the held-out views' too), or the i-th
     # fitting view's i (its reference rendered with it): more sampled directions
-    seeds = ({v: i for i, v in enumerate(args.fit_views)} if args.view_seeds == "distinct"
-             else {})
-    # the fitting views' spp (their references', the fit's): --fit-spp, or --spp
+    seeds = ({v: i for i, v in enumerate([*args.fit_views, *args.validation])}
+             if args.view_seeds == "distinct" else {})
+    # the fitting (and validation) views' spp (their references', the fit's): --fit-spp,
+    # or --spp
     fit_spp = args.fit_spp or args.spp
-    spps = {v: fit_spp for v in args.fit_views}
+    spps = {v: fit_spp for v in [*args.fit_views, *args.validation]}
     models = {m: encode(load_brdf(DEMO_MATERIALS_DIR / f"{m}.h5")) for m in args.materials}
     rows = []
     for i, name in enumerate(args.materials):
@@ -102,25 +134,39 @@ def study(args) -> list[dict]:
         views = views_for([_params(v) for v in args.fit_views],
                           [refs[v] for v in args.fit_views],
                           [seeds.get(v, 0) for v in args.fit_views])
+        validation = views_for([_params(v) for v in args.validation],
+                               [refs[v] for v in args.validation],
+                               [seeds.get(v, 0) for v in args.validation])
+        # each view's (object-only, whole-image) SNR, per model
+        per_view: dict[str, dict] = {k: {} for k in ("clean", "noisy", "clean_fit_views")}
         row = {"material": name, "clean": _held_out(scene, refs, mask, args.held_out,
-                                                    files["clean"], args.spp, args.res),
+                                                    files["clean"], args.spp, args.res,
+                                                    per_view=per_view["clean"]),
                "noisy": _held_out(scene, refs, mask, args.held_out, files["noisy"],
-                                  args.spp, args.res),
+                                  args.spp, args.res, per_view=per_view["noisy"]),
                # the unperturbed encoding on the fitting views (is a fit over-fitting?)
                "clean_fit_views": _held_out(scene, refs, mask, args.fit_views,
-                                            files["clean"], fit_spp, args.res, seeds)}
+                                            files["clean"], fit_spp, args.res, seeds,
+                                            per_view["clean_fit_views"]),
+               "per_view": per_view}
         for start in args.starts:
-            t0 = time.perf_counter()
-            fit = fit_images(scene, views, files[start], iterations=args.iterations,
-                             lr=args.lr, lr_end=args.lr_end, spp=fit_spp, seed=0,
-                             optimizer=args.optimizer, loss=args.loss,
-                             progress=True)
+            track: list[tuple[int, float, float]] = []
+            tracked = _tracker(track, scene, refs, mask, args,
+                               tmp / f"{name}-track-{start}.sbrdf")
+            fit, seconds = _run_fit(scene, views, validation, files[start], args, fit_spp,
+                                    tracked)
             fitted = save_sbrdf(tmp / f"{name}-fit-{start}.sbrdf", fit.model)
+            per_view[f"fit_{start}"], per_view[f"fit_{start}_fit_views"] = {}, {}
             row[f"fit_{start}"] = _held_out(scene, refs, mask, args.held_out, fitted,
-                                            args.spp, args.res)
+                                            args.spp, args.res,
+                                            per_view=per_view[f"fit_{start}"])
             row[f"fit_{start}_fit_views"] = _held_out(scene, refs, mask, args.fit_views,
-                                                      fitted, fit_spp, args.res, seeds)
-            row[f"seconds_{start}"] = time.perf_counter() - t0
+                                                      fitted, fit_spp, args.res, seeds,
+                                                      per_view[f"fit_{start}_fit_views"])
+            row[f"seconds_{start}"] = seconds  # the fit, with its tracking and validation
+            row[f"held_out_track_{start}"] = track  # (evaluations, object, whole)
+            row[f"validation_snr_{start}"] = fit.validation_snr_db
+            row[f"best_evaluation_{start}"] = fit.best_evaluation
             row[f"seconds_per_iteration_{start}"] = fit.seconds_per_iteration
             row[f"fit_views_snr_{start}"] = fit.snr_db
         rows.append(row)
@@ -175,13 +221,23 @@ def main() -> None:
                    help="spp of the fitting views and their references (default --spp; "
                         "the held-out views always use --spp)")
     p.add_argument("--seed", type=int, default=1, help="seed of the 30 %% noise")
+    p.add_argument("--validation", nargs="*", type=view_spec, default=[],
+                   metavar="K=V[,K=V]",
+                   help="views rendered like the fitting views (their spp and seeds) that "
+                        "only pick the returned iterate (fit_images' validation)")
+    p.add_argument("--prior-weight", type=float, default=0.0,
+                   help="fit_images' prior_weight (penalty on the values' relative change)")
+    p.add_argument("--track-every", type=int, default=0,
+                   help="record the held-out SNR every N evaluations (0: not at all); "
+                        "also the validation cadence")
     args = p.parse_args()
     print(header())
     opt = (f"adam, lr {args.lr} -> {args.lr * args.lr_end:g}" if args.optimizer == "adam"
            else args.optimizer) + f", {args.loss} loss, {args.view_seeds} view seeds"
     print(f"sphere.xml, {args.res}x{args.res}, {args.spp} spp (fitting views "
           f"{args.fit_spp or args.spp}), fitting views "
-          f"{args.fit_views}, held out {args.held_out}, {args.iterations} iterations "
+          f"{args.fit_views}, validation {args.validation}, prior weight "
+          f"{args.prior_weight:g}, held out {args.held_out}, {args.iterations} iterations "
           f"({opt}); SNR in dB, object-only / whole-image, mean over the held-out views")
     print("| material | unperturbed | perturbed (start) | fitted | fitted - unperturbed | "
           "fitted from another material | s / iteration | s / fit |\n"

@@ -412,20 +412,29 @@ def cmd_fit_scene(args: argparse.Namespace) -> int:
 
 def cmd_fit_images(args: argparse.Namespace) -> int:
     scene = find_scene(args.scene)
-    paths = [fit_images_module.parse_view(v)[0] for v in args.view]
+    validation = args.validation_view or []
+    paths = [*(fit_images_module.parse_view(v)[0] for v in args.view),
+             *(fit_images_module.parse_view(v, "--validation-view")[0] for v in validation)]
     _check_outputs([args.output], [args.start, *paths])
     views = load_views(args.view, read_exr)
+    held = load_views(validation, read_exr, option="--validation-view")
     result = fit_images(scene, views, args.start, material=args.material,
                         ensemble=args.ensemble, iterations=args.iterations, lr=args.lr,
                         lr_end=args.lr_end, spp=args.spp, seed=args.seed,
                         checkpoint_dir=args.checkpoint_dir, decoder=args.decoder,
                         variant=args.variant, optimizer=args.optimizer,
-                        loss=args.loss)
+                        loss=args.loss, prior_weight=args.prior_weight, validation=held,
+                        validate_every=args.validate_every)
     save_sbrdf(args.output, result.model)
     snr = result.snr_db
     print(f"wrote {args.output}: {result.iterations} iterations in {result.seconds:.0f} s "
           f"({result.seconds_per_iteration:.2f} s each); the views' mean whole-image SNR "
           f"{snr[0]:.1f} dB at the start, {snr[-1]:.1f} dB at the last iteration")
+    if result.best_evaluation is not None:
+        best = dict(result.validation_snr_db)[result.best_evaluation]
+        print(f"kept the iterate after {result.best_evaluation} evaluations: the "
+              f"validation views' whole-image SNR {result.validation_snr_db[0][1]:.1f} dB "
+              f"at the start, {best:.1f} dB there")
     return 0
 
 
@@ -785,6 +794,22 @@ def _add_fit_images(sub) -> None:
                     default=_default(fit_images, "loss"),
                     help="relative: the views' mean relative squared error; log: its "
                          "mean logarithm (the views' mean SNR in dB)")
+    fi.add_argument("--prior-weight", type=_typed(fip["prior_weight"]),
+                    default=_default(fit_images, "prior_weight"),
+                    help="weight (>= 0) of a penalty W * mean(((value - start) / scale)^2) "
+                         "on the values' change relative to the start (scale: each "
+                         "value's starting magnitude, floored at 1e-3 of its channel's "
+                         "largest); the relative loss is a relative squared error (1e-4 "
+                         "at 40 dB), so useful weights are small, e.g. 1e-6 to 1e-4; with "
+                         "--loss log 1 dB is 0.23 of the loss, so weights are larger; 0: "
+                         "the views alone")
+    fi.add_argument("--validation-view", action="append", metavar="IMAGE.exr[:K=V,...]",
+                    help="a reference never fitted, as --view: every --validate-every "
+                         "evaluations the fit renders these, and writes the iterate they "
+                         "match best (early stopping; repeatable)")
+    fi.add_argument("--validate-every", type=_typed(fip["validate_every"]),
+                    default=_default(fit_images, "validate_every"),
+                    help="evaluations (iterations) between two validations")
     fi.add_argument("--lr", type=_typed(fip["lr"]), default=_default(fit_images, "lr"),
                     help="Adam's first learning rate, a relative step per value")
     fi.add_argument("--lr-end", type=_typed(fip["lr_end"]),

@@ -102,7 +102,9 @@ def test_fit_resumes_from_its_checkpoint(case, monkeypatch):
 
 @pytest.mark.parametrize("bad", ["missing-view", "wrong-size", "variant", "lr-end",
                                  "output-is-start", "corrupt-start", "view-key",
-                                 "view-own-option", "view-no-key", "view-missing-map"])
+                                 "view-own-option", "view-no-key", "view-missing-map",
+                                 "prior-weight", "validate-every", "validation-key",
+                                 "validation-missing"])
 def test_fit_images_bad_input_is_one_line(capsys, case, tmp_path, bad):
     view, start = f"{case['paths'][0]}:envrot=0", case["start"]
     extra: list = []
@@ -125,6 +127,15 @@ def test_fit_images_bad_input_is_one_line(capsys, case, tmp_path, bad):
         view, named = f"{case['paths'][0]}:=4", "--view"
     elif bad == "view-missing-map":  # a view's own map that is not on this machine
         view, named = f"{case['paths'][0]}:envmap=no-such-map.exr", "no-such-map.exr"
+    elif bad == "prior-weight":
+        extra, named = ["--prior-weight", "-1"], "--prior-weight"
+    elif bad == "validate-every":
+        extra, named = ["--validate-every", "0"], "--validate-every"
+    elif bad == "validation-key":  # a validation view is checked as a view is
+        extra = ["--validation-view", f"{case['paths'][1]}:envrot=180,bogus=1"]
+        named = "--validation-view"
+    elif bad == "validation-missing":
+        extra, named = ["--validation-view", str(tmp_path / "gone.exr")], "gone.exr"
     elif bad == "corrupt-start":
         start = tmp_path / "broken.sbrdf"
         start.write_bytes(case["start"].read_bytes()[:100])
@@ -298,3 +309,111 @@ def test_log_loss_is_the_views_mean_snr(case):
     assert rel.snr_db[0] == pytest.approx(-10 * np.log10(mean_error), abs=1e-3)
     with pytest.raises(UsageError, match="loss"):
         fit_images(case["scene"], views, case["start"], loss="l1", **kw)
+
+
+def _start_values(case) -> list[np.ndarray]:
+    """The start file's values, in the order a fit's model holds them."""
+    return [np.asarray(v, np.float32) for v in load_sbrdf(case["start"]).values]
+
+
+def test_prior_weight_keeps_the_values_near_the_start(case):
+    """``prior_weight`` adds ``w * mean((u - 1)^2)`` to the loss, ``u`` each value over
+    its starting scale: the L-BFGS fit returns its best objective, so the penalty of its
+    values is at most the start's loss (which costs no penalty), a bound the fit without
+    it breaks; Adam follows the penalty's gradient too; a negative weight is refused."""
+    from sparse_brdf.evaluation.fit_images import SCALE_FLOOR
+
+    views = views_for([{"envrot": r} for r in ROTS], [case["refs"][r] for r in ROTS])
+    kw = dict(iterations=6, spp=SPP, seed=0, progress=False, optimizer="lbfgs")
+    start = _start_values(case)
+    scales = [np.maximum(np.abs(s), SCALE_FLOOR * np.abs(s).max()) for s in start]
+
+    def penalty(fit) -> float:
+        """mean((u - 1)^2) over all values."""
+        return float(np.mean(np.concatenate([np.square((v - s) / c) for v, s, c in
+                                             zip(fit.model.values, start, scales,
+                                                 strict=True)])))
+
+    weight = 1e3
+    free = fit_images(case["scene"], views, case["start"], **kw)
+    held = fit_images(case["scene"], views, case["start"], prior_weight=weight, **kw)
+    start_loss = 10 ** (-free.snr_db[0] / 10)  # the views' mean relative error
+    assert held.snr_db[0] == free.snr_db[0]  # the record is the views' loss alone
+    assert penalty(free) * weight > start_loss  # the free fit moves further than that
+    assert 0 < penalty(held) * weight <= start_loss * (1 + 1e-4)
+    # Adam takes the penalty's gradient too
+    adam = dict(iterations=4, lr=0.05, spp=SPP, seed=0, progress=False)
+    pulled = fit_images(case["scene"], views, case["start"], prior_weight=1e4, **adam)
+    loose = fit_images(case["scene"], views, case["start"], **adam)
+    assert penalty(pulled) < penalty(loose)
+    with pytest.raises(UsageError, match="prior_weight"):
+        fit_images(case["scene"], views, case["start"], prior_weight=-1.0, **kw)
+
+
+def test_validation_returns_the_iterate_it_rates_best(case, tmp_path):
+    """Validation views are never fitted: the fit measures them at the start and every
+    ``validate_every`` evaluations, reports each SNR, and returns the iterate they rate
+    best. With the start's own render as the validation reference, every move away from
+    the start looks worse, so the start comes back unchanged; with the material's
+    reference, the returned iterate is the one the callback saw at the best record; a
+    rerun resumes the record from the checkpoint."""
+    views = views_for([{"envrot": r} for r in ROTS], [case["refs"][r] for r in ROTS])
+    kw = dict(iterations=6, spp=SPP, seed=0, progress=False, optimizer="lbfgs",
+              validate_every=2)
+    own = render_scene(case["scene"], {"material": str(case["start"])}, spp=SPP, seed=0,
+                       res=RES, params={"envrot": 90})
+    fit = fit_images(case["scene"], views, case["start"],
+                     validation=views_for([{"envrot": 90}], [own]), **kw)
+    assert fit.best_evaluation == 0 and fit.validation_snr_db[0][0] == 0
+    assert fit.validation_snr_db[0][1] > 100  # the very same render
+    assert len(fit.validation_snr_db) >= 3
+    for a, b in zip(fit.model.values, _start_values(case), strict=True):
+        np.testing.assert_array_equal(a, b)
+    # the material's own reference at a view the fit does not see
+    ref90 = render_scene(case["scene"], {"material": str(MATERIAL)}, spp=SPP, seed=0,
+                         res=RES, params={"envrot": 90})
+    seen = {}
+    ckpt = tmp_path / "ckpt"
+    fit = fit_images(case["scene"], views, case["start"], checkpoint_dir=ckpt,
+                     validation=views_for([{"envrot": 90}], [ref90]),
+                     callback=lambda n, model: seen.setdefault(n, model), **kw)
+    record = dict(fit.validation_snr_db)
+    assert sorted(seen) == sorted(record) and set(record) >= {0, 2, 4}
+    assert record[fit.best_evaluation] == max(record.values())
+    assert record[0] == pytest.approx(render_snr(ref90, render_scene(
+        case["scene"], {"material": str(case["start"])}, spp=SPP, seed=0, res=RES,
+        params={"envrot": 90})), abs=1e-3)
+    assert max(record.values()) > record[0] + 1.0
+    for a, b in zip(fit.model.values, seen[fit.best_evaluation].values, strict=True):
+        np.testing.assert_array_equal(a, b)
+    again = fit_images(case["scene"], views, case["start"], checkpoint_dir=ckpt,
+                       validation=views_for([{"envrot": 90}], [ref90]), **kw)
+    # with the log loss, the validation's SNR is its views' mean SNR (as the loss's)
+    refs = views_for([{"envrot": 90}, {"envrot": 0}], [ref90, case["refs"][0]])
+    log = fit_images(case["scene"], views[1:], case["start"], validation=refs, loss="log",
+                     **{**kw, "iterations": 1})
+    per_view = [render_snr(v.image, render_scene(
+        case["scene"], {"material": str(case["start"])}, spp=SPP, seed=0, res=RES,
+        params=v.params)) for v in refs]
+    assert log.validation_snr_db[0][1] == pytest.approx(np.mean(per_view), abs=1e-3)
+    assert again.resumed_from == 6 and again.best_evaluation == fit.best_evaluation
+    assert again.validation_snr_db == fit.validation_snr_db
+    for a, b in zip(fit.model.values, again.model.values, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_fit_images_command_validation_view_and_prior(capsys, case, tmp_path):
+    """``--validation-view`` and ``--prior-weight`` reach the fit: it reports the
+    iterate it kept, and writes it."""
+    ref90 = write_exr(tmp_path / "ref90.exr", render_scene(
+        case["scene"], {"material": str(MATERIAL)}, spp=SPP, seed=0, res=RES,
+        params={"envrot": 90}))
+    out = tmp_path / "fitted.sbrdf"
+    code, stdout, err = run(capsys, "fit-images", "sphere.xml", "--view",
+                            f"{case['paths'][0]}:envrot=0", "--start", case["start"],
+                            "-o", out, "--iterations", 4, "--optimizer", "lbfgs",
+                            "--spp", SPP, "--validation-view", f"{ref90}:envrot=90",
+                            "--validate-every", 2, "--prior-weight", 1e-6)
+    assert code == 0, err
+    assert re.search(r"kept the iterate after \d+ evaluations", stdout), stdout
+    assert out.is_file()

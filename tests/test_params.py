@@ -169,7 +169,8 @@ MIRRORS = {
     ("blend", "coeffs"): (interpolate, "n_coeffs"),
     **{("fit-images", o): (fit_images, o) for o in ("material", "iterations", "lr", "lr_end",
                                                     "spp", "seed", "decoder", "variant",
-                                                    "optimizer", "loss")},
+                                                    "optimizer", "loss", "prior_weight",
+                                                    "validate_every")},
 }
 #: Options with a default of the command line's own (no library parameter stands behind
 #: them): the corpora and split the trainer reads, and the plugins' render choices.

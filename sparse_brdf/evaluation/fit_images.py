@@ -15,9 +15,12 @@ rendering SNR.
 
 Each value is optimised as ``scale * u`` with ``scale`` its starting magnitude (floored at
 1e-3 of its channel's largest): Adam's steps are then relative, the same for the large
-low-order coefficients and the small high-order ones. The primal renders use the
-references' seed (the same sample paths when the references were rendered by Mitsuba
-with that seed); each gradient pass uses a fresh seed, as Mitsuba requires.
+low-order coefficients and the small high-order ones. Optionally a penalty on ``u``'s
+change from the start (``prior_weight``) joins the loss, and validation views that are
+never optimised pick the iterate the fit returns (``validation``: early stopping).
+The primal renders use the references' seed (the same sample paths when the references
+were rendered by Mitsuba with that seed); each gradient pass uses a fresh seed, as
+Mitsuba requires.
 
 Mitsuba and Dr.Jit are imported inside the functions, so importing this module stays
 fast; the scenes are loaded through :func:`sparse_brdf.evaluation.render.load_scene`.
@@ -30,7 +33,7 @@ import json
 import os
 import tempfile
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -52,7 +55,8 @@ VALUE_KEYS = ("values_0", "values_1", "values_2")
 DEFAULT_ITERATIONS, DEFAULT_LR, DEFAULT_LR_END, DEFAULT_SPP = 150, 0.02, 0.1, 4
 #: The fit's numeric options and their ranges (the CLI takes its bounds from here).
 PARAMETERS = {"iterations": Interval(int, 1, 1 << 20), "lr": Interval(float, 0, 10, "right"),
-              "lr_end": Interval(float, 0, 1, "right"), "spp": Interval(int, 1, 1 << 16)}
+              "lr_end": Interval(float, 0, 1, "right"), "spp": Interval(int, 1, 1 << 16),
+              "prior_weight": Interval(float, 0, 1e6), "validate_every": Interval(int, 1, 1 << 20)}
 #: The optimisers of :func:`fit_images`.
 OPTIMIZERS = ("adam", "lbfgs")
 #: The losses of :func:`fit_images` (see its ``loss`` parameter).
@@ -86,21 +90,30 @@ class FitResult:
     seconds_per_iteration: float
     iterations: int
     resumed_from: int = 0
+    #: With validation views: (evaluations done, the validation views' SNR in dB, in the
+    #: form of the loss: of their mean relative squared error, or with ``loss="log"``
+    #: their mean SNR) of each validated iterate, in order.
+    validation_snr_db: list[tuple[int, float]] = field(default_factory=list)
+    #: With validation views: the evaluation count of the returned iterate (the one the
+    #: validation views liked best); None without them.
+    best_evaluation: int | None = None
 
     def summary(self) -> dict:
         return {"iterations": self.iterations, "seconds": round(self.seconds, 2),
                 "seconds_per_iteration": round(self.seconds_per_iteration, 3),
                 "start_snr_db": self.snr_db[0] if self.snr_db else None,
                 "final_snr_db": self.snr_db[-1] if self.snr_db else None,
-                "resumed_from": self.resumed_from}
+                "resumed_from": self.resumed_from,
+                "best_evaluation": self.best_evaluation}
 
 
-def parse_view(text: str) -> tuple[str, dict]:
-    """``IMAGE.exr[:KEY=VALUE[,KEY=VALUE...]]`` -> (image path, scene defaults)."""
+def parse_view(text: str, option: str = "--view") -> tuple[str, dict]:
+    """``IMAGE.exr[:KEY=VALUE[,KEY=VALUE...]]`` -> (image path, scene defaults); an error
+    names ``option``."""
     path, sep, tail = str(text).rpartition(":")
     if not sep or "=" not in tail:
         return str(text), {}
-    params = parse_defaults(tail.split(","), f"--view {text!r}:")
+    params = parse_defaults(tail.split(","), f"{option} {text!r}:")
     return path, params
 
 
@@ -183,9 +196,10 @@ def _load_views(scene, views, material, start_path, spp, seed, variant, options)
     return out
 
 
-def _write_checkpoint(path: Path, it: int, opt, snr: list[float], fp: str) -> None:
+def _write_checkpoint(path: Path, it: int, opt, snr: list[float], fp: str,
+                      extra: Mapping[str, np.ndarray] | None = None) -> None:
     arrays = {"iteration": np.array(it), "snr_db": np.array(snr, np.float64),
-              "fingerprint": np.array(fp)}
+              "fingerprint": np.array(fp), **(extra or {})}
     for c, key in enumerate(VALUE_KEYS):
         value, _, _, extra = opt.state[key]
         arrays[f"u{c}"] = np.array(value, np.float32)
@@ -197,8 +211,8 @@ def _write_checkpoint(path: Path, it: int, opt, snr: list[float], fp: str) -> No
 
 
 def _read_checkpoint(path: Path, opt, fp: str):
-    """(iteration, snr history) restored into ``opt``; a checkpoint of another fit is
-    refused in one line."""
+    """(iteration, snr history, every array of the file) restored into ``opt``; a
+    checkpoint of another fit is refused in one line."""
     import mitsuba as mi  # lazy: Mitsuba is slow to import (see the module doc)
 
     try:
@@ -215,7 +229,7 @@ def _read_checkpoint(path: Path, opt, fp: str):
         extra = (mi.UInt32(data[f"t{c}"]), mi.Float(data[f"m{c}"]), mi.Float(data[f"v{c}"]),
                  *extra[3:])
         opt.state[key] = (value, promoted, lr, extra)
-    return int(data["iteration"]), [float(x) for x in data["snr_db"]]
+    return int(data["iteration"]), [float(x) for x in data["snr_db"]], data
 
 
 def _evaluate(views: list[_Scene], values: Sequence[np.ndarray], seed: int, grad_seed: int,
@@ -262,6 +276,85 @@ def _evaluate(views: list[_Scene], values: Sequence[np.ndarray], seed: int, grad
     return float(np.mean(losses)), grads
 
 
+def _primal_loss(views: list[_Scene], values: Sequence[np.ndarray], spp: int,
+                 log_loss: bool = False) -> float:
+    """The views' mean relative squared error ``sum (img - ref)^2 / sum ref^2`` at
+    ``values``, or (``log_loss``) the mean of its natural logarithm, as in
+    :func:`_evaluate` (primal renders only, each at its view's seed)."""
+    import drjit as dr  # lazy: Dr.Jit is slow to import (see the module doc)
+    import mitsuba as mi
+
+    losses = []
+    for v in views:
+        for key, host in zip(v.keys, values, strict=True):
+            v.params[key] = mi.Float(np.asarray(host, np.float32))
+        v.params.update()
+        with dr.suspend_grad():
+            img = mi.render(v.scene, spp=spp, seed=v.seed)
+            err = dr.sum(dr.square(img - v.reference), axis=None)
+        losses.append(float(np.asarray(err).ravel()[0]) / v.norm)
+    if log_loss:
+        return float(np.mean(np.log(np.maximum(losses, 1e-30))))
+    return float(np.mean(losses))
+
+
+class _Monitor:
+    """Every ``every`` evaluations: ``callback(evaluations, values)`` (three float32
+    arrays) and the SNR (dB, in the form of the fit's loss, :func:`_snr_of`: of
+    the views' mean relative squared error) of the validation ``views`` at the iterate;
+    keeps the iterate they like best (early stopping on views the fit never sees)."""
+
+    def __init__(self, views: list[_Scene], callback, every: int, spp: int,
+                 log_loss: bool = False) -> None:
+        self.views, self.callback, self.every, self.spp = views, callback, every, spp
+        self.log_loss = log_loss
+        self.record: list[tuple[int, float]] = []
+        self.best: tuple[float, int, list[np.ndarray]] | None = None
+        self.last: int | None = None
+
+    def __call__(self, n: int, values: Sequence[np.ndarray], force: bool = False) -> None:
+        if (n % self.every and not force) or n == self.last:
+            return
+        self.last = n
+        values = [np.array(v, np.float32) for v in values]
+        if self.callback is not None:
+            self.callback(n, [v.copy() for v in values])
+        if self.views:
+            snr = _snr_of(_primal_loss(self.views, values, self.spp, self.log_loss),
+                          self.log_loss)
+            self.record.append((n, snr))
+            if self.best is None or snr > self.best[0]:
+                self.best = (snr, n, values)
+
+    def state(self) -> dict[str, np.ndarray]:
+        """Its record and best iterate as checkpoint arrays (none without views)."""
+        if not self.views or self.best is None:
+            return {}
+        return {"val_n": np.array([n for n, _ in self.record], np.int64),
+                "val_snr": np.array([x for _, x in self.record], np.float64),
+                "val_best": np.array(self.best[:2], np.float64),
+                **{f"val_best{c}": v for c, v in enumerate(self.best[2])}}
+
+    def restore(self, data: Mapping[str, np.ndarray], done: int) -> None:
+        """Its record and best iterate from a checkpoint's arrays (:meth:`state`)."""
+        self.last = done
+        if not self.views or "val_best" not in data:
+            return
+        self.record = [(int(n), float(x)) for n, x in zip(data["val_n"], data["val_snr"],
+                                                          strict=True)]
+        snr, n = (float(x) for x in data["val_best"])
+        self.best = (snr, int(n), [np.array(data[f"val_best{c}"], np.float32)
+                                   for c in range(len(VALUE_KEYS))])
+
+
+def _prior(u: np.ndarray, u0: np.ndarray | None, weight: float) -> tuple[float, np.ndarray]:
+    """The penalty ``weight * mean((u - u0)^2)`` on the relative values ``u`` (``u0`` at
+    the start: 1, or less for a value below its channel's scale floor) and its
+    gradient."""
+    d = np.asarray(u, np.float64) - (1.0 if u0 is None else u0)
+    return float(weight * np.mean(np.square(d))), (2.0 * weight / max(d.size, 1)) * d
+
+
 def _snr_of(objective: float, log_loss: bool = False) -> float:
     """The SNR (dB) an objective of :func:`_evaluate` stands for: of the views' mean
     relative error, or (``log_loss``) the mean of the views' SNRs."""
@@ -271,30 +364,39 @@ def _snr_of(objective: float, log_loss: bool = False) -> float:
 
 
 def _step(views: list[_Scene], opt, scales, seed: int, grad_seed: int, spp: int,
-          log_loss: bool = False) -> float:
+          log_loss: bool = False, prior_weight: float = 0.0,
+          u0: np.ndarray | None = None) -> float:
     """One Adam step over all views (:func:`_evaluate`, then the chain rule through
-    ``scale * u``); returns their mean whole-image SNR (dB) before it."""
+    ``scale * u``, plus the gradient of :func:`_prior`); returns their mean whole-image
+    SNR (dB) before it (of the views' loss, without the prior)."""
     import drjit as dr  # lazy: Dr.Jit is slow to import (see the module doc)
+    import mitsuba as mi
 
     # the values, evaluated once per step for all views
     values = [np.array(dr.detach(opt[name]) * s, np.float32)
               for name, s in zip(VALUE_KEYS, scales, strict=True)]
     loss, grads = _evaluate(views, values, seed, grad_seed, spp, log_loss)
-    for name, g, s in zip(VALUE_KEYS, grads, scales, strict=True):
-        dr.set_grad(opt[name], g * s)
+    us = [np.array(dr.detach(opt[name]), np.float64) for name in VALUE_KEYS]
+    _, pg = _prior(np.concatenate(us), u0, prior_weight)
+    pgs = np.split(pg, np.cumsum([len(u) for u in us])[:-1])
+    for name, g, s, p in zip(VALUE_KEYS, grads, scales, pgs, strict=True):
+        dr.set_grad(opt[name], g * s + mi.Float(p.astype(np.float32)))
     opt.step()
     return _snr_of(loss, log_loss)
 
 
 def _lbfgs(views: list[_Scene], u0: np.ndarray, scales: np.ndarray, sizes: list[int],
            evaluations: int, seed: int, spp: int, on_eval,
-           log_loss: bool = False) -> np.ndarray:
+           log_loss: bool = False, prior_weight: float = 0.0,
+           centre: np.ndarray | None = None) -> np.ndarray:
     """Minimise the loss over ``u`` (values = ``scales * u``, the three channels
     concatenated) with SciPy's L-BFGS-B, at most ``evaluations`` loss-and-gradient
     evaluations (each renders every view once, forward and backward: an Adam iteration's
     cost). The shared-path loss is a smooth deterministic function of the values, which
-    is what a quasi-Newton method needs; ``on_eval(u, loss)`` sees every evaluation.
-    Returns the best ``u`` evaluated."""
+    is what a quasi-Newton method needs; the objective adds :func:`_prior` (about
+    ``centre``, the start's ``u``) to the loss.
+    ``on_eval(u, loss, objective)`` sees every evaluation. Returns the ``u`` of the best
+    objective evaluated."""
     from scipy.optimize import minimize  # lazy: SciPy is slow to import
 
     cuts = np.cumsum(sizes)[:-1]
@@ -306,11 +408,13 @@ def _lbfgs(views: list[_Scene], u0: np.ndarray, scales: np.ndarray, sizes: list[
         values = np.split((u * scales).astype(np.float32), cuts)
         loss, grads = _evaluate(views, values, seed, seed, spp, log_loss)
         g = np.concatenate([np.asarray(x, np.float64) for x in grads]) * scales
+        penalty, pg = _prior(u, centre, prior_weight)
+        objective, g = loss + penalty, g + pg
         best["n"] += 1
-        if loss < best["loss"]:
-            best["loss"], best["u"] = loss, u.copy()
-        on_eval(u, loss)
-        return loss, g
+        if objective < best["loss"]:
+            best["loss"], best["u"] = objective, u.copy()
+        on_eval(u, loss, objective)
+        return objective, g
 
     while best["n"] < evaluations:  # restarted from the best point if a line search fails
         before = (best["n"], best["loss"])
@@ -326,10 +430,11 @@ def _lbfgs(views: list[_Scene], u0: np.ndarray, scales: np.ndarray, sizes: list[
 
 
 def _run_lbfgs(scenes, opt, scales, done, iterations, snr, seed, spp, bar, ckpt, every,
-               fp, log_loss) -> None:
+               fp, log_loss, prior_weight, u0, monitor) -> None:
     """The L-BFGS fit from ``opt``'s values (``u``), writing the best ``u`` back into
     ``opt`` and, every ``every`` evaluations, into the checkpoint (Adam's moments are
-    written as zeros: an L-BFGS checkpoint only ever resumes an L-BFGS fit)."""
+    written as zeros: an L-BFGS checkpoint only ever resumes an L-BFGS fit); ``monitor``
+    sees the best ``u`` so far at its own cadence."""
     import drjit as dr  # lazy: Dr.Jit is slow to import (see the module doc)
     import mitsuba as mi
 
@@ -343,22 +448,24 @@ def _run_lbfgs(scenes, opt, scales, done, iterations, snr, seed, spp, bar, ckpt,
         for k, part in zip(VALUE_KEYS, np.split(u, cuts), strict=True):
             opt[k] = mi.Float(part.astype(np.float32))
 
-    def on_eval(u, loss):
+    def on_eval(u, loss, objective):
         snr.append(_snr_of(loss, log_loss))
         state["n"] += 1
-        if loss < state["best"]:
-            state["best"], state["u"] = loss, u.copy()
+        if objective < state["best"]:
+            state["best"], state["u"] = objective, u.copy()
+        monitor(state["n"], np.split(state["u"] * sc, cuts))
         bar.set_postfix(snr_db=f"{snr[-1]:.2f}")
         bar.update(1)
         if ckpt is not None and (state["n"] % every == 0 or state["n"] == iterations):
             put(state["u"])
-            _write_checkpoint(ckpt, state["n"], opt, snr, fp)
+            _write_checkpoint(ckpt, state["n"], opt, snr, fp, monitor.state())
 
     u = _lbfgs(scenes, state["u"], sc, sizes, iterations - done, seed, spp, on_eval,
-               log_loss)
+               log_loss, prior_weight, u0)
+    monitor(state["n"], np.split(u * sc, cuts), force=True)  # the returned iterate
     put(u)
     if ckpt is not None and state["n"] > done:  # finished (or converged): a rerun is done
-        _write_checkpoint(ckpt, iterations, opt, snr, fp)
+        _write_checkpoint(ckpt, iterations, opt, snr, fp, monitor.state())
 
 
 class _BudgetSpent(Exception):
@@ -384,6 +491,10 @@ def fit_images(  # long: the fit loop with its checkpointing and progress bar
     shared_paths: bool = True,
     optimizer: str = "adam",
     loss: str = "relative",
+    prior_weight: float = 0.0,
+    validation: Sequence[View] = (),
+    validate_every: int = 10,
+    callback: Callable[[int, SparseBRDF], None] | None = None,
     progress: bool = True,
 ) -> FitResult:
     """Optimise the coefficient values of ``start`` so that renders of ``scene`` match
@@ -434,6 +545,29 @@ def fit_images(  # long: the fit loop with its checkpointing and progress bar
         (the default); ``"log"``: the mean of its logarithm, i.e. the views' mean SNR in
         dB, where a view already matched well still weighs as much as a poorly matched
         one. ``snr_db`` records the SNR of the loss used.
+    prior_weight : float
+        Weight (>= 0, dimensionless, like the loss) of a penalty
+        ``prior_weight * mean(((value - start) / scale)^2)`` added to the loss, over all
+        values, ``scale`` being each value's starting magnitude floored at 1e-3 of its
+        channel's largest (the optimised ``u = value / scale``): it keeps the values
+        that the views constrain little near the start. The relative loss is a
+        relative squared error (1e-4 at 40 dB), so useful weights are small (1e-6 ..
+        1e-4); the log loss is in natural-log units (1 dB of SNR is 0.23 of it), so its
+        weights are larger; 0 (the default) fits the views alone. ``snr_db`` records
+        the views' loss without it.
+    validation : sequence of View
+        Views the fit never optimises: every ``validate_every`` evaluations (iterations)
+        and at the end, their SNR (dB, in the form of ``loss``: of their mean relative
+        squared error, or their mean SNR with ``"log"``; each view at its own seed) is
+        measured at the current iterate (L-BFGS: the best so far),
+        and the fit returns the iterate they rate best (early stopping). Empty (the
+        default): the fit's own last (Adam) or best (L-BFGS) iterate.
+    validate_every : int
+        The cadence, in evaluations (iterations), of the validation and of ``callback``.
+    callback : callable or None
+        ``callback(evaluations, model)`` at the same iterates as the validation: the
+        number of evaluations done and the model at that iterate (the start's support
+        with its values), e.g. to track the fit on views of one's own.
     progress : bool
         Show a tqdm progress bar with the current SNR.
 
@@ -445,7 +579,8 @@ def fit_images(  # long: the fit loop with its checkpointing and progress bar
     if not views:
         raise UsageError("fit-images: give at least one reference view")
     for name, value in (("iterations", iterations), ("lr", lr), ("lr_end", lr_end),
-                        ("spp", spp)):
+                        ("spp", spp), ("prior_weight", prior_weight),
+                        ("validate_every", validate_every)):
         check(name, value, PARAMETERS[name])
     if optimizer not in OPTIMIZERS:
         raise UsageError(f"fit-images: optimizer {optimizer!r}: use one of "
@@ -478,11 +613,19 @@ def fit_images(  # long: the fit loop with its checkpointing and progress bar
         options = {"decoder": decoder, **({"ensemble": ens_path} if ens_path else {})}
         scenes = _load_views(scene, views, material, start_path, spp, seed, variant,
                              options)
+        monitor = _Monitor(_load_views(scene, validation, material, start_path, spp, seed,
+                                       variant, options),
+                           None if callback is None else
+                           (lambda n, vals: callback(n, replace(model, values=vals))),
+                           validate_every, spp, loss == "log")
         settings = {"lr": lr, "lr_end": lr_end, "spp": spp, "seed": seed, "material": material,
                     "decoder": decoder, "variant": variant, "shared_paths": shared_paths,
                     **({"optimizer": optimizer} if optimizer != "adam" else {}),
-                    **({"loss": loss} if loss != "relative" else {})}
-        fp = _fingerprint(scene, views, model, settings)
+                    **({"loss": loss} if loss != "relative" else {}),
+                    **({"prior_weight": prior_weight} if prior_weight else {}),
+                    **({"validation": len(validation), "validate_every": validate_every}
+                       if validation else {})}
+        fp = _fingerprint(scene, [*views, *validation], model, settings)
         scales = []
         opt = mi.ad.Adam(lr=lr)
         for c, key in enumerate(VALUE_KEYS):
@@ -491,19 +634,30 @@ def fit_images(  # long: the fit loop with its checkpointing and progress bar
             s = np.maximum(np.abs(v), SCALE_FLOOR * max(top, 1e-30)).astype(np.float32)
             scales.append(mi.Float(s))
             opt[key] = mi.Float((v / s).astype(np.float32))
+        # the start's relative values (1, or less below the scale floor): the prior's centre
+        u0 = np.concatenate([np.array(dr.detach(opt[k]), np.float64) for k in VALUE_KEYS])
         ckpt = Path(checkpoint_dir) / "fit-images.npz" if checkpoint_dir else None
         done, snr = 0, []
         if ckpt is not None and ckpt.is_file():
-            done, snr = _read_checkpoint(ckpt, opt, fp)
+            done, snr, data = _read_checkpoint(ckpt, opt, fp)
+            monitor.restore(data, done)
         elif ckpt is not None:
             ckpt.parent.mkdir(parents=True, exist_ok=True)
+
+        def current():
+            return [np.array(dr.detach(opt[k] * s), np.float32)
+                    for k, s in zip(VALUE_KEYS, scales, strict=True)]
+
+        if done == 0:
+            monitor(0, current())  # the start
         t0, start_len = time.perf_counter(), len(snr)
         bar = tqdm(total=iterations, initial=min(done, iterations), disable=not progress,
                    desc="fit-images", unit="it")
         if optimizer == "lbfgs":
             try:
                 _run_lbfgs(scenes, opt, scales, done, iterations, snr, seed, spp, bar,
-                           ckpt, checkpoint_every, fp, loss == "log")
+                           ckpt, checkpoint_every, fp, loss == "log", prior_weight, u0,
+                           monitor)
             except RuntimeError as exc:
                 raise RenderError(f"{scene}: rendering failed during the fit: "
                                   f"{exc}") from exc
@@ -514,7 +668,9 @@ def fit_images(  # long: the fit loop with its checkpointing and progress bar
                 opt.set_learning_rate(lr * lr_end ** (it / max(iterations - 1, 1)))
                 try:
                     gseed = seed if shared_paths else seed + 1 + it * len(scenes)
-                    snr.append(_step(scenes, opt, scales, seed, gseed, spp, loss == "log"))
+                    snr.append(_step(scenes, opt, scales, seed, gseed, spp, loss == "log",
+                                     prior_weight, u0))
+                    monitor(it + 1, current(), force=it + 1 == iterations)
                 except RuntimeError as exc:
                     raise RenderError(f"{scene}: rendering failed during the fit: "
                                       f"{exc}") from exc
@@ -522,25 +678,28 @@ def fit_images(  # long: the fit loop with its checkpointing and progress bar
                 bar.update(1)
                 if ckpt is not None and ((it + 1) % checkpoint_every == 0
                                          or it + 1 == iterations):
-                    _write_checkpoint(ckpt, it + 1, opt, snr, fp)
+                    _write_checkpoint(ckpt, it + 1, opt, snr, fp, monitor.state())
         finally:
             bar.close()
         seconds = time.perf_counter() - t0
-        values = [np.array(dr.detach(opt[k] * s), np.float32)
-                  for k, s in zip(VALUE_KEYS, scales, strict=True)]
+        values = current()
+        if monitor.best is not None:  # early stopping: the validation views' best iterate
+            values = monitor.best[2]
     ran = len(snr) - start_len  # L-BFGS may stop before its budget, converged
     fitted = replace(model, values=values, name=model.name)
     return FitResult(fitted, snr, seconds, seconds / max(ran, 1), max(len(snr), iterations
-                     if optimizer == "adam" else 0), done)
+                     if optimizer == "adam" else 0), done, list(monitor.record),
+                     monitor.best[1] if monitor.best is not None else None)
 
 
-def load_views(items: Sequence[str], read) -> list[View]:
+def load_views(items: Sequence[str], read, option: str = "--view") -> list[View]:
     """:class:`View` objects from ``IMAGE.exr[:KEY=VALUE,...]`` strings, reading each
-    image with ``read`` (e.g. :func:`sparse_brdf.evaluation.render.read_exr`)."""
+    image with ``read`` (e.g. :func:`sparse_brdf.evaluation.render.read_exr`); errors
+    name ``option`` (the command-line option that gave them)."""
     out = []
     for text in items:
-        path, params = parse_view(text)
-        out.append(View(np.asarray(read(path), np.float32), params, name=f"--view {text}"))
+        path, params = parse_view(text, option)
+        out.append(View(np.asarray(read(path), np.float32), params, name=f"{option} {text}"))
     return out
 
 
