@@ -11,8 +11,8 @@ How (``docs/file-format.md``, "Byte budgets"): one encoding
 least-squares fit use a coefficient count estimated from the budget (``first_count``).
 Between the fill's fits, the file of the current fit is measured and the next round is
 coded at the count that would fill the budget, aimed ``OVERSHOOT`` above it; after the
-last fit, the largest |s| over the channels that fit are kept (a binary search on the
-exact serialised size, :func:`fit_bytes`) and their values fitted again. So the
+last fit, the largest |s| over the channels that fit are kept (a search on the exact
+serialised size, :func:`fit_bytes`) and their values fitted again. So the
 support, its values and the transform picked are chosen for the count that fits. Without
 fill rounds to steer (``fill="missing"``, ``fill_iters=0``, a BRDF without invalid bins)
 the encoder runs again instead: unless the first trim dropped at most ``MAX_TRIM`` of

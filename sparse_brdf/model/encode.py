@@ -630,7 +630,7 @@ def _code_many(jobs: list[tuple[np.ndarray, SparseBRDF, np.ndarray | None]], ens
     coefficients are added until the relative residual (per channel, or of the total for a
     joint budget) is reached. The 3 x len(jobs) projections run side by side on the
     thread pool. ``counts``: per job, its own ``o.n``."""
-    opts = [o if counts is None else replace(o, n=int(n)) for n in (counts or jobs)]
+    opts = [o] * len(jobs) if counts is None else [replace(o, n=int(n)) for n in counts]
 
     def one(task):
         j, c = task
