@@ -22,6 +22,9 @@ the encoding of the next material in the list. Also the time per iteration and p
 used by the fit, only reported); ``--validation`` views are rendered like the fitting
 views but only pick the returned iterate (early stopping); ``--prior-weight`` is
 ``fit_images``'s penalty keeping the values near the (perturbed) start.
+``--held-out-spp 8 256`` rates the held-out views at 8 spp (the table's) and also at 256:
+at a few spp a held-out SNR is set by a handful of samples per pixel (docs/fit-images.md,
+"How many samples a held-out view needs").
 """
 
 from __future__ import annotations
@@ -81,8 +84,8 @@ def _tracker(track: list, scene, refs, mask, args, path: Path):
     SNR of each iterate it sees to ``track`` (a record only: the fit never sees it)."""
     def tracked(n: int, model) -> None:
         f = save_sbrdf(path, model)
-        track.append((n, *_held_out(scene, refs, mask, args.held_out, f, args.spp,
-                                    args.res)))
+        track.append((n, *_held_out(scene, refs, mask, args.held_out, f,
+                                    args.held_out_spp[0], args.res)))
     return tracked
 
 
@@ -101,7 +104,6 @@ def study(args) -> list[dict]:
     scene = find_scene("sphere.xml")
     mask = object_mask(scene, res=args.res)
     tmp = Path(tempfile.mkdtemp(prefix="fit-images-study-"))
-    specs = [*args.fit_views, *args.validation, *args.held_out]
     for a, b in ((args.fit_views, args.held_out), (args.validation, args.held_out),
                  (args.fit_views, args.validation)):
         both = {v for v in a if any(_params(v) == _params(h) for h in b)}
@@ -122,7 +124,12 @@ def study(args) -> list[dict]:
                                                                  f"{name}.h5"))
         refs = {v: render_scene(scene, {"material": str(brdf_path)}, spp=spps.get(v, args.spp),
                                 seed=seeds.get(v, 0), res=args.res, params=_params(v))
-                for v in specs}
+                for v in [*args.fit_views, *args.validation]}
+        # the held-out references at each --held-out-spp (the first is the headline's)
+        held = {n: {v: render_scene(scene, {"material": str(brdf_path)}, spp=n, res=args.res,
+                                    params=_params(v)) for v in args.held_out}
+                for n in args.held_out_spp}
+        refs.update(held[args.held_out_spp[0]])
         model = models[name]
         rng = np.random.default_rng(args.seed)
         noisy = dataclasses.replace(model, values=[
@@ -140,10 +147,11 @@ def study(args) -> list[dict]:
         # each view's (object-only, whole-image) SNR, per model
         per_view: dict[str, dict] = {k: {} for k in ("clean", "noisy", "clean_fit_views")}
         row = {"material": name, "clean": _held_out(scene, refs, mask, args.held_out,
-                                                    files["clean"], args.spp, args.res,
+                                                    files["clean"], args.held_out_spp[0],
+                                                    args.res,
                                                     per_view=per_view["clean"]),
                "noisy": _held_out(scene, refs, mask, args.held_out, files["noisy"],
-                                  args.spp, args.res, per_view=per_view["noisy"]),
+                                  args.held_out_spp[0], args.res, per_view=per_view["noisy"]),
                # the unperturbed encoding on the fitting views (is a fit over-fitting?)
                "clean_fit_views": _held_out(scene, refs, mask, args.fit_views,
                                             files["clean"], fit_spp, args.res, seeds,
@@ -158,19 +166,28 @@ def study(args) -> list[dict]:
             fitted = save_sbrdf(tmp / f"{name}-fit-{start}.sbrdf", fit.model)
             per_view[f"fit_{start}"], per_view[f"fit_{start}_fit_views"] = {}, {}
             row[f"fit_{start}"] = _held_out(scene, refs, mask, args.held_out, fitted,
-                                            args.spp, args.res,
+                                            args.held_out_spp[0], args.res,
                                             per_view=per_view[f"fit_{start}"])
             row[f"fit_{start}_fit_views"] = _held_out(scene, refs, mask, args.fit_views,
                                                       fitted, fit_spp, args.res, seeds,
                                                       per_view[f"fit_{start}_fit_views"])
+            files[f"fit_{start}"] = fitted
             row[f"seconds_{start}"] = seconds  # the fit, with its tracking and validation
             row[f"held_out_track_{start}"] = track  # (evaluations, object, whole)
             row[f"validation_snr_{start}"] = fit.validation_snr_db
             row[f"best_evaluation_{start}"] = fit.best_evaluation
             row[f"seconds_per_iteration_{start}"] = fit.seconds_per_iteration
             row[f"fit_views_snr_{start}"] = fit.snr_db
+        # every model on the held-out views at each --held-out-spp
+        row["held_out_by_spp"] = {
+            str(n): {k: _held_out(scene, held[n], mask, args.held_out, f, n, args.res)
+                     for k, f in files.items() if k != "other" or "fit_other" in files}
+            for n in args.held_out_spp}
         rows.append(row)
         print(_line(row), flush=True)
+        for n, r in row["held_out_by_spp"].items():
+            print(f"  held out at {n} spp: " + ", ".join(f"{k} {_pair(v)}"
+                                                         for k, v in r.items()), flush=True)
     return rows
 
 
@@ -219,7 +236,11 @@ def main() -> None:
                         "material's encoding")
     p.add_argument("--fit-spp", type=int, default=None,
                    help="spp of the fitting views and their references (default --spp; "
-                        "the held-out views always use --spp)")
+                        "the held-out views use --held-out-spp)")
+    p.add_argument("--held-out-spp", type=int, nargs="+", default=None, metavar="N",
+                   help="spp of the held-out views and their references (default --spp); "
+                        "with several, the first is the table's and every model is also "
+                        "rated at the others (held_out_by_spp in the JSON)")
     p.add_argument("--seed", type=int, default=1, help="seed of the 30 %% noise")
     p.add_argument("--validation", nargs="*", type=view_spec, default=[],
                    metavar="K=V[,K=V]",
@@ -231,13 +252,15 @@ def main() -> None:
                    help="record the held-out SNR every N evaluations (0: not at all); "
                         "also the validation cadence")
     args = p.parse_args()
+    args.held_out_spp = args.held_out_spp or [args.spp]
     print(header())
     opt = (f"adam, lr {args.lr} -> {args.lr * args.lr_end:g}" if args.optimizer == "adam"
            else args.optimizer) + f", {args.loss} loss, {args.view_seeds} view seeds"
     print(f"sphere.xml, {args.res}x{args.res}, {args.spp} spp (fitting views "
           f"{args.fit_spp or args.spp}), fitting views "
           f"{args.fit_views}, validation {args.validation}, prior weight "
-          f"{args.prior_weight:g}, held out {args.held_out}, {args.iterations} iterations "
+          f"{args.prior_weight:g}, held out {args.held_out} at {args.held_out_spp} spp, "
+          f"{args.iterations} iterations "
           f"({opt}); SNR in dB, object-only / whole-image, mean over the held-out views")
     print("| material | unperturbed | perturbed (start) | fitted | fitted - unperturbed | "
           "fitted from another material | s / iteration | s / fit |\n"

@@ -118,9 +118,14 @@ class Ops:
         opaque count, so one kernel serves any n. ``sum_style``: the body only adds to
         ``acc`` terms that do not depend on it, which lets Dr.Jit differentiate the loop
         in reverse mode without storing its trajectory (set only when differentiating,
-        so undifferentiated kernels are unchanged)."""
+        so undifferentiated kernels are unchanged). In JIT variants the loop is symbolic
+        by request, which is what the default ("auto") gives, but then Dr.Jit's
+        differentiation of it no longer logs a warning per traced loop, which flooded
+        stderr during ``render_backward``."""
         m = self.m
         extra = {"max_iterations": -1} if sum_style else {}
+        if self.jit:
+            extra.update(mode="symbolic", label="sparse_brdf")
         _, acc = dr.while_loop(
             state=(m.UInt32(0), init),
             cond=lambda g, acc: g < n,

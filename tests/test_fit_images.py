@@ -417,3 +417,16 @@ def test_fit_images_command_validation_view_and_prior(capsys, case, tmp_path):
     assert code == 0, err
     assert re.search(r"kept the iterate after \d+ evaluations", stdout), stdout
     assert out.is_file()
+
+
+def test_a_fit_does_not_flood_stderr(capfd, case):
+    """Differentiating the plugin's loops logs nothing: Dr.Jit's warning per traced loop
+    (``ad_loop(...): forcing conditional statement to symbolic mode``) once wrote
+    thousands of lines per fit into the progress bar's terminal."""
+    views = views_for([{"envrot": r} for r in ROTS], [case["refs"][r] for r in ROTS])
+    capfd.readouterr()
+    for optimizer in ("adam", "lbfgs"):
+        fit_images(case["scene"], views, case["start"], iterations=2, spp=SPP,
+                   optimizer=optimizer, progress=False)
+    err = capfd.readouterr().err
+    assert "ad_loop" not in err and "forcing" not in err, err[:300]
