@@ -52,10 +52,12 @@ class BRDF:
             raise InvalidBRDFError(
                 f"{self.name}: valid mask has shape {valid.shape}, expected {v.shape[:3]}"
             )
-        v = np.where(valid[..., None], v, 0.0).astype(np.float32)
-        if not np.all(np.isfinite(v)):
-            raise InvalidBRDFError(f"{self.name}: BRDF values contain NaN or inf")
-        if np.any(v < 0):
+        v = np.where(valid[..., None], v, np.float32(0.0)).astype(np.float32, copy=False)
+        # two reductions instead of two boolean arrays: NaN makes min() NaN, so the test
+        # fails on NaN, inf or a negative value; then tell which
+        if v.size and not (v.min() >= 0 and v.max() < np.inf):
+            if not np.all(np.isfinite(v)):
+                raise InvalidBRDFError(f"{self.name}: BRDF values contain NaN or inf")
             raise InvalidBRDFError(f"{self.name}: BRDF values are negative on valid bins")
         if not valid.any():
             raise InvalidBRDFError(f"{self.name}: the BRDF has no valid bin")

@@ -240,12 +240,17 @@ def bin_solid_angle(shape: tuple[int, int, int] = MERL_SHAPE) -> np.ndarray:
     first theta_h bins of the MERL grid are tiny (the square-root spacing): bin 0
     measures ~1e-11 of bin 45.
     """
+    return np.repeat(bin_solid_angle_hd(shape)[:, :, None], shape[2], axis=2)
+
+
+def bin_solid_angle_hd(shape: tuple[int, int, int] = MERL_SHAPE) -> np.ndarray:
+    """:func:`bin_solid_angle` of the bins (i_h, i_d, any i_p): it does not depend on
+    phi_d. float64, shape (n_h, n_d) (sr^2)."""
     n3 = shape[2]
     th, td, _ = bin_edges(shape)
     per_h = np.cos(th[:-1]) - np.cos(th[1:])
     per_d = 0.5 * (np.sin(td[1:]) ** 2 - np.sin(td[:-1]) ** 2)
-    hd = (4.0 * 2.0 * np.pi * 2.0 * np.pi / n3) * per_h[:, None] * per_d[None, :]
-    return np.repeat(hd[:, :, None], n3, axis=2)
+    return (4.0 * 2.0 * np.pi * 2.0 * np.pi / n3) * per_h[:, None] * per_d[None, :]
 
 
 def linear_bins(wi: np.ndarray, wo: np.ndarray, shape: tuple[int, int, int] = MERL_SHAPE

@@ -8,7 +8,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .coords import MERL_SHAPE, bin_solid_angle, cos_io, cosine_product
+from .coords import MERL_SHAPE, bin_solid_angle_hd, cos_io, cosine_product
 from .errors import ImageFileError
 
 GAMMA = 2.0
@@ -247,14 +247,24 @@ def make_render_proxy(shape: tuple[int, int, int] = MERL_SHAPE,
     th = ((np.arange(n1) + 0.5) / n1) ** 2 * np.pi / 2  # bin centres (square-root spacing)
     td = (np.arange(n2) + 0.5) / n2 * np.pi / 2
     pd = (np.arange(n3) + 0.5) / n3 * np.pi
-    ci, co = (np.clip(c, 0, None) for c in cos_io(th[:, None, None], td[None, :, None],
-                                                           pd[None, None, :]))
-    omega = bin_solid_angle(shape)
-    point = ci * co * 0.5 * (ci + co) * omega
+    ci, co = cos_io(th[:, None, None], td[None, :, None], pd[None, None, :])
+    np.maximum(ci, 0.0, out=ci)
+    np.maximum(co, 0.0, out=co)
+    # the bins' measure does not depend on phi_d: work on its (n1, n2) plane and expand
+    # at the end (the same values, in the same order of operations, as on the full grid)
+    hd = bin_solid_angle_hd(shape)
+    point = ci
+    sum_io = ci + co
+    point *= co
+    point *= 0.5
+    point *= sum_io
+    point *= hd[:, :, None]  # cos_i cos_o (cos_i + cos_o) / 2 omega
     cell = np.floor(np.degrees(th) / blur_deg)
     starts = np.flatnonzero(np.r_[True, cell[1:] != cell[:-1]])
-    out = {"omega": omega.astype(np.float32), "starts": starts,
-           "cell_omega": np.add.reduceat(omega, starts, axis=0),
+    out = {"omega": np.repeat(hd.astype(np.float32)[:, :, None], n3, axis=2),
+           "starts": starts,
+           "cell_omega": np.repeat(np.add.reduceat(hd, starts, axis=0)[:, :, None], n3,
+                                   axis=2),
            "cell_point": np.add.reduceat(point, starts, axis=0)}
     for a in out.values():
         a.flags.writeable = False

@@ -204,9 +204,12 @@ def project_pruned_many(brdf: BRDF, ens: Ensemble, ys: dict[str, np.ndarray],
     n1, n2, n3 = tuple(ys[names[0]].shape[1:])
     n_dicts = ens.n_dicts
     n = int(n_coeffs)
-    yt = {t: np.ascontiguousarray(np.moveaxis(y, -1, 1)).reshape(3, n3, n1 * n2)
-          for t, y in ys.items()}
     channels = [(t, c) for t in names for c in range(3)]
+    # each channel phi_d-major (n3, n1 n2), the copies side by side on the pool
+    phi_major = dict(zip(channels, parallel_map(lambda tc: np.ascontiguousarray(
+        np.moveaxis(ys[tc[0]][tc[1]], -1, 0)).reshape(n3, n1 * n2), channels,
+        limit_blas=False), strict=True))
+    yt = {t: [phi_major[(t, c)] for c in range(3)] for t in names}
     norms = dict(zip(channels, parallel_map(
         lambda tc: _energy(ys[tc[0]][tc[1]]), channels), strict=True))
     u1t = [np.ascontiguousarray(ens.u1[k].T) for k in range(n_dicts)]
@@ -338,14 +341,16 @@ def choose_transform(brdf: BRDF, models: dict[str, SparseBRDF], ens: Ensemble,
     ref_full = brdf.channel_first()
     ref = ref_full[:, valid]  # (3, n_valid): mask once, then flat metrics
     kernel = make_render_proxy(brdf.shape)
-    full: dict[str, np.ndarray] = {}
+    full: dict[str, np.ndarray] = {}  # per model: its decode (3, n1, n2, n3)
+    flat: dict[str, np.ndarray] = {}  # per model: its decode on the valid bins
 
     def errors(name: str, keys: tuple[str, ...]) -> dict:  # numpy only (no BLAS)
         if name not in full:
             full[name] = inverse(models[name].transformed(ens), name)
-        rec = full[name][:, valid] if keys != ("render_proxy",) else None
-        metric = {"gamma_mse": lambda: gamma_mse(ref, rec), "mse": lambda: mse(ref, rec),
-                  "rae": lambda: rae(ref, rec),
+        if keys != ("render_proxy",) and name not in flat:
+            flat[name] = full[name][:, valid]
+        metric = {"gamma_mse": lambda: gamma_mse(ref, flat[name]),
+                  "mse": lambda: mse(ref, flat[name]), "rae": lambda: rae(ref, flat[name]),
                   "render_proxy": lambda: render_proxy_error(ref_full, full[name], kernel,
                                                              valid)}
         return {k: metric[k]() for k in keys}
@@ -355,6 +360,8 @@ def choose_transform(brdf: BRDF, models: dict[str, SparseBRDF], ens: Ensemble,
                    strict=True))
     chosen = pick_transform(sel, selector)
     rest = tuple(k for k in SELECTOR_KEYS.values() if k != key) + ("mse", "rae")
+    if any(k != "render_proxy" for k in rest):  # mask the chosen decode once, not per metric
+        flat[chosen] = full[chosen][:, valid]
     more = {}  # the chosen model's other errors, side by side
     for part in parallel_map(lambda k: errors(chosen, (k,)), rest, limit_blas=False):
         more.update(part)
