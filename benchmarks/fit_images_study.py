@@ -63,18 +63,27 @@ def _params(spec: str) -> dict:
     return parse_defaults(spec.split(","), f"view {spec!r}:")
 
 
+def _worst_share(ref: np.ndarray, img: np.ndarray, n: int = 5) -> float:
+    """The share of an image's squared error (over all pixels) in its ``n`` worst pixels:
+    near n / pixels when the error is spread, near 1 when a few samples carry it."""
+    e = np.sum(np.square(img.astype(np.float64) - ref), axis=-1).ravel()
+    total = float(e.sum())
+    return float(np.sort(e)[-n:].sum() / total) if total > 0 else 0.0
+
+
 def _held_out(scene, refs, mask, specs, src, spp, res, seeds=None,
               per_view: dict | None = None) -> tuple[float, float]:
     """Mean (object-only, whole-image) SNR of ``src`` over the views ``specs`` (rendered
-    with ``seeds``, those of their references; 0 by default); each view's pair goes
+    with ``seeds``, those of their references; 0 by default); each view's
+    [object-only, whole-image, share of the squared error in its 5 worst pixels] goes
     into ``per_view`` when given."""
     seeds = seeds or {}
-    forms = [snr_forms(refs[v], render_scene(scene, {"material": str(src)}, spp=spp,
-                                             seed=seeds.get(v, 0), res=res,
-                                             params=_params(v)), mask)
-             for v in specs]
+    imgs = [render_scene(scene, {"material": str(src)}, spp=spp, seed=seeds.get(v, 0),
+                         res=res, params=_params(v)) for v in specs]
+    forms = [snr_forms(refs[v], img, mask) for v, img in zip(specs, imgs, strict=True)]
     if per_view is not None:
-        per_view.update({v: [f.object, f.whole] for v, f in zip(specs, forms, strict=True)})
+        per_view.update({v: [f.object, f.whole, _worst_share(refs[v], img)]
+                         for v, f, img in zip(specs, forms, imgs, strict=True)})
     return (float(np.mean([f.object for f in forms])),
             float(np.mean([f.whole for f in forms])))
 
@@ -179,10 +188,16 @@ def study(args) -> list[dict]:
             row[f"seconds_per_iteration_{start}"] = fit.seconds_per_iteration
             row[f"fit_views_snr_{start}"] = fit.snr_db
         # every model on the held-out views at each --held-out-spp
-        row["held_out_by_spp"] = {
-            str(n): {k: _held_out(scene, held[n], mask, args.held_out, f, n, args.res)
-                     for k, f in files.items() if k != "other" or "fit_other" in files}
-            for n in args.held_out_spp}
+        row["held_out_by_spp"] = {str(n): {} for n in args.held_out_spp}
+        row["per_view_by_spp"] = {str(n): {} for n in args.held_out_spp}
+        for n in args.held_out_spp:
+            for k, f in files.items():
+                if k == "other" and "fit_other" not in files:
+                    continue
+                views_of_k = row["per_view_by_spp"][str(n)].setdefault(k, {})
+                row["held_out_by_spp"][str(n)][k] = _held_out(
+                    scene, held[n], mask, args.held_out, f, n, args.res,
+                    per_view=views_of_k)
         rows.append(row)
         print(_line(row), flush=True)
         for n, r in row["held_out_by_spp"].items():
