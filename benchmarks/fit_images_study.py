@@ -109,15 +109,49 @@ def _run_fit(scene, views, validation, start_file, args, fit_spp, tracked):
     return fit, time.perf_counter() - t0
 
 
-def study(args) -> list[dict]:
-    scene = find_scene("sphere.xml")
-    mask = object_mask(scene, res=args.res)
-    tmp = Path(tempfile.mkdtemp(prefix="fit-images-study-"))
+def _by_spp(scene, held: dict, mask, files: dict, args) -> tuple[dict, dict]:
+    """Every model (``files``: name -> .sbrdf) on the held-out views at each
+    --held-out-spp (``held``: spp -> view -> reference): per spp, name -> the views' mean
+    (object-only, whole-image) SNR, and name -> view -> that view's record."""
+    means: dict = {str(n): {} for n in args.held_out_spp}
+    views: dict = {str(n): {} for n in args.held_out_spp}
+    for n in args.held_out_spp:
+        for k, f in files.items():
+            if k == "other" and "fit_other" not in files:
+                continue  # the other material's start, when no fit started from it
+            means[str(n)][k] = _held_out(scene, held[n], mask, args.held_out, f, n,
+                                         args.res, per_view=views[str(n)].setdefault(k, {}))
+    return means, views
+
+
+def _references(scene, brdf_path: Path, args, spps: dict, seeds: dict) -> tuple[dict, dict]:
+    """The references: view -> image of the fitting, validation and (at the first
+    --held-out-spp) held-out views, and spp -> view -> image of the held-out views at
+    each --held-out-spp."""
+    refs = {v: render_scene(scene, {"material": str(brdf_path)}, spp=spps.get(v, args.spp),
+                            seed=seeds.get(v, 0), res=args.res, params=_params(v))
+            for v in [*args.fit_views, *args.validation]}
+    held = {n: {v: render_scene(scene, {"material": str(brdf_path)}, spp=n, res=args.res,
+                                params=_params(v)) for v in args.held_out}
+            for n in args.held_out_spp}
+    refs.update(held[args.held_out_spp[0]])
+    return refs, held
+
+
+def _check_roles(args) -> None:
+    """Refuse a view that is both fitted and held out (or validated)."""
     for a, b in ((args.fit_views, args.held_out), (args.validation, args.held_out),
                  (args.fit_views, args.validation)):
         both = {v for v in a if any(_params(v) == _params(h) for h in b)}
         if both:
             raise SystemExit(f"views in two roles: {sorted(both)}")
+
+
+def study(args) -> list[dict]:
+    scene = find_scene("sphere.xml")
+    mask = object_mask(scene, res=args.res)
+    tmp = Path(tempfile.mkdtemp(prefix="fit-images-study-"))
+    _check_roles(args)
     # the fitting views' render seeds: all 0 (the held-out views' too), or the i-th
     # fitting view's i (its reference rendered with it): more sampled directions
     seeds = ({v: i for i, v in enumerate([*args.fit_views, *args.validation])}
@@ -131,14 +165,7 @@ def study(args) -> list[dict]:
     for i, name in enumerate(args.materials):
         brdf_path = write_merl(tmp / f"{name}.binary", load_brdf(DEMO_MATERIALS_DIR /
                                                                  f"{name}.h5"))
-        refs = {v: render_scene(scene, {"material": str(brdf_path)}, spp=spps.get(v, args.spp),
-                                seed=seeds.get(v, 0), res=args.res, params=_params(v))
-                for v in [*args.fit_views, *args.validation]}
-        # the held-out references at each --held-out-spp (the first is the headline's)
-        held = {n: {v: render_scene(scene, {"material": str(brdf_path)}, spp=n, res=args.res,
-                                    params=_params(v)) for v in args.held_out}
-                for n in args.held_out_spp}
-        refs.update(held[args.held_out_spp[0]])
+        refs, held = _references(scene, brdf_path, args, spps, seeds)
         model = models[name]
         rng = np.random.default_rng(args.seed)
         noisy = dataclasses.replace(model, values=[
@@ -187,17 +214,8 @@ def study(args) -> list[dict]:
             row[f"best_evaluation_{start}"] = fit.best_evaluation
             row[f"seconds_per_iteration_{start}"] = fit.seconds_per_iteration
             row[f"fit_views_snr_{start}"] = fit.snr_db
-        # every model on the held-out views at each --held-out-spp
-        row["held_out_by_spp"] = {str(n): {} for n in args.held_out_spp}
-        row["per_view_by_spp"] = {str(n): {} for n in args.held_out_spp}
-        for n in args.held_out_spp:
-            for k, f in files.items():
-                if k == "other" and "fit_other" not in files:
-                    continue
-                views_of_k = row["per_view_by_spp"][str(n)].setdefault(k, {})
-                row["held_out_by_spp"][str(n)][k] = _held_out(
-                    scene, held[n], mask, args.held_out, f, n, args.res,
-                    per_view=views_of_k)
+        row["held_out_by_spp"], row["per_view_by_spp"] = _by_spp(scene, held, mask, files,
+                                                                 args)
         rows.append(row)
         print(_line(row), flush=True)
         for n, r in row["held_out_by_spp"].items():

@@ -67,9 +67,13 @@ def forward(rho: np.ndarray, name: str, valid: np.ndarray | None = None) -> np.n
         If ``name`` is not one of :data:`TRANSFORMS`.
     """
     rho = np.asarray(rho, dtype=np.float32)
-    if valid is not None:
-        rho = np.where(valid, rho, np.float32(0))
-    return np.log1p(rho * _weight(name, rho.shape[-3:])).astype(np.float32)
+    w = _weight(name, rho.shape[-3:])
+    if valid is None:
+        t = rho * w
+    else:  # invalid bins stay 0 (rho = 0 there), without a masked copy of rho
+        t = np.zeros(rho.shape, np.float32)
+        np.multiply(rho, w, out=t, where=np.asarray(valid, bool))
+    return np.log1p(t, out=t)  # float32: rho and the weight are
 
 
 def inverse(t: np.ndarray, name: str) -> np.ndarray:

@@ -24,7 +24,6 @@ from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 
 import numpy as np
-import OpenEXR
 
 from ..errors import (
     ImageFileError,
@@ -414,6 +413,8 @@ def write_exr(path: str | os.PathLike, img: np.ndarray) -> Path:
     if arr.ndim != 3 or arr.shape[2] != 3:
         raise ImageFileError(f"{path}: expected an image of shape (H, W, 3), got "
                              f"{arr.shape}")
+    import OpenEXR  # lazy: only image commands need it, every command imports this module
+
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     with atomic_path(path, suffix=".exr") as tmp, OpenEXR.File(header, {"RGB": arr}) as f:
         try:
@@ -426,6 +427,8 @@ def write_exr(path: str | os.PathLike, img: np.ndarray) -> Path:
 def read_exr(path: str | os.PathLike) -> np.ndarray:
     """Read the RGB channels of an EXR file (RGB or RGBA, as Mitsuba writes) as float32
     (H, W, 3); :class:`ImageFileError` naming the file if it is not such an image."""
+    import OpenEXR  # lazy: only image commands need it, every command imports this module
+
     path = require_file(path, "EXR file")
     printed: list[str] = []  # OpenEXR's own words about this file (see _c_output_to)
     try:
