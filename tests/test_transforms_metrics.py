@@ -61,3 +61,43 @@ def test_rae_and_gamma_mse_use_valid_bins_only():
     assert rae(ref, rec, valid) == pytest.approx(0.1)
     assert gamma_mse(ref, ref * 4, valid) == pytest.approx(1.0)  # sqrt(4) - sqrt(1) = 1
     assert cosine_weighted_snr(ref, rec, valid) == pytest.approx(20.0)
+
+
+@pytest.mark.parametrize("shape", [(90, 90, 180), (8, 6, 12)])
+def test_render_proxy_kernel_is_the_full_grid_formula(shape):
+    """The kernel is built on the (theta_h, theta_d) plane and expanded over phi_d; it
+    must equal, bit for bit, the formula evaluated bin by bin on the whole grid."""
+    from sparse_brdf.coords import bin_solid_angle, cos_io
+    from sparse_brdf.metrics import make_render_proxy
+
+    n1, n2, n3 = shape
+    th = ((np.arange(n1) + 0.5) / n1) ** 2 * np.pi / 2
+    td = (np.arange(n2) + 0.5) / n2 * np.pi / 2
+    pd = (np.arange(n3) + 0.5) / n3 * np.pi
+    ci, co = (np.clip(c, 0, None) for c in cos_io(th[:, None, None], td[None, :, None],
+                                                   pd[None, None, :]))
+    omega = bin_solid_angle(shape)
+    point = ci * co * 0.5 * (ci + co) * omega
+    k = make_render_proxy(shape)
+    starts = k["starts"]
+    np.testing.assert_array_equal(k["omega"], omega.astype(np.float32))
+    np.testing.assert_array_equal(k["cell_omega"], np.add.reduceat(omega, starts, axis=0))
+    np.testing.assert_array_equal(k["cell_point"], np.add.reduceat(point, starts, axis=0))
+
+
+@pytest.mark.parametrize("name", TRANSFORMS)
+def test_forward_masks_exactly_as_zeroing_first(name):
+    """forward with a mask equals zeroing the invalid bins and then transforming, bit for
+    bit, whatever the invalid bins held (NaN, inf, negative values)."""
+    rng = np.random.default_rng(5)
+    shape = (6, 5, 10)
+    rho = (rng.random((3, *shape)) * 20).astype(np.float32)
+    valid = rng.random(shape) > 0.3
+    rho[:, ~valid] = np.array([np.nan, np.inf, -4.0], np.float32)[:, None]
+    zeroed = np.where(valid, rho, np.float32(0))
+    w = cosine_weight(shape) if name == "log-plus-cosine" else 1.0
+    expect = np.log1p(zeroed * w).astype(np.float32)
+    got = forward(rho, name, valid)
+    assert got.dtype == np.float32
+    np.testing.assert_array_equal(got, expect)
+    np.testing.assert_array_equal(forward(zeroed, name), expect)
