@@ -874,12 +874,30 @@ def _describe(exc: BaseException) -> str:
     return str(exc) or type(exc).__name__
 
 
+def _no_madvised_hugepages() -> None:
+    """Stop numpy asking the kernel for transparent huge pages for its large arrays, unless
+    ``NUMPY_MADVISE_HUGEPAGE`` says otherwise (numpy's own switch, read at its import).
+
+    A command is a short process whose large arrays are all freshly mapped memory; where
+    the kernel compacts memory to serve huge pages on request (``defrag`` of ``madvise``,
+    a common default) those first touches stall. On the 2-core benchmark machine this
+    made a whole ``encode`` about 7 % slower (docs/benchmarks.md, "Encode time"). Only the
+    command line does this: a program that imports the library keeps numpy's setting."""
+    if "NUMPY_MADVISE_HUGEPAGE" in os.environ:
+        return
+    setter = getattr(getattr(np, "_core", None), "multiarray", None)
+    setter = getattr(setter, "_set_madvise_hugepage", None)
+    if setter is not None:
+        setter(False)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run one command. Exit status: 0 done; 2 a bad input, option or output (one line on
     stderr naming it); 70 an internal error (a bug); 128 + N killed by signal N (SIGINT,
     SIGTERM, SIGHUP), no partial output left. ``--debug`` (anywhere) or
     ``SPARSE_BRDF_DEBUG=1`` adds the traceback and numpy's warnings."""
     argv = list(sys.argv[1:] if argv is None else argv)
+    _no_madvised_hugepages()
     debug = "--debug" in argv or os.environ.get("SPARSE_BRDF_DEBUG", "") not in ("", "0")
     args = build_parser().parse_args([a for a in argv if a != "--debug"])
     with warnings.catch_warnings(), cleanup_on_signals():
