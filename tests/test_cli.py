@@ -108,3 +108,22 @@ def test_render_and_snr(tmp_path, capsys):
     assert main(["render", "sphere.xml", "-o", str(a), "--material",
                  f"material={tmp_path / 'missing.sbrdf'}"]) == 2
     assert "missing.sbrdf" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("env", [None, "1"])
+def test_commands_leave_huge_pages_to_the_user(monkeypatch, env):
+    """The command line turns off numpy's madvised huge pages (first touches of fresh
+    memory stalled on compaction: docs/benchmarks.md), unless NUMPY_MADVISE_HUGEPAGE is
+    set, which is numpy's own switch and wins."""
+    setter = np._core.multiarray._set_madvise_hugepage
+    if env is None:
+        monkeypatch.delenv("NUMPY_MADVISE_HUGEPAGE", raising=False)
+    else:
+        monkeypatch.setenv("NUMPY_MADVISE_HUGEPAGE", env)
+    before = setter(True)
+    try:
+        with pytest.raises(SystemExit):
+            main(["--help"])
+        assert setter(True) is (env is not None)  # the flag main() left
+    finally:
+        setter(before)
