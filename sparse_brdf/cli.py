@@ -881,7 +881,8 @@ def _no_madvised_hugepages() -> None:
     A command is a short process whose large arrays are all freshly mapped memory; where
     the kernel compacts memory to serve huge pages on request (``defrag`` of ``madvise``,
     a common default) those first touches stall. On the 2-core benchmark machine this
-    made a whole ``encode`` about 7 % slower (docs/benchmarks.md, "Encode time"). Only the
+    made a whole ``encode`` 2-8 % slower (docs/benchmarks.md, "Whole commands after
+    cutting fixed costs"). Only the
     command line does this: a program that imports the library keeps numpy's setting."""
     if "NUMPY_MADVISE_HUGEPAGE" in os.environ:
         return
