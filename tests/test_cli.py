@@ -127,3 +127,23 @@ def test_commands_leave_huge_pages_to_the_user(monkeypatch, env):
         assert setter(True) is (env is not None)  # the flag main() left
     finally:
         setter(before)
+
+
+def test_commands_tune_malloc_unless_the_user_does():
+    """The command line keeps freed arrays in the heap (glibc mallopt: docs/benchmarks.md),
+    each setting skipped where its MALLOC_* variable is set, all of them where
+    GLIBC_TUNABLES tunes malloc; glibc accepts every one."""
+    import ctypes
+    import sys
+
+    from sparse_brdf.cli import MALLOC_SETTINGS, _malloc_settings
+
+    every = [(p, v) for p, v, _ in MALLOC_SETTINGS]
+    assert _malloc_settings({}) == every
+    assert _malloc_settings({"GLIBC_TUNABLES": "glibc.malloc.arena_max=2"}) == []
+    assert _malloc_settings({"GLIBC_TUNABLES": "glibc.pthread.rseq=0"}) == every
+    var = MALLOC_SETTINGS[0][2]
+    assert _malloc_settings({var: "1"}) == every[1:]
+    if sys.platform.startswith("linux"):
+        mallopt = ctypes.CDLL(None).mallopt
+        assert all(mallopt(ctypes.c_int(p), ctypes.c_int(v)) == 1 for p, v in every)
