@@ -608,13 +608,15 @@ def test_cleanup_on_signals_restores_handlers(tmp_path):
 
 
 def test_sigint_during_encode(tmp_path):
-    """A real process: Ctrl-C while encoding a full-size material."""
+    """A real process: Ctrl-C while encoding a full-size material (a long encode: 8,000
+    coefficients per channel and ten fill rounds take about 7 s here, so the interrupt at
+    2 s lands in the encoding, after the imports)."""
     src = write_merl(tmp_path / "c.binary", constant_brdf((0.3, 0.2, 0.1), MERL_SHAPE))
     out = tmp_path / "out"
     out.mkdir()
     p = subprocess.Popen([sys.executable, "-m", "sparse_brdf.cli", "encode", str(src), "-o",
-                          str(out / "c.sbrdf")], stderr=subprocess.PIPE, text=True,
-                         cwd=ROOT)
+                          str(out / "c.sbrdf"), "--coeffs", "8000", "--fill-iters", "10"],
+                         stderr=subprocess.PIPE, text=True, cwd=ROOT)
     time.sleep(2.0)
     p.send_signal(signal.SIGINT)
     _, err = p.communicate(timeout=60)
