@@ -360,7 +360,7 @@ def choose_transform(brdf: BRDF, models: dict[str, SparseBRDF], ens: Ensemble,
                    strict=True))
     chosen = pick_transform(sel, selector)
     rest = tuple(k for k in SELECTOR_KEYS.values() if k != key) + ("mse", "rae")
-    if any(k != "render_proxy" for k in rest):  # mask the chosen decode once, not per metric
+    if chosen not in flat:  # mask the chosen decode once, not per metric ("rest" has mse)
         flat[chosen] = full[chosen][:, valid]
     more = {}  # the chosen model's other errors, side by side
     for part in parallel_map(lambda k: errors(chosen, (k,)), rest, limit_blas=False):
