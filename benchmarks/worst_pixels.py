@@ -16,7 +16,6 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-from fit_images_study import view_spec
 from harness import header, parser
 
 from sparse_brdf import encode, load_brdf
@@ -29,7 +28,8 @@ from sparse_brdf.sources.merl import write_merl
 def main() -> None:
     p = parser(__doc__, json_option=False)
     p.add_argument("--material", default="blue-metallic-paint2")
-    p.add_argument("--view", type=view_spec, default="envrot=225")
+    p.add_argument("--view", default="envrot=225",
+                   help="the view's scene defaults, K=V[,K=V] (e.g. envrot=225,envtilt=10)")
     p.add_argument("--res", type=int, default=32)
     p.add_argument("--spp", type=int, default=256)
     p.add_argument("--count", type=int, default=6)
