@@ -13,6 +13,7 @@ from sparse_brdf.evaluation.render import (
     RenderError,
     noise_floor,
     noise_floor_snr,
+    object_mask,
     parse_overrides,
     plugin_for,
     read_exr,
@@ -177,3 +178,25 @@ def test_measured_material_renders(shared_data):
         pytest.skip("no Neural-BRDF materials in the shared data")
     img = render_scene(SPHERE, {"material": str(h5[0])}, spp=2, seed=0, res=16)
     assert np.all(np.isfinite(img)) and img.mean() > 0
+
+
+def test_point_light_scene_lights_the_side_the_light_turns_to():
+    # the scene's own material: diffuse, reflectance 0.5, under irradiance 3 (W/m^2)
+    scene = SCENES / "sphere_light.xml"
+    mask = object_mask(scene, res=32)
+    lit = {}
+    for angle in (0, 90, 150):
+        img = render_scene(scene, None, spp=4, seed=0, res=32,
+                           params={"lightangle": angle}).mean(axis=2)
+        lit[angle] = (img > 1e-4) & mask
+        if angle == 0:
+            # a flash: every object pixel lit, the brightest where the normal faces the
+            # camera and the light, radiance 0.5 / pi * 3
+            assert lit[0].sum() >= 0.97 * mask.sum()
+            assert img.max() == pytest.approx(0.5 / np.pi * 3.0, rel=0.02)
+    frac = {a: lit[a].sum() / mask.sum() for a in lit}
+    assert 0.35 < frac[90] < 0.65 and frac[150] < 0.2 < frac[90]
+    # the light turns towards the image's +x or -x: the lit crescent is on one side
+    cols = np.nonzero(lit[150])[1]
+    assert cols.size > 0 and (cols.max() < 16 or cols.min() >= 16)
+    assert 'id="material"' in scene.read_text()
