@@ -75,3 +75,11 @@ def test_every_archived_experiment_has_a_readme_entry():
     archived = sorted(p.name for p in (BENCH / "archive").glob("*.py"))
     assert archived
     assert [n for n in archived if f"`archive/{n}`" not in readme] == []
+
+
+def test_every_live_script_has_a_readme_row():
+    readme = (BENCH / "README.md").read_text()
+    live = sorted(p.name for p in BENCH.glob("*.py"))
+    missing = [n for n in live if n not in {f"{m}.py" for m in SHARED}
+               and f"| `{n}` |" not in readme]
+    assert live and missing == []

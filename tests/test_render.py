@@ -200,3 +200,31 @@ def test_point_light_scene_lights_the_side_the_light_turns_to():
     cols = np.nonzero(lit[150])[1]
     assert cols.size > 0 and (cols.max() < 16 or cols.min() >= 16)
     assert 'id="material"' in scene.read_text()
+
+
+def test_closeups_aim_at_the_highlight(tmp_path, monkeypatch):
+    # the identify benchmark's close-ups: the brightest pixel of a glossy material is at
+    # the image's centre, where the normal is the half-vector of light and camera
+    import importlib.util
+
+    from sparse_brdf import load_brdf
+    from sparse_brdf.paths import DEMO_MATERIALS_DIR
+    from sparse_brdf.sources.merl import write_merl
+
+    bench = Path(__file__).resolve().parents[1] / "benchmarks"
+    monkeypatch.syspath_prepend(str(bench))  # the script imports its harness
+    path = bench / "fit_images_identify.py"
+    spec = importlib.util.spec_from_file_location("fit_images_identify", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    n, theta_d = mod.highlight(0.0, 0.0)
+    assert theta_d == pytest.approx(0.0, abs=1e-6)
+    assert n == pytest.approx(np.array([0.0, 0.9, 4.0]) / np.hypot(0.9, 4.0))
+    table = write_merl(tmp_path / "m.binary",
+                       load_brdf(DEMO_MATERIALS_DIR / "blue-metallic-paint2.h5"))
+    for spec_ in mod.closeup_views(["90:0:4", "135:90:1"]):
+        params = dict(kv.split("=") for kv in spec_.split(","))
+        img = render_scene(SCENES / "sphere_light.xml", {"material": str(table)}, spp=16,
+                           seed=0, res=16, params=params).mean(axis=2)
+        row, col = np.unravel_index(img.argmax(), img.shape)
+        assert abs(row - 7.5) <= 1.5 and abs(col - 7.5) <= 1.5, spec_
