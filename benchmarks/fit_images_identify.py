@@ -80,11 +80,20 @@ def highlight(angle: float, roll: float) -> tuple[np.ndarray, float]:
 
 
 def closeup_views(specs: list[str]) -> list[str]:
-    """``ANGLE:ROLL:FOV`` specs as sphere_light.xml views aimed at the light's highlight."""
+    """``ANGLE:ROLL:FOV`` specs as sphere_light.xml views aimed at the light's highlight.
+
+    Raises ValueError (one line naming the spec) for a malformed spec, a fov outside
+    (0, 180) degrees or a highlight the camera does not see."""
     out = []
     for spec in specs:
-        a, r, f = (float(x) for x in spec.split(":"))
+        try:
+            a, r, f = (float(x) for x in spec.split(":"))
+        except ValueError:
+            raise ValueError(f"--closeups {spec!r}: not ANGLE:ROLL:FOV (degrees)") from None
         p, _ = highlight(a, r)
+        if not 0 < f < 180 or np.dot(p, CAMERA - p) <= 0 or not np.all(np.isfinite(p)):
+            raise ValueError(f"--closeups {spec!r}: the fov is not in (0, 180) degrees or "
+                             "the camera does not see the highlight (angle above about 155)")
         out.append(f"lightangle={a:g},lightroll={r:g},fov={f:g},"
                    + ",".join(f"target{k}={x:.5f}" for k, x in zip("xyz", p, strict=True)))
     return out
@@ -232,7 +241,10 @@ def main() -> None:
     p.add_argument("--res", type=int, default=32)
     p.add_argument("--iterations", type=int, default=200)
     args = p.parse_args()
-    args.fit_views = args.fit_views + closeup_views(args.closeups)
+    try:
+        args.fit_views = args.fit_views + closeup_views(args.closeups)
+    except ValueError as e:
+        p.error(str(e))  # one line, exit status 2
     print(header())
     out = study(args)
     if args.json:

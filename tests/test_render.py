@@ -228,3 +228,6 @@ def test_closeups_aim_at_the_highlight(tmp_path, monkeypatch):
                            seed=0, res=16, params=params).mean(axis=2)
         row, col = np.unravel_index(img.argmax(), img.shape)
         assert abs(row - 7.5) <= 1.5 and abs(col - 7.5) <= 1.5, spec_
+    # with the light 160 degrees away the highlight is behind the sphere's rim
+    with pytest.raises(ValueError, match="160:0:1"):
+        mod.closeup_views(["160:0:1"])
