@@ -17,7 +17,16 @@ decode/render -> evaluate.
 from .brdf import BRDF
 from .errors import BRDFFileError, EnsembleMismatchError, InvalidBRDFError, SparseBRDFError
 from .evaluation.acquisition import encode_samples, pca_from_samples
-from .metrics import SNRForms, cosine_weighted_snr, gamma_mse, rae, render_snr, snr_forms
+from .metrics import (
+    FlipResult,
+    SNRForms,
+    cosine_weighted_snr,
+    gamma_mse,
+    hdr_flip,
+    rae,
+    render_snr,
+    snr_forms,
+)
 from .model.budget import encode_to_bytes
 from .model.encode import DEFAULT_N_COEFFS, ENCODE_OPTIONS, PAPER_OPTIONS, encode
 from .model.ensemble import Ensemble
@@ -41,10 +50,10 @@ __version__ = "0.1.0"
 
 __all__ = [
     "BRDF", "BRDFFileError", "Corpus", "DEFAULT_N_COEFFS", "ENCODE_OPTIONS", "Ensemble",
-    "EnsembleMismatchError", "PAPER_OPTIONS",
+    "EnsembleMismatchError", "FlipResult", "PAPER_OPTIONS",
     "InvalidBRDFError", "Material", "NeuralFit", "SNRForms", "Samples", "SparseBRDF",
     "SparseBRDFError", "TRANSFORMS", "cosine_weighted_snr", "decode_file", "encode",
-    "encode_samples", "encode_to_bytes", "gamma_mse",
+    "encode_samples", "encode_to_bytes", "gamma_mse", "hdr_flip",
     "get_corpus",
     "interpolate", "inverse_transform", "list_corpora", "load_brdf", "load_sbrdf",
     "mitsuba_catalog", "pca_from_samples", "plan_samples", "rae", "read_samples",

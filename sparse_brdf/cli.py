@@ -61,7 +61,7 @@ from .evaluation.render import (
     write_mask,
 )
 from .fileio import check_output, cleanup_on_signals, remove_temporaries
-from .metrics import snr_forms
+from .metrics import FLIP, OBJECT_ONLY, hdr_flip, snr_forms
 from .model import acquire as acquire_module
 from .model import budget as budget_module
 from .model import encode as encode_module
@@ -389,15 +389,17 @@ def cmd_snr(args: argparse.Namespace) -> int:
     if not mask.any():
         raise ImageFileError(f"{args.mask or args.scene}: the mask selects no pixel")
     snr = snr_forms(ref, img, mask)
+    flip = hdr_flip(ref, img, mask).mean
     floor = noise_floor_snr(ref, ref2, mask) if ref2 is not None else None
     if args.json:
-        out = {"snr_whole_db": snr.whole, "snr_object_db": snr.object,
+        out = {"snr_whole_db": snr.whole, "snr_object_db": snr.object, "flip_object": flip,
                "object_pixels": int(mask.sum()), "pixels": int(mask.size)}
         if floor is not None:
             out.update(noise_floor_whole_db=floor.whole, noise_floor_object_db=floor.object)
         print(json.dumps(out))
     else:
-        print(str(snr) + (f" (noise floor: {floor})" if floor is not None else ""))
+        print(f"{snr}, {FLIP} {flip:.4f} ({OBJECT_ONLY} mean)"
+              + (f" (noise floor: {floor})" if floor is not None else ""))
     return 0
 
 
@@ -727,7 +729,10 @@ def _add_snr(sub) -> None:
                     "object-only (the pixels whose camera rays hit the object; the strict "
                     "form). The object pixels come from the scene (--scene, traced at the "
                     "image's resolution) or from a mask file (--mask, e.g. written by "
-                    "`sparse-brdf render --mask`).",
+                    "`sparse-brdf render --mask`). Beside them it prints HDR-FLIP, the "
+                    "perceptual difference of the two HDR images (0 = identical, 1 = most "
+                    "different; a 10 % brightness change scores about 0.1), averaged over "
+                    "the object's pixels.",
         epilog="example:\n  sparse-brdf snr ref.exr model.exr --scene paper_sphere "
                "--reference2 ref-seed1.exr",
         formatter_class=argparse.RawDescriptionHelpFormatter)

@@ -19,6 +19,14 @@ WHOLE_IMAGE = "whole-image"
 OBJECT_ONLY = "object-only"
 
 
+#: Label of the perceptual form, as printed and recorded everywhere.
+FLIP = "HDR-FLIP"
+
+#: Pixels per degree of visual angle HDR-FLIP assumes: its default viewing condition
+#: (a 0.7 m wide 4K monitor seen from 0.7 m), the one its published figures use.
+FLIP_PPD = 67.0
+
+
 class SNRForms(NamedTuple):
     """Rendering SNR in both forms, as returned by :func:`snr_forms`.
 
@@ -116,6 +124,86 @@ def snr_forms(ref: np.ndarray, img: np.ndarray, mask: np.ndarray) -> SNRForms:
         As :func:`render_snr`.
     """
     return SNRForms(render_snr(ref, img), render_snr(ref, img, mask))
+
+
+class FlipResult(NamedTuple):
+    """HDR-FLIP of an image against a reference, as returned by :func:`hdr_flip`.
+
+    Attributes
+    ----------
+    mean : float
+        The mean of the error map over the scored pixels, in [0, 1]; 0 for identical images.
+    map : numpy.ndarray
+        float32 (H, W): the per-pixel error over the whole image, in [0, 1].
+    """
+
+    mean: float
+    map: np.ndarray
+
+
+def hdr_flip(ref: np.ndarray, img: np.ndarray, mask: np.ndarray | None = None,
+             ppd: float = FLIP_PPD) -> FlipResult:
+    """HDR-FLIP (Andersson et al. 2020, 2021), the perceptual difference of two HDR
+    images, computed by NVIDIA's ``flip-evaluator``.
+
+    The error map is computed on the whole image (FLIP filters over a neighbourhood) and
+    averaged over the pixels of ``mask``. Its exposure range is the reference's, as FLIP
+    chooses it; the tone mapper is ACES.
+
+    Parameters
+    ----------
+    ref, img : numpy.ndarray
+        Linear images of equal shape (H, W, 3) or (H, W, 1) (mono, repeated to grey RGB),
+        in linear sRGB / Rec. 709 primaries, non-negative.
+    mask : numpy.ndarray, optional
+        Bool (H, W): the pixels averaged over (the object's). None: every pixel.
+    ppd : float
+        Pixels per degree of visual angle; FLIP's default of 67.
+
+    Returns
+    -------
+    FlipResult
+        The mean over the mask, and the whole error map.
+
+    Raises
+    ------
+    ImageFileError
+        (a ValueError) On a shape mismatch, NaN, inf or negative pixels, a black reference
+        (it has no exposure range), or a mask that selects no pixel.
+    """
+    import flip_evaluator  # its import loads a compiled module: only where FLIP is asked for
+
+    pair = []
+    for what, a in (("reference", ref), ("image", img)):
+        a = np.asarray(a, dtype=np.float32)
+        if a.ndim == 2:
+            a = a[..., None]
+        if a.ndim != 3 or a.shape[2] not in (1, 3):
+            raise ImageFileError(f"HDR-FLIP needs (H, W, 3) or (H, W, 1) images; the {what} "
+                                 f"is {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise ImageFileError(f"{what} image holds {int((~np.isfinite(a)).sum())} NaN/inf "
+                                 "values")
+        if np.any(a < 0):
+            raise ImageFileError(f"{what} image holds negative values: HDR-FLIP scores "
+                                 "non-negative radiance")
+        pair.append(np.ascontiguousarray(np.repeat(a, 3, axis=2) if a.shape[2] == 1 else a))
+    ref, img = pair
+    if ref.shape != img.shape:
+        raise ImageFileError(f"image shapes differ: reference {ref.shape}, image {img.shape}")
+    if mask is not None:
+        mask = np.asarray(mask, dtype=bool)
+        if mask.shape != ref.shape[:2]:
+            raise ImageFileError(f"mask shape {mask.shape} does not match the images {ref.shape}")
+        if not mask.any():
+            raise ImageFileError("the object mask selects no pixel")
+    if not np.any(ref > 0):  # FLIP would end the process: its exposure range is undefined
+        raise ImageFileError("the reference image is black: HDR-FLIP has no exposure range")
+    err, _, _ = flip_evaluator.evaluate(ref, img, "HDR", inputsRGB=True, applyMagma=False,
+                                        computeMeanError=False, parameters={"ppd": float(ppd)})
+    err = np.asarray(err, dtype=np.float32).reshape(ref.shape[:2])
+    scored = err if mask is None else err[mask]
+    return FlipResult(float(np.mean(scored, dtype=np.float64)), err)
 
 
 def rae(ref: np.ndarray, rec: np.ndarray, valid: np.ndarray | None = None) -> float:

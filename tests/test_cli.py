@@ -92,6 +92,7 @@ def test_render_and_snr(tmp_path, capsys):
     assert main(["snr", str(a), str(a), "--json", "--scene", "sphere"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["snr_whole_db"] == out["snr_object_db"] == float("inf")
+    assert out["flip_object"] == 0.0
     assert 0 < out["object_pixels"] < out["pixels"] == 24 * 24
     assert main(["snr", str(a), str(b), "--mask", str(mask), "--json"]) == 0
     by_mask = json.loads(capsys.readouterr().out)
@@ -100,9 +101,10 @@ def test_render_and_snr(tmp_path, capsys):
     assert by_mask == by_scene  # the written mask is the scene's
     # different seeds: finite, noise-limited; the background adds signal and no error
     assert 0 < by_scene["snr_object_db"] <= by_scene["snr_whole_db"] < 60
+    assert 0 < by_scene["flip_object"] < 0.5  # noise only
     assert main(["snr", str(a), str(b), "--scene", "sphere"]) == 0
     line = capsys.readouterr().out
-    assert "whole-image" in line and "object-only" in line
+    assert "whole-image" in line and "object-only" in line and "HDR-FLIP" in line
     assert main(["snr", str(a), str(b)]) == 2  # no way to tell the object's pixels
     assert "--scene" in capsys.readouterr().err
     assert main(["render", "sphere.xml", "-o", str(a), "--material",

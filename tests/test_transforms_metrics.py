@@ -1,7 +1,9 @@
 import numpy as np
 import pytest
 
+import sparse_brdf as sb
 from sparse_brdf.coords import cosine_product, geometric_valid
+from sparse_brdf.errors import ImageFileError
 from sparse_brdf.metrics import cosine_weighted_snr, gamma_mse, rae, render_snr
 from sparse_brdf.transforms import TRANSFORMS, cosine_weight, forward, inverse
 
@@ -101,3 +103,47 @@ def test_forward_masks_exactly_as_zeroing_first(name):
     assert got.dtype == np.float32
     np.testing.assert_array_equal(got, expect)
     np.testing.assert_array_equal(forward(zeroed, name), expect)
+
+
+def _studio_like_image(seed: int = 0) -> np.ndarray:
+    """A smooth HDR image with a bright spot on a dim background, (48, 64, 3)."""
+    y, x = np.mgrid[0:48, 0:64].astype(np.float32)
+    spot = 20.0 * np.exp(-((x - 40) ** 2 + (y - 20) ** 2) / 30.0)
+    base = 0.05 + 0.3 * (x / 64.0)
+    rng = np.random.default_rng(seed)
+    tint = rng.uniform(0.6, 1.0, 3).astype(np.float32)
+    return (spot + base)[..., None] * tint
+
+
+def test_hdr_flip_is_zero_for_identical_images_and_grows_with_brightness():
+    ref = _studio_like_image()
+    assert sb.hdr_flip(ref, ref).mean == 0.0
+    scores = [sb.hdr_flip(ref, ref * s).mean for s in (1.01, 1.1, 1.5)]
+    assert 0.0 < scores[0] < scores[1] < scores[2] < 1.0
+    res = sb.hdr_flip(ref, ref * 1.1)
+    assert res.map.shape == ref.shape[:2] and res.map.dtype == np.float32
+    assert np.isclose(res.mean, res.map.mean(), rtol=1e-5)
+
+
+def test_hdr_flip_averages_over_the_mask_only():
+    ref = _studio_like_image()
+    img = ref.copy()
+    img[:, :32] *= 2.0  # only the left half differs
+    right = np.zeros(ref.shape[:2], bool)
+    right[:, 40:] = True  # far enough from the change for FLIP's filters
+    assert sb.hdr_flip(ref, img, right).mean < 0.2 * sb.hdr_flip(ref, img, ~right).mean
+    mono = sb.hdr_flip(ref[..., :1], img[..., :1])
+    assert mono.mean > 0.0 and mono.map.shape == ref.shape[:2]
+
+
+@pytest.mark.parametrize("bad, match", [
+    (np.zeros((48, 64, 3), np.float32), "black"),
+    (np.full((48, 64, 3), np.nan, np.float32), "NaN"),
+    (-np.ones((48, 64, 3), np.float32), "negative"),
+    (np.ones((48, 60, 3), np.float32), "shapes differ"),
+])
+def test_hdr_flip_refuses_what_it_cannot_score(bad, match):
+    img = _studio_like_image()
+    ref = bad if bad.shape == img.shape else np.ones((48, 60, 3), np.float32)
+    with pytest.raises(ImageFileError, match=match):
+        sb.hdr_flip(ref, img)
