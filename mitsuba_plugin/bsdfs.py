@@ -63,6 +63,8 @@ from sparse_brdf.model.lookups import GroupedLookup, StrictLookup
 from sparse_brdf.model.sbrdf import decode_file, load_sbrdf
 from sparse_brdf.sources.load import load_brdf
 from sparse_brdf.sources.nbrdf import read_nbrdf_weights
+from sparse_brdf.transforms import scale as transform_scale
+from sparse_brdf.transforms import uses_cosine
 
 from .kernels import (
     Ops,
@@ -652,7 +654,10 @@ class SparseBSDF(GlossyBSDF):
         self.n_terms = tuple(int(n) for n in model.n_coeffs)
         self.decoder = choose_decoder(decoder, model, ens)
         self._shape = Shape(ops, model.shape)
-        self._use_cos = ops.f(1.0 if model.transform == "log-plus-cosine" else 0.0)
+        self._use_cos = ops.f(1.0 if uses_cosine(model.transform) else 0.0)
+        # the relative transforms' constant factor s of the weight (a Python float: the
+        # paper's transforms, s = 1, trace no multiply)
+        self._scale = transform_scale(model.transform)
         self.layout = None
         self._model, self._ens, self._grad, self._ad = model, ens, False, None
         if self.decoder == "grouped":
@@ -797,6 +802,8 @@ class SparseBSDF(GlossyBSDF):
             xs = [x + self._x_grad(c, bins, lin, active) for c, x in enumerate(xs)]
         if self._mix is not None:  # a Python branch: rgb materials trace no mix
             xs = mix_colour(xs, self._mix)
+        if self._scale != 1.0:
+            w = w * self._scale
         return self._m.Color3f(*rho_from_x(ops, xs, valid, w))
 
     def _rho_point(self, wi, wo, active):
@@ -823,6 +830,8 @@ class SparseBSDF(GlossyBSDF):
             else:
                 w, ok = bin_weight(ops, sh, *bins, self._use_cos)
             valid = 1.0 if ok else 0.0
+        if self._scale != 1.0:
+            w = w * self._scale
         return self._m.Color3f(*rho_from_x(ops, xs, valid, w))
 
     def to_string(self):

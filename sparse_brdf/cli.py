@@ -87,7 +87,7 @@ from .sources.dataset import training_data
 from .sources.load import load_brdf
 from .sources.merl import write_merl
 from .sources.samples import PLACEMENTS, plan
-from .transforms import COLOUR_BASES
+from .transforms import COLOUR_BASES, TRANSFORMS
 
 EPILOG = f"""examples:
   sparse-brdf corpus list
@@ -535,7 +535,9 @@ def _add_train(sub) -> None:
                    help="corpora to train on (names or folders)")
     t.add_argument("--split", default="train", choices=SPLITS)
     t.add_argument("--transform", nargs="+", default=_default(training_data, "transforms"),
-                   choices=_default(training_data, "transforms"))
+                   choices=TRANSFORMS,
+                   help="the transforms trained for (the paper's ensembles: log-plus "
+                        "log-plus-cosine)")
     t.add_argument("--basis", default=_default(training_data, "basis"), choices=COLOUR_BASES,
                    help="colour basis of the training channels (the encoder's coded channels)")
     t.add_argument("--taus", nargs="+", type=_typed(TRAIN["tau"].capped(GRID_BINS.hi)),

@@ -147,8 +147,12 @@ def hdr_flip(ref: np.ndarray, img: np.ndarray, mask: np.ndarray | None = None,
     images, computed by NVIDIA's ``flip-evaluator``.
 
     The error map is computed on the whole image (FLIP filters over a neighbourhood) and
-    averaged over the pixels of ``mask``. Its exposure range is the reference's, as FLIP
-    chooses it; the tone mapper is ACES.
+    averaged over the pixels of ``mask``. The tone mapper is ACES. HDR-FLIP takes the
+    largest error over a range of exposures, from the one that maps the reference's
+    brightest pixel to 0.85 to the one that maps its median luminance to 0.85; with a mask,
+    that median is the object's (:func:`flip_exposures`), since a black background that
+    fills half the image would otherwise push the longest exposure to 2^24 and score
+    colour differences a millionth of the object's brightness.
 
     Parameters
     ----------
@@ -199,11 +203,57 @@ def hdr_flip(ref: np.ndarray, img: np.ndarray, mask: np.ndarray | None = None,
             raise ImageFileError("the object mask selects no pixel")
     if not np.any(ref > 0):  # FLIP would end the process: its exposure range is undefined
         raise ImageFileError("the reference image is black: HDR-FLIP has no exposure range")
+    params = {"ppd": float(ppd)}
+    if mask is not None:
+        params.update(flip_exposures(ref, mask))
     err, _, _ = flip_evaluator.evaluate(ref, img, "HDR", inputsRGB=True, applyMagma=False,
-                                        computeMeanError=False, parameters={"ppd": float(ppd)})
+                                        computeMeanError=False, parameters=params)
     err = np.asarray(err, dtype=np.float32).reshape(ref.shape[:2])
     scored = err if mask is None else err[mask]
     return FlipResult(float(np.mean(scored, dtype=np.float64)), err)
+
+
+#: The ACES fit FLIP assumes (Narkowicz 2016, with FLIP's pre-exposure of 0.6 folded in):
+#: tone(x) = (K[0] x^2 + K[1] x + K[2]) / (K[3] x^2 + K[4] x + K[5]).
+_ACES = (0.6 * 0.6 * 2.51, 0.6 * 0.03, 0.0, 0.6 * 0.6 * 2.43, 0.6 * 0.59, 0.14)
+#: The tone-mapped value that bounds HDR-FLIP's exposure range at both ends.
+_FLIP_T = 0.85
+_LUMINANCE = np.array([0.2126, 0.7152, 0.0722], np.float64)
+
+
+def flip_exposures(ref: np.ndarray, mask: np.ndarray) -> dict[str, float | int]:
+    """HDR-FLIP's exposure range (Andersson et al. 2021), measured on the object's pixels.
+
+    The start exposure maps the brightest luminance to a tone-mapped 0.85, the stop
+    exposure the median luminance of the pixels in ``mask`` (the median of their nonzero
+    ones, if most are black); one exposure per stop between them, at least two.
+
+    Parameters
+    ----------
+    ref : numpy.ndarray
+        float32 (H, W, 3) linear RGB, the reference.
+    mask : numpy.ndarray
+        Bool (H, W), selecting at least one pixel.
+
+    Returns
+    -------
+    dict
+        ``startExposure``, ``stopExposure`` (log2 of the exposure factor) and
+        ``numExposures``, as ``flip_evaluator.evaluate`` takes them.
+    """
+    k0, k1, k2, k3, k4, k5 = _ACES
+    a, b = k1 - k4 * _FLIP_T, k2 - k5 * _FLIP_T  # the root of tone(x) = t
+    c0, c1 = a / (k0 - k3 * _FLIP_T), b / (k0 - k3 * _FLIP_T)
+    x_t = -0.5 * c0 + np.sqrt((0.5 * c0) ** 2 - c1)
+    lum = np.asarray(ref, np.float64) @ _LUMINANCE
+    obj = lum[mask]
+    y_lo = float(np.median(obj))
+    if y_lo <= 0.0:
+        y_lo = float(np.median(obj[obj > 0])) if np.any(obj > 0) else float(lum.max())
+    start = float(np.log2(x_t / lum.max()))
+    stop = max(float(np.log2(x_t / y_lo)), start)
+    return {"startExposure": start, "stopExposure": stop,
+            "numExposures": max(2, int(np.ceil(stop - start)))}
 
 
 def rae(ref: np.ndarray, rec: np.ndarray, valid: np.ndarray | None = None) -> float:

@@ -92,9 +92,22 @@ def evaluate(layers: Layers, x: np.ndarray, chunk: int = 1 << 18) -> np.ndarray:
     return out
 
 
-def tabulate(layers: Layers, shape: tuple[int, int, int] = MERL_SHAPE
-             ) -> tuple[np.ndarray, np.ndarray]:
+def tabulate(layers: Layers, shape: tuple[int, int, int] = MERL_SHAPE,
+             symmetric: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """The network on a grid, at the bins' lower-edge angles (as the grid's samples).
+
+    Parameters
+    ----------
+    layers : list of (kernel, bias)
+        The dense layers, float32.
+    shape : tuple of 3 int
+        The (theta_h, theta_d, phi_d) grid.
+    symmetric : bool
+        Average the network over the four sign combinations of the difference vector's x
+        and y (:data:`SYMMETRIES`): phi_d, -phi_d, pi - phi_d and pi + phi_d. An isotropic
+        BRDF is unchanged by the mirror phi_d -> -phi_d and, by reciprocity, by phi_d ->
+        phi_d + pi; a network fitted to noisy data need not be, and the grid folds phi_d
+        into [0, pi) by reciprocity. False: the network as it is.
 
     Returns
     -------
@@ -106,8 +119,20 @@ def tabulate(layers: Layers, shape: tuple[int, int, int] = MERL_SHAPE
     valid = geometric_valid(shape)
     th, td, pd = grid_angles(shape)
     values = np.zeros((*shape, 3), np.float32)
-    values[valid] = evaluate(layers, network_inputs(th[valid], td[valid], pd[valid]))
+    x = network_inputs(th[valid], td[valid], pd[valid])
+    if not symmetric:
+        values[valid] = evaluate(layers, x)
+        return values, valid
+    acc = np.zeros((len(x), 3), np.float64)
+    for sx, sy in SYMMETRIES:
+        acc += evaluate(layers, x * np.array([1, 1, 1, sx, sy, 1], np.float32))
+    values[valid] = (acc / len(SYMMETRIES)).astype(np.float32)
     return values, valid
+
+
+#: The sign changes (of the difference vector's x and y) under which an isotropic,
+#: reciprocal BRDF is unchanged: identity, phi_d -> pi - phi_d, -phi_d, pi + phi_d.
+SYMMETRIES: tuple[tuple[int, int], ...] = ((1, 1), (-1, 1), (1, -1), (-1, -1))
 
 
 def layers_from_params(params: dict[str, np.ndarray]) -> Layers:

@@ -1,9 +1,19 @@
-"""The two BRDF transforms of the paper (Tongbuasirilai et al., "A Sparse Non-parametric
-BRDF Model", eq. 1 and 2; ``docs/method.md``, "Transforms"), with inverses.
+"""The BRDF transforms, with inverses: the paper's two (Tongbuasirilai et al., "A Sparse
+Non-parametric BRDF Model", eq. 1 and 2) and their relative-precision twins
+(``docs/method.md``, "Transforms").
 
-- ``log-plus``:        t = ln(rho + 1),      rho = exp(t) - 1
-- ``log-plus-cosine``: t = ln(rho * c + 1),  rho = (exp(t) - 1) / c,
-  with c = clip(cos(theta_i) cos(theta_o), 0.01, 1) at the bin's angles.
+- ``log-plus``:            t = ln(rho + 1),          rho = exp(t) - 1
+- ``log-plus-cosine``:     t = ln(rho c + 1),        rho = (exp(t) - 1) / c,
+  with c = clip(cos(theta_i) cos(theta_o), 0.01, 1) at the bin's angles;
+- ``log-relative``:        t = ln(rho s + 1),        rho = (exp(t) - 1) / s,
+- ``log-relative-cosine``: t = ln(rho c s + 1),      rho = (exp(t) - 1) / (c s),
+  with s = :data:`RELATIVE_SCALE` (sr). ln(1 + x) is linear for x much below 1, so the
+  paper's transforms code dim values (rho << 1/sr) with absolute precision: a coding
+  error that is small beside a highlight is a large relative error where the material is
+  dim, and a hue shift where one colour channel is dim. With s the logarithm reaches down
+  to rho = 1/s, so errors are relative over the values materials have.
+
+Every transform is t = ln(rho w + 1) with a weight w (:func:`weight`).
 
 Arrays are channel-first, ``(..., n_h, n_d, n_p)``: the trailing three axes are the grid.
 Invalid bins are set to rho = 0 before transforming; inverses clamp rho >= 0.
@@ -19,9 +29,27 @@ from .coords import cosine_product
 from .params import check_choice
 
 #: The transforms (declared choices of every ``transform`` parameter; ``encode`` adds
-#: "auto", the one its selector prefers).
-TRANSFORMS: tuple[str, str] = ("log-plus", "log-plus-cosine")
+#: "auto", the one its selector prefers among those its ensemble was trained for). A
+#: transform's index here is its id in a ``.sbrdf`` header: append, never reorder.
+TRANSFORMS: tuple[str, ...] = ("log-plus", "log-plus-cosine", "log-relative",
+                               "log-relative-cosine")
+#: The paper's two transforms: those of the ensembles trained before the relative ones.
+PAPER_TRANSFORMS: tuple[str, str] = ("log-plus", "log-plus-cosine")
+#: The relative transforms' scale s (sr): values are coded relative to each other down to
+#: rho = 1/s. Chosen by the one-light study of docs/method.md, "Transforms".
+RELATIVE_SCALE = 300.0
 COS_CLIP = (0.01, 1.0)
+
+
+def uses_cosine(name: str) -> bool:
+    """Whether transform ``name`` weighs rho by clip(cos_i cos_o, 0.01, 1)."""
+    return check_transform(name).endswith("-cosine")
+
+
+def scale(name: str) -> float:
+    """The constant factor of transform ``name``'s weight: :data:`RELATIVE_SCALE` for the
+    relative transforms, 1 for the paper's."""
+    return RELATIVE_SCALE if check_transform(name).startswith("log-relative") else 1.0
 
 
 def check_transform(name: str) -> str:
@@ -38,8 +66,21 @@ def cosine_weight(shape: tuple[int, int, int]) -> np.ndarray:
     return c
 
 
-def _weight(name: str, shape: tuple[int, int, int]) -> np.ndarray | float:
-    return cosine_weight(shape) if check_transform(name) == "log-plus-cosine" else 1.0
+def weight(name: str, shape: tuple[int, int, int]) -> np.ndarray | float:
+    """The weight w of transform ``name`` (t = ln(rho w + 1)) on the grid ``shape``: a
+    float32 array (n1, n2, n3) for the cosine transforms (read-only), else a float."""
+    s = scale(name)
+    if not uses_cosine(name):
+        return s
+    return cosine_weight(shape) if s == 1.0 else _scaled_cosine_weight(shape, s)
+
+
+@functools.lru_cache(maxsize=8)
+def _scaled_cosine_weight(shape: tuple[int, int, int], s: float) -> np.ndarray:
+    w = cosine_weight(shape) * np.float32(s)
+    w.flags.writeable = False
+    return w
+
 
 
 def forward(rho: np.ndarray, name: str, valid: np.ndarray | None = None) -> np.ndarray:
@@ -50,8 +91,10 @@ def forward(rho: np.ndarray, name: str, valid: np.ndarray | None = None) -> np.n
     rho : numpy.ndarray
         Linear BRDF values (1/sr), channel-first: shape (..., n_h, n_d, n_p).
     name : str
-        ``"log-plus"`` (t = ln(rho + 1)) or ``"log-plus-cosine"``
-        (t = ln(rho c + 1), c = clip(cos_i cos_o, 0.01, 1) at each bin).
+        One of :data:`TRANSFORMS`: ``"log-plus"`` (t = ln(rho + 1)), ``"log-plus-cosine"``
+        (t = ln(rho c + 1), c = clip(cos_i cos_o, 0.01, 1) at each bin), or their
+        relative twins ``"log-relative"`` (t = ln(rho s + 1)) and
+        ``"log-relative-cosine"`` (t = ln(rho c s + 1)).
     valid : numpy.ndarray, optional
         Bool (n_h, n_d, n_p), broadcast over the leading axes: invalid bins are set to
         rho = 0 first. None: every bin as given.
@@ -67,7 +110,7 @@ def forward(rho: np.ndarray, name: str, valid: np.ndarray | None = None) -> np.n
         If ``name`` is not one of :data:`TRANSFORMS`.
     """
     rho = np.asarray(rho, dtype=np.float32)
-    w = _weight(name, rho.shape[-3:])
+    w = weight(name, rho.shape[-3:])
     if valid is None:
         t = rho * w
     else:  # invalid bins stay 0 (rho = 0 there), without a masked copy of rho
@@ -84,7 +127,7 @@ def inverse(t: np.ndarray, name: str) -> np.ndarray:
     t : numpy.ndarray
         Transformed values, channel-first: shape (..., n_h, n_d, n_p).
     name : str
-        The transform they are in: ``"log-plus"`` or ``"log-plus-cosine"``.
+        The transform they are in, one of :data:`TRANSFORMS`.
 
     Returns
     -------
@@ -97,14 +140,14 @@ def inverse(t: np.ndarray, name: str) -> np.ndarray:
         If ``name`` is not one of :data:`TRANSFORMS`.
     """
     t = np.asarray(t)
-    return _inverse(t, _weight(name, t.shape[-3:]))
+    return _inverse(t, weight(name, t.shape[-3:]))
 
 
 def inverse_at_bins(
     t: np.ndarray, name: str, bins: tuple[np.ndarray, ...], shape: tuple[int, int, int]
 ) -> np.ndarray:
     """Inverse transform of values ``t`` (..., ) that belong to the bins ``(i, j, k)``."""
-    w = _weight(name, shape)
+    w = weight(name, shape)
     return _inverse(np.asarray(t), w[bins] if isinstance(w, np.ndarray) else w)
 
 

@@ -190,7 +190,7 @@ def curve_figure(results: dict, path: Path) -> None:
     first = next(iter(curves.values()))
     counts = first["counts"]
     fig, axes = plt.subplots(1, 2, figsize=(11, 4), constrained_layout=True)
-    for t in TRANSFORMS:
+    for t in [t for t in TRANSFORMS if t in first]:
         for ax, key, lab in ((axes[0], "rae", "RAE"), (axes[1], "cos_snr", "cos-weighted SNR")):
             v = np.array([c[t][key] for c in curves.values()])
             ax.plot(counts, v.mean(0), marker="o", label=t)
@@ -253,20 +253,23 @@ def transform_table(results: dict, scene: str, form: str = "snr_object") -> tupl
     one in ``scene`` and SNR ``form`` (Table 2); needs the forced-transform cells
     sparse-N-TRANSFORM at N = the default budget (else the middle of the curve's counts).
     The gamma-MSE choice is the encoder's own rule (:func:`pick_transform`)."""
-    first, second = TRANSFORMS
     lines, agree = [], {"gamma": 0, "plain": 0, "n": 0}
     for key, c in sorted(results["curves"].items()):
+        names = [t for t in TRANSFORMS if t in c]  # the ensemble's two
+        if len(names) != 2:
+            continue
+        first, second = names
         counts = c["counts"]
         i = counts.index(DEFAULT_N_COEFFS) if DEFAULT_N_COEFFS in counts else len(counts) // 2
         snrs = {}
-        for t in TRANSFORMS:
+        for t in names:
             cell = results["cells"].get(f"{key}|sparse-{counts[i]}-{t}", {})
             snrs[t] = ((cell.get("renders") or {}).get(scene) or {}).get(form)
         if None in snrs.values():
             continue
         best = first if snrs[first] >= snrs[second] else second
-        by_gamma = pick_transform({t: {"gamma_mse": c[t]["gamma_mse"][i]} for t in TRANSFORMS})
-        by_plain = min(TRANSFORMS, key=lambda t: c[t]["mse"][i])
+        by_gamma = pick_transform({t: {"gamma_mse": c[t]["gamma_mse"][i]} for t in names})
+        by_plain = min(names, key=lambda t: c[t]["mse"][i])
         agree["gamma"] += by_gamma == best
         agree["plain"] += by_plain == best
         agree["n"] += 1

@@ -281,7 +281,7 @@ def encode_samples(samples: Samples, ensemble: Ensemble | str | None = None,
     check("folds", folds, PARAMETERS["folds"])
     check("candidates", candidates, PARAMETERS["candidates"])
     check("seed", seed, PARAMETERS["seed"])
-    names = TRANSFORMS if transform == "auto" else (check_transform(transform),)
+    names = ens.transforms if transform == "auto" else (check_transform(transform),)
     if not isinstance(samples, Samples):
         raise UsageError(f"encode_samples: expected Samples, got {type(samples).__name__} "
                          "(read a file with sparse_brdf.read_samples)")

@@ -314,12 +314,13 @@ def error_curve(brdf: BRDF, ens: Ensemble, counts: list[int]) -> dict:
     "gamma_mse": [...], "mse": [...]}, "chosen": [...]}`` (one projection per transform).
     """
     check_grid_matches(brdf, ens)
-    proj = {t: project_all(brdf, ens, t, max(counts)) for t in TRANSFORMS}
+    proj = {t: project_all(brdf, ens, t, max(counts)) for t in ens.transforms}
     out: dict = {"counts": list(counts), "chosen": []}
-    out.update({t: {"rae": [], "cos_snr": [], "gamma_mse": [], "mse": []} for t in TRANSFORMS})
+    out.update({t: {"rae": [], "cos_snr": [], "gamma_mse": [], "mse": []}
+                for t in ens.transforms})
     for n in counts:
         stats = {}
-        for t in TRANSFORMS:
+        for t in ens.transforms:
             rec = select(proj[t], n, name=brdf.name).decode(ens, valid=brdf.valid).values
             ref, flat = brdf.values[brdf.valid], rec[brdf.valid]
             stats[t] = {"rae": rae(ref, flat), "gamma_mse": gamma_mse(ref, flat),
@@ -514,7 +515,7 @@ def encode_sized(
     kw = check_options(**options)
     opts = _Options(n_coeffs, max_error, kw["fill"], kw["fill_iters"], kw["basis"],
                     kw["budget"] == "joint")
-    names = TRANSFORMS if transform == "auto" else (check_transform(transform),)
+    names = ens.transforms if transform == "auto" else (check_transform(transform),)
     if opts.fill == "invalid":
         models = _fill_invalid(brdf, ens, names, opts, size)
     else:

@@ -22,6 +22,7 @@ import numpy as np
 from ..errors import BRDFFileError, EnsembleMismatchError, MissingDataError
 from ..fileio import atomic_write, require_file
 from ..paths import DEFAULT_ENSEMBLE_ID, ENSEMBLES_DIR
+from ..transforms import PAPER_TRANSFORMS, TRANSFORMS
 
 
 @dataclass
@@ -75,6 +76,17 @@ class Ensemble:
     @property
     def n_dicts(self) -> int:
         return int(self.u1.shape[0])
+
+    @property
+    def transforms(self) -> tuple[str, ...]:
+        """The transforms this ensemble was trained for (``meta["transforms"]``): those an
+        ``auto`` encoding chooses among. The paper's two where the provenance does not
+        say (ensembles built by hand, or trained before the relative transforms)."""
+        names = self.meta.get("transforms")
+        if not names and "parts" in self.meta:  # a union: the parts' transforms
+            names = [t for part in self.meta["parts"] for t in part.get("transforms", [])]
+        known = [t for t in dict.fromkeys(names or ()) if t in TRANSFORMS]
+        return tuple(known) or PAPER_TRANSFORMS
 
     @property
     def shape(self) -> tuple[int, int, int]:

@@ -17,8 +17,9 @@ Model", and docs/method.md)::
     X[i, j, k] = sum_t s_t U1[i, a_t] U2[j, b_t] U3[k, c_t]
     rho        = max((exp(X) - 1) / w, 0)
 
-with w = 1 (log-plus) or w = clip(cos_i cos_o, 0.01, 1) at the bin's lower-edge angles
-(log-plus-cosine). Neither decoder ever builds the (n1, n2, n3) tensor:
+with w the transform's weight (``transforms.weight``): 1 (log-plus), clip(cos_i cos_o,
+0.01, 1) at the bin's lower-edge angles (log-plus-cosine), or either times the relative
+transforms' scale s. Neither decoder ever builds the (n1, n2, n3) tensor:
 
 - **grouped**: the terms are grouped by the atom of one mode ``g`` (the same mode for the
   three channels: the fewest packets read per lookup, see below). The two other modes
@@ -58,7 +59,8 @@ import numpy as np
 
 from ..coords import bin_angles, cos_io
 from ..params import check_choice
-from ..transforms import COS_CLIP, colour_matrix
+from ..transforms import COS_CLIP, colour_matrix, uses_cosine
+from ..transforms import scale as transform_scale
 
 #: The ``sparse_brdf`` plugin's decoders ("auto": :func:`choose_decoder` picks one).
 DECODERS = ("grouped", "strict", "auto")
@@ -461,13 +463,15 @@ def angle_tables(shape) -> tuple[np.ndarray, ...]:
 # ----------------------------------------------------------------------- numpy mirrors
 
 
-def bin_weight(i, j, k, shape, use_cos: bool) -> np.ndarray:
-    """The transform's weight w at integer bins (1 for log-plus)."""
-    if not use_cos:
-        return np.ones(np.broadcast(i, j, k).shape, np.float32)
+def bin_weight(i, j, k, shape, transform: str) -> np.ndarray:
+    """The weight w of ``transform`` (:func:`sparse_brdf.transforms.weight`) at integer
+    bins, float32 of their broadcast shape."""
+    s = np.float32(transform_scale(transform))
+    if not uses_cosine(transform):
+        return np.full(np.broadcast(i, j, k).shape, s, np.float32)
     th, td, pd = bin_angles(shape)
     ci, co = cos_io(th[i], td[j], pd[k])
-    return np.clip(ci * co, *COS_CLIP).astype(np.float32)
+    return np.clip(ci * co, *COS_CLIP).astype(np.float32) * s
 
 
 def colour_mix(basis: str) -> tuple[tuple[float, float, float], ...] | None:
@@ -547,7 +551,6 @@ def sparse_profile(model, ensemble, n_d: int = 3) -> np.ndarray:
     coded channels mixed back to R, G, B first, :func:`mix_channels`).
     """
     n1, n2, n3 = model.shape
-    use_cos = model.transform == "log-plus-cosine"
     ii, kk = np.arange(n1)[:, None], np.arange(n3)[None, :]
     acc = np.zeros(n1)
     js = range(min(n_d, n2))
@@ -557,7 +560,7 @@ def sparse_profile(model, ensemble, n_d: int = 3) -> np.ndarray:
           for j in js}
     for c in range(3):
         for j in js:
-            w = bin_weight(ii, np.full_like(ii, j), kk, model.shape, use_cos)
+            w = bin_weight(ii, np.full_like(ii, j), kk, model.shape, model.transform)
             with np.errstate(over="ignore"):  # fit_lobe treats a non-finite profile
                 acc += np.maximum(np.expm1(xs[j][c]) / w, 0.0).mean(axis=1)
     return acc / (3 * len(js))

@@ -20,7 +20,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..fileio import atomic_write
-from ..transforms import TRANSFORMS
 from .encode import ENCODE_OPTIONS, _coded_channels, project_all
 from .ensemble import Ensemble
 
@@ -82,13 +81,15 @@ def _aggregate(idx: list[np.ndarray], val: list[np.ndarray], m: int, p: int):
     return out
 
 
-def compute_prior(ens: Ensemble, brdfs: list, transforms=TRANSFORMS,
+def compute_prior(ens: Ensemble, brdfs: list, transforms: tuple[str, ...] | None = None,
                   coeffs: int = PRIOR_COEFFS, pool: int = POOL_SIZE) -> AtomPrior:
     """The atom prior of ``brdfs`` (BRDFs or corpus materials, loaded one at a time) on
-    ``ens``; a progress bar per material."""
+    ``ens``, for ``transforms`` (default: those ``ens`` was trained for); a progress bar
+    per material."""
     from tqdm.auto import tqdm  # lazy: tqdm.auto adds ~40 ms to `import sparse_brdf`
 
     basis = ENCODE_OPTIONS["basis"]
+    transforms = tuple(transforms or ens.transforms)
     k = ens.n_dicts
     got = {(t, c, j): ([], []) for t in transforms for c in range(3) for j in range(k)}
     names = []

@@ -21,7 +21,8 @@ import numpy as np
 
 from ..coords import linear_bins
 from ..samples import Samples
-from ..transforms import COS_CLIP, check_transform, colour_matrix, from_basis
+from ..transforms import COS_CLIP, colour_matrix, from_basis, uses_cosine
+from ..transforms import scale as transform_scale
 
 #: Support sizes of the greedy paths: the first stage, and the growth factor per stage.
 FIRST_STAGE, GROWTH = 4, 2.0
@@ -117,12 +118,14 @@ def stage_sizes(t_max: int) -> list[int]:
 
 
 def sample_weight(samples: Samples, transform: str) -> np.ndarray:
-    """The transform's weight c at each sample, (N,): clip(cos_i cos_o, 0.01, 1) at the
-    sample's own directions for ``log-plus-cosine`` (the value the dictionaries code is
-    ln(rho c + 1), smooth between the bins' samples), 1 for ``log-plus``."""
-    if check_transform(transform) == "log-plus":
-        return np.ones(len(samples))
-    return np.clip(samples.wi[:, 2] * samples.wo[:, 2], *COS_CLIP)
+    """The transform's weight w at each sample, (N,): for the cosine transforms
+    clip(cos_i cos_o, 0.01, 1) at the sample's own directions (the value the dictionaries
+    code is ln(rho w + 1), smooth between the bins' samples), else 1; times the relative
+    transforms' scale (``transforms.weight``)."""
+    s = transform_scale(transform)
+    if not uses_cosine(transform):
+        return np.full(len(samples), s)
+    return np.clip(samples.wi[:, 2] * samples.wo[:, 2], *COS_CLIP) * s
 
 
 def coded_values(samples: Samples, transform: str, basis: str) -> np.ndarray:

@@ -9,8 +9,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..coords import MERL_SHAPE, geometric_valid
-from ..transforms import TRANSFORMS, check_basis, check_transform, forward, to_basis
+from ..transforms import check_basis, check_transform, forward, to_basis
 from .corpora import Material
+
+#: The transforms an ensemble is trained for by default: the relative ones, which code dim
+#: values with relative precision (``docs/method.md``, "Transforms"). The paper's
+#: ensembles used ``transforms.PAPER_TRANSFORMS``.
+TRAIN_TRANSFORMS: tuple[str, ...] = ("log-relative", "log-relative-cosine")
 
 #: Names of the three coded channels of each colour basis (``transforms.COLOUR_BASES``).
 CHANNEL_NAMES = {"rgb": ("R", "G", "B"), "opponent": ("L", "RG", "YB")}
@@ -30,7 +35,7 @@ class TrainingData:
     labels: list[str]
     missing: dict[int, np.ndarray] = field(default_factory=dict)
     basis: str = "rgb"
-    transforms: tuple[str, ...] = TRANSFORMS
+    transforms: tuple[str, ...] = TRAIN_TRANSFORMS
 
     def __repr__(self) -> str:
         return (f"TrainingData({self.x.shape[0]} tensors, grid={tuple(self.x.shape[1:])}, "
@@ -58,7 +63,7 @@ class TrainingData:
 
 def training_data(
     materials: Sequence[Material],
-    transforms: Sequence[str] = TRANSFORMS,
+    transforms: Sequence[str] = TRAIN_TRANSFORMS,
     shape: tuple[int, int, int] = MERL_SHAPE,
     progress: bool = True,
     basis: str = "rgb",
@@ -96,7 +101,7 @@ def training_data(
 
 def training_tensors(
     materials: Sequence[Material],
-    transforms: Sequence[str] = TRANSFORMS,
+    transforms: Sequence[str] = TRAIN_TRANSFORMS,
     shape: tuple[int, int, int] = MERL_SHAPE,
     progress: bool = True,
     basis: str = "rgb",

@@ -5,6 +5,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+import numpy as np
+
 from ..brdf import BRDF
 from ..coords import MERL_SHAPE
 from ..errors import BRDFFileError, InvalidBRDFError, UnknownNameError
@@ -24,6 +26,7 @@ def load_brdf(
     source: str | os.PathLike | dict,
     shape: tuple[int, int, int] = MERL_SHAPE,
     cache: bool = True,
+    symmetrize: bool | None = None,
 ) -> BRDF:
     """Load a BRDF on the grid ``shape``.
 
@@ -43,6 +46,13 @@ def load_brdf(
     cache : bool
         Keep tabulations (of networks, Mitsuba BSDFs and analytic fits) in the user
         cache, keyed by their content, and reuse them.
+    symmetrize : bool, optional
+        Average the values over the symmetries of an isotropic, reciprocal BRDF: the
+        mirror phi_d -> -phi_d and reciprocity phi_d -> phi_d + pi. None (the default):
+        True for a Neural-BRDF network (whose fits break reciprocity, by a median 24-30 %
+        per bin for some RGL-EPFL materials; ``docs/method.md``, "Symmetric
+        references"), False for every other source. True on a table (``.binary``,
+        ``.sbrdf``, analytic) averages each phi_d bin with its mirror.
 
     Returns
     -------
@@ -63,6 +73,15 @@ def load_brdf(
         For an ``abc:`` or ``sgd:`` source when the fits' parameter file is absent
         (``../shared/data/fits``).
     """
+    brdf = _load(source, shape, cache, symmetrize is not False)
+    if symmetrize and not brdf.meta.get("symmetric"):
+        brdf = symmetrize_table(brdf)
+    return brdf
+
+
+def _load(source, shape: tuple[int, int, int], cache: bool, symmetric_network: bool) -> BRDF:
+    """:func:`load_brdf` without a table's symmetrisation; ``symmetric_network`` averages
+    a network over its symmetries as it is tabulated."""
     if isinstance(source, dict):
         name = str(source.get("type", "mitsuba"))
         key = content_key("mitsuba-dict", source, list(shape), _mitsuba_version())
@@ -85,8 +104,12 @@ def load_brdf(
         return read_merl(path)
     if suffix == ".h5":
         data = require_file(path, "Neural-BRDF file").read_bytes()
-        key = content_key("nbrdf", data, list(shape))
-        return cached_brdf(key, lambda: tabulate_nbrdf(path, shape), cache)
+        key = content_key("nbrdf", data, list(shape), *(["symmetric"] if symmetric_network
+                                                          else []))
+        brdf = cached_brdf(key, lambda: tabulate_nbrdf(path, shape, symmetric_network),
+                           cache)
+        brdf.meta["symmetric"] = symmetric_network
+        return brdf
     if suffix == ".sbrdf":
         try:
             return decode_file(path)
@@ -94,6 +117,32 @@ def load_brdf(
             raise BRDFFileError(f"{path}: decodes to unusable values: {exc}") from exc
     require_file(path)
     raise BRDFFileError(f"{path}: unknown BRDF format (expected one of {', '.join(SUFFIXES)})")
+
+
+def symmetrize_table(brdf: BRDF) -> BRDF:
+    """``brdf`` averaged with its mirror phi_d -> -phi_d.
+
+    On the grid, whose phi_d is folded into [0, pi) by reciprocity, the mirror takes bin
+    k (at k pi / n3) to bin (n3 - k) mod n3; the average is then unchanged by the mirror,
+    and by reciprocity through the fold.
+
+    Parameters
+    ----------
+    brdf : BRDF
+        Values (n1, n2, n3, C).
+
+    Returns
+    -------
+    BRDF
+        A new BRDF, the same shape, name and source.
+    """
+    n3 = brdf.shape[2]
+    mirror = (-np.arange(n3)) % n3
+    values = 0.5 * (brdf.values + brdf.values[:, :, mirror])
+    valid = brdf.valid & brdf.valid[:, :, mirror]
+    values = np.where(valid[..., None], values, 0).astype(np.float32)
+    return BRDF(values=values, valid=valid, name=brdf.name, source=brdf.source,
+                meta={**brdf.meta, "symmetric": True})
 
 
 def _load_fit(source: str, shape: tuple[int, int, int], cache: bool) -> BRDF:

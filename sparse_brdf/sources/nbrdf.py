@@ -57,10 +57,15 @@ def read_nbrdf_weights(path: str | os.PathLike) -> list[tuple[np.ndarray, np.nda
     return layers
 
 
-def tabulate_nbrdf(path: str | os.PathLike, shape: tuple[int, int, int] = MERL_SHAPE) -> BRDF:
-    """Load a Neural-BRDF ``.h5`` file and tabulate it at the bins' lower-edge angles."""
+def tabulate_nbrdf(path: str | os.PathLike, shape: tuple[int, int, int] = MERL_SHAPE,
+                   symmetrize: bool = True) -> BRDF:
+    """Load a Neural-BRDF ``.h5`` file and tabulate it at the bins' lower-edge angles.
+
+    ``symmetrize`` averages the network over the mirror phi_d -> -phi_d and reciprocity
+    phi_d -> phi_d + pi (:func:`sparse_brdf.mlp.tabulate`), as an isotropic BRDF is;
+    False keeps the raw network."""
     layers = read_nbrdf_weights(path)
-    values, valid = tabulate(layers, shape)
+    values, valid = tabulate(layers, shape, symmetric=symmetrize)
     name = os.path.basename(os.fspath(path)).removesuffix(".h5")
     try:
         return BRDF(values=values, valid=valid, name=name, source=os.fspath(path))
