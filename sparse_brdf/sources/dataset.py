@@ -52,13 +52,20 @@ class TrainingData:
         can differ in their last bits between Mitsuba builds or machines, which this
         makes visible.
         """
-        h = hashlib.sha256()
-        h.update(repr((self.x.shape, self.labels, self.basis, list(self.transforms))).encode())
-        h.update(np.ascontiguousarray(self.x, np.float32).tobytes())
-        for i in sorted(self.missing):
-            h.update(str(i).encode())
-            h.update(np.packbits(self.missing[i]).tobytes())
-        return h.hexdigest()
+        return _digest(self.x.shape, self.labels, self.basis, self.transforms, [self.x],
+                       self.missing)
+
+
+def _digest(shape, labels, basis, transforms, blocks, missing) -> str:
+    """:meth:`TrainingData.digest` of the tensors given as consecutive ``blocks``."""
+    h = hashlib.sha256()
+    h.update(repr((tuple(shape), list(labels), basis, list(transforms))).encode())
+    for b in blocks:
+        h.update(np.ascontiguousarray(b, np.float32).tobytes())
+    for i in sorted(missing):
+        h.update(str(i).encode())
+        h.update(np.packbits(missing[i]).tobytes())
+    return h.hexdigest()
 
 
 def training_data(
@@ -80,23 +87,54 @@ def training_data(
         check_transform(t)
     n = len(materials) * len(transforms) * 3
     x = np.empty((n, *shape), np.float32)
-    labels: list[str] = []
+    labels = [f"{m.corpus}/{m.name}:{t}:{c}" for m in materials for t in transforms
+              for c in CHANNEL_NAMES[basis]]
     missing: dict[int, np.ndarray] = {}
-    above = geometric_valid(shape)
+    for i, block, holes in _channel_blocks(materials, transforms, shape, progress, basis):
+        x[i : i + 3] = block
+        if holes.any():
+            missing.update({j: holes for j in range(i, i + 3)})
+    return TrainingData(x, labels, missing, basis, tuple(transforms))
+
+
+def training_digest(
+    materials: Sequence[Material],
+    transforms: Sequence[str] = TRAIN_TRANSFORMS,
+    shape: tuple[int, int, int] = MERL_SHAPE,
+    progress: bool = True,
+    basis: str = "rgb",
+) -> str:
+    """:meth:`TrainingData.digest` of :func:`training_data` with the same arguments,
+    computed one material at a time (the tensors are never stacked: 36 MB at a time
+    instead of 5.5 GB for the shipped ensemble's data)."""
+    n = len(materials) * len(transforms) * 3
+    labels = [f"{m.corpus}/{m.name}:{t}:{c}" for m in materials for t in transforms
+              for c in CHANNEL_NAMES[check_basis(basis)]]
+    missing: dict[int, np.ndarray] = {}
+
+    def blocks():  # fills ``missing`` as it goes; _digest reads it after the blocks
+        for i, x, holes in _channel_blocks(materials, transforms, shape, progress, basis):
+            if holes.any():
+                missing.update({j: holes for j in range(i, i + 3)})
+            yield x
+
+    return _digest((n, *shape), labels, basis, transforms, blocks(), missing)
+
+
+def _channel_blocks(materials, transforms, shape, progress, basis):
+    """(index of the first tensor, its three coded channels (3, *shape), the material's
+    unmeasured bins above the horizon) per material and transform, in training order."""
     from tqdm.auto import tqdm  # lazy: tqdm.auto adds ~40 ms to `import sparse_brdf`
 
+    above = geometric_valid(shape)
     i = 0
     for m in tqdm(materials, desc="load", unit="brdf", disable=not progress):
         brdf = m.load(shape)
         rho = brdf.channel_first()
         holes = above & ~brdf.valid
         for t in transforms:
-            x[i : i + 3] = to_basis(forward(rho, t, brdf.valid), basis)
-            labels += [f"{m.corpus}/{m.name}:{t}:{c}" for c in CHANNEL_NAMES[basis]]
-            if holes.any():
-                missing.update({j: holes for j in range(i, i + 3)})
+            yield i, to_basis(forward(rho, t, brdf.valid), basis), holes
             i += 3
-    return TrainingData(x, labels, missing, basis, tuple(transforms))
 
 
 def training_tensors(
