@@ -189,3 +189,22 @@ def test_an_id_names_a_shipped_ensemble():
         assert resolve_ensemble(ensemble_id) is Ensemble.shipped(ensemble_id)
     with pytest.raises(ValueError, match=f"ensemble {'cd' * 16} is not shipped"):
         resolve_ensemble("cd" * 16)
+
+
+@pytest.mark.shared
+def test_the_default_ensemble_was_trained_on_the_data_its_rebuild_reads(shared_data):
+    """The training data the documented rebuild reads hash to the shipped default's
+    ``meta["data_sha256"]``: the tabulations (symmetrised networks, Mitsuba's BSDFs), the
+    transforms and the colour basis have not drifted since it was trained
+    (docs/ensemble.md, "Rebuilding the default")."""
+    from sparse_brdf.sources.corpora import get_corpus
+    from sparse_brdf.sources.dataset import training_digest
+
+    ens = Ensemble.default()
+    meta = ens.meta
+    materials = [m for c in meta["corpora"] for m in get_corpus(c).split(meta["split"])]
+    assert [f"{m.corpus}/{m.name}" for m in materials] == meta["data"]
+    assert ens.transforms == tuple(meta["transforms"])
+    digest = training_digest(materials, meta["transforms"], tuple(meta["grid"]),
+                             progress=False, basis=meta["basis"])
+    assert digest == meta["data_sha256"]
