@@ -43,7 +43,7 @@ from ..errors import (
     short,
 )
 from ..fileio import atomic_write, require_file
-from ..metrics import cosine_weighted_snr, gamma_mse, rae, snr_forms
+from ..metrics import cosine_weighted_snr, gamma_mse, hdr_flip, rae, snr_forms
 from ..model.compact import BRDFModel
 from ..model.encode import ENCODE_OPTIONS, error_curve
 from ..model.ensemble import resolve_ensemble
@@ -56,10 +56,11 @@ from ..sources.corpora import SPLITS, get_corpus
 from ..sources.merl import write_merl
 from .render import (
     RENDER_PARAMETERS,
+    SceneSpec,
     check_scene_data,
-    find_scene,
     noise_floor_snr,
     object_mask,
+    parse_scene_spec,
     read_exr,
     render_scene,
     write_exr,
@@ -69,6 +70,13 @@ from .speed import evals_per_second
 from .stability import run_stability
 
 __all__ = ["Bench", "BenchConfig", "check_config"]
+
+#: The one-light scene set (``docs/method.md``, "The bench's protocol"): the studio sphere
+#: under one distant light at 0, 40 and 70 degrees from the camera.
+ONE_LIGHT_SCENES = tuple(f"sphere_light.xml:lightangle={a}" for a in (0, 40, 70))
+#: The plugins' importance sampling in every bench render: fixed here, not left to the
+#: plugins' default, so that a bench's numbers do not move when that default does.
+BENCH_SAMPLING = "cosine"
 
 
 def shipped_configs() -> list[str]:
@@ -99,7 +107,8 @@ class BenchConfig:
         "sparse:262:log-plus-cosine", "naive", "cpd:1", "tucker:1x1x1", "pca:40", "pca:300",
         "tabulated"])
     curve_coeffs: list[int] = field(default_factory=lambda: [16, 32, 64, 128, 262, 512, 1024])
-    scenes: list[str] = field(default_factory=lambda: ["sphere.xml", "paper_sphere.xml"])
+    scenes: list[str] = field(default_factory=lambda: [
+        "sphere.xml", "paper_sphere.xml", *ONE_LIGHT_SCENES])
     spp: int = 16
     res: int = 128
     seed: int = 0
@@ -148,6 +157,11 @@ class BenchConfig:
             check_setting(path, key, value, cls.__dataclass_fields__[key].type)
         for spec in data.get("models", []) + data.get("stability_models", []):
             _check_model_spec(path, spec)
+        for scene in data.get("scenes", []):
+            try:
+                parse_scene_spec(scene)
+            except (UsageError, MissingFileError) as exc:
+                raise ConfigError(f"{path}: setting scenes: {exc}") from None
         cfg = cls(**data)
         if cfg.seed == cfg.noise_seed:
             raise ConfigError(f"{path}: setting noise_seed = seed = {cfg.seed}: the noise "
@@ -309,13 +323,13 @@ def check_config(cfg: BenchConfig) -> dict:
     scenes, skipped = [], {}
     for name in cfg.scenes if cfg.render else []:
         with _naming(cfg, "scenes"):
-            path = find_scene(name)
+            spec = parse_scene_spec(name)
             try:
-                check_scene_data(path)
+                check_scene_data(spec.path, spec.params)
             except MissingDataError as exc:
-                skipped[path.name] = str(exc)
+                skipped[spec.key] = str(exc)
                 continue
-        scenes.append(path.name)
+        scenes.append(spec.key)
     return {"materials": len(mats), "training": len(train),
             "models": [m.name for m in models], "scenes": scenes, "skipped_scenes": skipped}
 
@@ -338,7 +352,7 @@ class Bench:
         self.progress = progress
         self.ensemble = resolve_ensemble(cfg.ensemble)  # read once: provenance and models
         self.results = self._load_results()
-        self.scenes: dict[str, Path] = {}  # scene name -> path, the scenes that can run
+        self.scenes: dict[str, SceneSpec] = {}  # scene key -> spec, the scenes that can run
         self._masks: dict[str, np.ndarray] = {}
         self.cell_speed = True  # measure each model's speed in its first cell
         self._loaded: tuple = (None, None)  # the last material loaded (key, BRDF)
@@ -380,14 +394,14 @@ class Bench:
     def _resolve_scenes(self) -> None:
         """The config's scenes that can run here; the others are skipped with a reason."""
         for name in self.cfg.scenes:
-            path = find_scene(name)
+            spec = parse_scene_spec(name)
             try:
-                check_scene_data(path)
+                check_scene_data(spec.path, spec.params)
             except MissingDataError as exc:
-                self.results["skipped_scenes"][path.stem] = str(exc)
-                print(f"bench: skipping scene {path.name}: {exc}", file=sys.stderr)
+                self.results["skipped_scenes"][spec.key] = str(exc)
+                print(f"bench: skipping scene {spec.key}: {exc}", file=sys.stderr)
                 continue
-            self.scenes[path.stem] = path
+            self.scenes[spec.key] = spec
 
     # ------------------------------------------------------------------ running
     def run(self, ex: Executor | None = None) -> dict:
@@ -496,7 +510,8 @@ class Bench:
             if path.is_file():
                 mask = np.load(path)
             else:
-                mask = object_mask(self.scenes[scene], res=self.cfg.res)
+                spec = self.scenes[scene]
+                mask = object_mask(spec.path, res=self.cfg.res, params=spec.params)
                 path.parent.mkdir(parents=True, exist_ok=True)
                 with atomic_write(path, "wb") as f:
                     np.save(f, mask)
@@ -514,14 +529,32 @@ class Bench:
         # id is found from the file itself)
         ens = ({"ensemble": str(Path(self.cfg.ensemble).resolve())}
                if self.cfg.ensemble and filename.endswith(".sbrdf")
-               and Path(self.cfg.ensemble).exists() else None)
-        img = render_scene(self.scenes[scene], {"material": filename}, spp=self.cfg.spp,
-                           seed=seed, res=self.cfg.res, sparse_options=ens)
+               and Path(self.cfg.ensemble).exists() else {})
+        spec = self.scenes[scene]
+        img = render_scene(spec.path, {"material": filename}, spp=self.cfg.spp,
+                           seed=seed, res=self.cfg.res, params=spec.params,
+                           sparse_options={"sampling": BENCH_SAMPLING, **ens},
+                           tabulated_options={"sampling": BENCH_SAMPLING})
         seconds = time.perf_counter() - t0
         write_exr(exr, img)
         with atomic_write(exr.with_suffix(".json"), "w") as f:
             json.dump({"seconds": seconds}, f)
         return img, seconds
+
+    def _flip(self, scene: str, key: str, model: str, ref: np.ndarray,
+              img: np.ndarray) -> float | None:
+        """HDR-FLIP of a model's render over the object's pixels; its error map is kept
+        beside the render (``work/SCENE/MATERIAL__MODEL.flip.npy``, float16) for the
+        reports. None where FLIP is undefined (a black reference)."""
+        try:
+            res = hdr_flip(ref, img, self._mask(scene))
+        except ValueError as exc:
+            print(f"bench: no HDR-FLIP for {key} / {model} in {scene}: {exc}", file=sys.stderr)
+            return None
+        path = self.work / scene / f"{_stem(key)}__{model}.flip.npy"
+        with atomic_write(path, "wb") as f:
+            np.save(f, res.map.astype(np.float16))
+        return res.mean
 
     def _reference_file(self, key: str, brdf) -> str:
         ref_file = self.work / f"{_stem(key)}__reference.binary"
@@ -576,6 +609,8 @@ class Bench:
                     ref, _ = self._render(scene, key, ref_file, self.cfg.seed, "reference")
                     img, secs = self._render(scene, key, path, self.cfg.seed, model.name)
                     row["renders"][scene] = {**snr_forms(ref, img, self._mask(scene)).as_dict(),
+                                             "flip": self._flip(scene, key, model.name, ref,
+                                                                img),
                                              "render_s": secs}
             if self.cell_speed:
                 self._speed(model, compact)
