@@ -44,9 +44,10 @@ from ..errors import (
 )
 from ..fileio import atomic_write, require_file
 from ..metrics import cosine_weighted_snr, gamma_mse, hdr_flip, rae, snr_forms
-from ..model.compact import BRDFModel
+from ..model.compact import Compact
 from ..model.encode import ENCODE_OPTIONS, error_curve
 from ..model.ensemble import resolve_ensemble
+from ..model.protocol import ComparedModel, check_compressed, table_of
 from ..model.sbrdf import VERSION, save_sbrdf
 from ..model.specs import make_model, parse_spec
 from ..parallel import Executor, InProcess
@@ -66,6 +67,7 @@ from .render import (
     write_exr,
 )
 from .report import write_report
+from .results_file import SCHEMA, environment
 from .speed import evals_per_second
 from .stability import run_stability
 
@@ -248,6 +250,19 @@ def _check_model_spec(path: Path, spec) -> None:
         raise ConfigError(f"{path}: {exc}") from None
 
 
+def make_models(specs: list[str], ensemble) -> list:
+    """The models of ``specs`` (:func:`~sparse_brdf.model.specs.make_model`), unfitted;
+    :class:`UsageError` when two share a name (their results would overwrite each other)."""
+    models = [make_model(s, ensemble) for s in specs]
+    seen: dict[str, str] = {}
+    for spec, m in zip(specs, models, strict=True):
+        if m.name in seen:
+            raise UsageError(f"models {seen[m.name]!r} and {spec!r} are both named "
+                             f"{m.name!r}: give each model its own name")
+        seen[m.name] = spec
+    return models
+
+
 def evaluated_materials(cfg: BenchConfig) -> list:
     """The materials ``cfg`` evaluates: each corpus's split, at most ``max_materials``."""
     mats = []
@@ -312,8 +327,10 @@ def check_config(cfg: BenchConfig) -> dict:
     """
     with _naming(cfg, "ensemble"):
         ens = resolve_ensemble(cfg.ensemble)
-    models = [make_model(s, ens) for s in cfg.models]
-    smodels = [make_model(s, ens) for s in cfg.stability_models] if cfg.stability else []
+    with _naming(cfg, "models"):
+        models = make_models(cfg.models, ens)
+    with _naming(cfg, "stability_models"):
+        smodels = make_models(cfg.stability_models, ens) if cfg.stability else []
     with _naming(cfg, "corpora"):
         mats = evaluated_materials(cfg)
     learners = [m for m in models + smodels if m.learns]
@@ -369,11 +386,12 @@ class Bench:
         """Earlier results of this config (a resumed run), else a fresh record; results of
         another config, ensemble or encoder are discarded with the renders they cached."""
         p = self.out / "results.json"
-        fresh = {"config": asdict(self.cfg), "provenance": self._provenance(), "cells": {},
-                 "curves": {}, "noise_floor": {}, "speed": {}, "skipped_scenes": {}}
+        fresh = {"schema": SCHEMA, "config": asdict(self.cfg),
+                 "provenance": self._provenance(), "cells": {}, "curves": {},
+                 "noise_floor": {}, "speed": {}, "skipped_scenes": {}}
         if p.is_file():
             data = json.loads(p.read_text())
-            if all(data.get(k) == fresh[k] for k in ("config", "provenance")):
+            if all(data.get(k) == fresh[k] for k in ("schema", "config", "provenance")):
                 return data
             if self.work.is_dir():  # cached renders and files of the old results
                 shutil.rmtree(self.work)
@@ -413,7 +431,7 @@ class Bench:
         if self.cfg.render:
             self._resolve_scenes()
         ens = self.ensemble
-        models = [make_model(s, ens) for s in self.cfg.models]
+        models = make_models(self.cfg.models, ens)
         mats = self.materials()
         self._train(models, mats)
         self._run_cells(ex or InProcess(), ens, models, mats)
@@ -429,12 +447,14 @@ class Bench:
                     continue
                 self._save()
         if self.cfg.stability and "stability" not in self.results and mats:
-            smodels = [make_model(s, ens) for s in self.cfg.stability_models]
+            smodels = make_models(self.cfg.stability_models, ens)
             self._train(smodels, mats)
             self.results["stability"] = {
                 "material": _key(mats[0]),
                 "rows": run_stability(mats[0].load(), smodels, self.work / "stability")}
             self._save()
+        self.results["environment"] = environment()  # where the last run ran
+        self._save()
         write_report(self.results, self.out)
         return self.results
 
@@ -574,32 +594,42 @@ class Bench:
             floors[scene] = noise_floor_snr(ref, alt, self._mask(scene)).as_dict()
         return floors
 
-    def _speed(self, model: BRDFModel, compact) -> None:
-        """Evaluations per second of ``model``'s own evaluator, measured once per model."""
+    def _speed(self, model: ComparedModel, compact) -> None:
+        """Evaluations per second of ``model``'s own evaluator, measured once per model;
+        None for an outside model without a Dr.Jit evaluator (``drjit_evaluator()``)."""
         if not self.cfg.speed or model.name in self.results["speed"]:
+            return
+        if not (isinstance(compact, Compact) or hasattr(compact, "drjit_evaluator")):
+            self.results["speed"][model.name] = None
             return
         self.results["speed"][model.name] = evals_per_second(
             compact, n=self.cfg.speed_evals, ensemble=getattr(model, "ensemble", None))
 
-    def _cell(self, key: str, brdf, model: BRDFModel) -> dict:
+    def _cell(self, key: str, brdf, model: ComparedModel) -> dict:
         row = {"material": key, "model": model.name}
         try:
             t0 = time.perf_counter()
             compact = model.compress(brdf)
-            rec = compact.reconstruct()
+            problem = check_compressed(compact)
+            if problem:
+                raise TypeError(f"{model.name}: compress() returned a "
+                                f"{type(compact).__name__}: {problem}")
+            rec = table_of(compact, brdf)
             row["fit_s"] = time.perf_counter() - t0
             if not np.all(np.isfinite(rec)):
                 raise FloatingPointError("reconstruction holds NaN/inf")
-            row.update(bytes=compact.nbytes, rae=rae(brdf.values, rec, brdf.valid),
+            row.update(bytes=int(compact.nbytes), rae=rae(brdf.values, rec, brdf.valid),
                        cos_snr=cosine_weighted_snr(brdf.values, rec, brdf.valid),
                        gamma_mse=gamma_mse(brdf.values, rec, brdf.valid))
-            if compact.info and "transform" in compact.info:
-                row["transform"] = compact.info["transform"]
+            info = (getattr(compact, "info", None) or {}) if isinstance(compact, Compact) \
+                else {}
+            if "transform" in info:
+                row["transform"] = info["transform"]
             if self.cfg.render and self.scenes:
                 base = self.work / f"{_stem(key)}__{model.name}"
-                if compact.info and "model" in compact.info:
-                    path = str(save_sbrdf(base.with_suffix(".sbrdf"), compact.info["model"],
-                                          compact.info.get("version", VERSION)))
+                if "model" in info:
+                    path = str(save_sbrdf(base.with_suffix(".sbrdf"), info["model"],
+                                          info.get("version", VERSION)))
                 else:
                     path = str(write_merl(base.with_suffix(".binary"),
                                           BRDF(rec, brdf.valid, brdf.name)))

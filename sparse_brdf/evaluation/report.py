@@ -32,6 +32,11 @@ def _plt():
     return plt
 
 
+def _number(x) -> float:
+    """A recorded figure as a float; nan where none was recorded (None)."""
+    return math.nan if x is None else float(x)
+
+
 def _finite(xs):
     return [x for x in xs if x is not None and math.isfinite(x)]
 
@@ -120,7 +125,7 @@ def summary_table(results: dict, scene: str | None = None,
                "rae": float(np.mean([c["rae"] for c in ok])) if ok else math.nan,
                "cos_snr": _mean_snr([c["cos_snr"] for c in ok]),
                "fit_s": float(np.mean([c["fit_s"] for c in ok])) if ok else math.nan,
-               "evals_per_s": speed.get(model, math.nan)}
+               "evals_per_s": _number(speed.get(model))}
         renders = [c["renders"][scene] for c in ok if scene in (c.get("renders") or {})]
         if renders:
             for key, _ in FORMS:
