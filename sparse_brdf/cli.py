@@ -454,7 +454,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
         cfg.render = False
     if args.model:
         for spec in args.model:
-            parse_spec(spec)  # the grammar; make_model imports and checks (check_config)
+            try:  # the grammar; check_config imports and checks each model
+                parse_spec(spec)
+            except UsageError as exc:
+                raise UsageError(f"--model: {exc}") from None
         cfg.models = list(args.model)
     plan = check_config(cfg)  # a config the run would refuse fails here, before any work
     if args.check:

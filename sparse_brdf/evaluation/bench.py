@@ -55,6 +55,7 @@ from ..params import Interval, check
 from ..paths import CONFIGS_DIR
 from ..sources.corpora import SPLITS, get_corpus
 from ..sources.merl import write_merl
+from .html_report import write_html_report
 from .render import (
     RENDER_PARAMETERS,
     SceneSpec,
@@ -456,6 +457,7 @@ class Bench:
         self.results["environment"] = environment()  # where the last run ran
         self._save()
         write_report(self.results, self.out)
+        write_html_report(self.results, self.out)
         return self.results
 
     def _run_cells(self, ex: Executor, ens, models, mats) -> None:
