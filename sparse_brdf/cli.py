@@ -453,6 +453,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if args.no_render:
         cfg.render = False
     if args.model:
+        if not args.out:  # the config's folder holds its own models' results
+            raise UsageError(f"--model: give --out too, a folder of its own (the results of "
+                             f"{cfg.label}'s models in {cfg.out} would be replaced)")
         for spec in args.model:
             try:  # the grammar; check_config imports and checks each model
                 parse_spec(spec)

@@ -109,11 +109,16 @@ def test_a_model_that_evaluates_at_direction_pairs_is_tabulated(user_dir):
     ("examples.quantised_table:QuantisedLogTable:bits=0", "bits must be an integer from 1"),
 ])
 def test_bad_outside_specs_are_one_line_and_exit_2(user_dir, capsys, spec, message):
-    assert main(["bench", "ci", "--check", "--model", spec]) == 2
+    assert main(["bench", "ci", "--check", "--model", spec, "--out", "mine"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "Traceback" not in err
     assert ("ci.toml: setting models" in err or "--model: " in err) and spec in err
     assert re.search(message, err), err
+
+
+def test_model_option_needs_an_output_folder_of_its_own(capsys):
+    assert main(["bench", "ci", "--check", "--model", "naive"]) == 2
+    assert "--model: give --out too" in capsys.readouterr().err
 
 
 def test_outside_specs_in_a_config_pass_check(user_dir, capsys):
