@@ -28,7 +28,6 @@ from .metrics import (
     snr_forms,
 )
 from .model.budget import encode_to_bytes
-from .model.compact import Compact
 from .model.encode import DEFAULT_N_COEFFS, ENCODE_OPTIONS, PAPER_OPTIONS, encode
 from .model.ensemble import Ensemble
 from .model.interpolate import interpolate
@@ -51,7 +50,7 @@ from .transforms import inverse as inverse_transform
 __version__ = "0.1.0"
 
 __all__ = [
-    "BRDF", "BRDFFileError", "Compact", "ComparedModel", "CompressedBRDF", "Corpus",
+    "BRDF", "BRDFFileError", "ComparedModel", "CompressedBRDF", "Corpus",
     "DEFAULT_N_COEFFS", "ENCODE_OPTIONS", "Ensemble",
     "EnsembleMismatchError", "FlipResult", "PAPER_OPTIONS",
     "InvalidBRDFError", "Material", "NeuralFit", "SNRForms", "Samples", "SparseBRDF",

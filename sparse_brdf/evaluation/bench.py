@@ -1,13 +1,20 @@
 """The evaluation harness: models side by side on the same scenes, sampler and seed.
 
 ``sparse-brdf bench [CONFIG.toml]`` runs a suite and writes ``results.csv``,
-``results.json`` and ``report.md`` with PNG figures into the output folder. Finished
+``results.json`` (a versioned schema, :mod:`~sparse_brdf.evaluation.results_file`),
+``report.md`` with PNG figures and the self-contained ``report.html`` into the output
+folder. Finished
 cells (material x model) are kept in ``results.json`` and skipped on a re-run, so an
 interrupted bench resumes. Every model is rendered in every scene of the config through
 the same sampler and seed as the reference (the full tabulated BRDF), so the Monte Carlo
 noise cancels in the difference; each rendering SNR is recorded in both forms
 (whole-image, the paper's; object-only, the strict one), beside the noise floor (two
-reference renders with different seeds). A scene whose data is absent (the paper's scene
+reference renders with different seeds), and HDR-FLIP over the object's pixels with its
+error map kept for the reports. Scenes are scene specs (``sphere_light.xml:lightangle=40``,
+:func:`~sparse_brdf.evaluation.render.parse_scene_spec`); both plugins sample
+cosine-weighted (:data:`BENCH_SAMPLING`). Models are specs
+(:mod:`~sparse_brdf.model.specs`), built-in or ``module:Class`` from outside the package,
+all following :mod:`~sparse_brdf.model.protocol`. A scene whose data is absent (the paper's scene
 without the Grace Cathedral map) is skipped with a one-line reason. Each model's speed
 is its own evaluation rate (evaluations per second, :mod:`sparse_brdf.speed`).
 

@@ -149,7 +149,7 @@ def _viewer(scene: str, index: int) -> str:
 
 
 _STYLE = """
-body{font-family:system-ui,sans-serif;margin:1.5em;color:#222;max-width:1400px}
+body{font-family:system-ui,sans-serif;margin:1.5em;color:rgb(34,34,34);max-width:1400px}
 table{border-collapse:collapse;margin:.6em 0;font-size:13px}
 th,td{border:1px solid #ccc;padding:2px 6px;text-align:right}
 td:first-child,th:first-child{text-align:left}
@@ -157,7 +157,7 @@ th{cursor:pointer;background:#f0f0f0;user-select:none}
 th[aria-sort=ascending]::after{content:" \\25B2"} th[aria-sort=descending]::after{content:" \\25BC"}
 .viewer{border:1px solid #bbb;padding:.6em;margin:.8em 0;display:inline-block;outline:none}
 .viewer:focus{border-color:#36c}
-.frame{position:relative;width:384px;height:384px;background:#000}
+.frame{position:relative;width:384px;height:384px;background:black}
 .frame img{position:absolute;left:0;top:0;width:384px;height:384px;image-rendering:pixelated}
 .controls{margin-bottom:.4em} .controls label{margin-right:.8em}
 .caption{font-size:13px;margin-top:.3em;min-height:1.2em}

@@ -12,6 +12,7 @@ import json
 import os
 import platform
 from datetime import UTC, datetime
+from importlib import metadata
 from pathlib import Path
 
 from ..errors import ConfigError
@@ -30,15 +31,21 @@ _REQUIRED = ("schema", "config", "provenance", "cells", "noise_floor", "speed")
 _MAX_BYTES = 1 << 30
 
 
+def _package_version() -> str:
+    """The installed package's version ("unknown" when run from an uninstalled tree)."""
+    try:
+        return metadata.version("sparse-brdf")
+    except metadata.PackageNotFoundError:
+        return "unknown"
+
+
 def environment() -> dict:
     """Where and when results were computed: ``platform``, ``machine`` (the CPU
     architecture), ``cpus``, ``python``, ``sparse_brdf`` (the package's version) and
     ``date`` (UTC, ISO 8601)."""
-    from .. import __version__
-
     return {"platform": platform.platform(), "machine": platform.machine(),
             "cpus": os.cpu_count(), "python": platform.python_version(),
-            "sparse_brdf": __version__,
+            "sparse_brdf": _package_version(),
             "date": datetime.now(UTC).isoformat(timespec="seconds")}
 
 

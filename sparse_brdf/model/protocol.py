@@ -49,7 +49,15 @@ __all__ = ["ComparedModel", "CompressedBRDF", "check_compressed", "check_model",
 @runtime_checkable
 class CompressedBRDF(Protocol):
     """One material as a compared model stores it (see the module doc): ``nbytes``,
-    and ``reconstruct()`` or ``evaluate(wi, wo)``; optionally ``drjit_evaluator()``."""
+    and ``reconstruct()`` or ``evaluate(wi, wo)``; optionally ``drjit_evaluator()``.
+    Only ``nbytes`` is declared here (an ``isinstance`` check needs no more); the bench
+    checks the rest with :func:`check_compressed`.
+
+    Attributes
+    ----------
+    nbytes : int
+        Bytes stored for this material; state shared by every material is not counted.
+    """
 
     nbytes: int
 
@@ -57,17 +65,48 @@ class CompressedBRDF(Protocol):
 @runtime_checkable
 class ComparedModel(Protocol):
     """A model a bench compares (see the module doc): ``name``, ``learns``,
-    ``fit(brdfs)`` and ``compress(brdf)``."""
+    ``fit(brdfs)`` and ``compress(brdf)``.
+
+    Attributes
+    ----------
+    name : str
+        The model's label in results and reports, one per configuration.
+    learns : bool
+        True when ``fit`` learns from training BRDFs.
+    """
 
     name: str
     learns: bool
 
     def fit(self, brdfs: Sequence[BRDF]) -> ComparedModel:
-        """Learn shared state from training BRDFs; return the model."""
+        """Learn shared state from training BRDFs.
+
+        Parameters
+        ----------
+        brdfs : sequence of BRDF
+            Training materials, none of them scored by the bench.
+
+        Returns
+        -------
+        ComparedModel
+            The model itself.
+        """
         ...
 
     def compress(self, brdf: BRDF) -> CompressedBRDF:
-        """Fit one material; return what the model stores of it."""
+        """Fit one material.
+
+        Parameters
+        ----------
+        brdf : BRDF
+            The material: linear RGB values (1/sr), shape (n1, n2, n3, 3), and its valid
+            bins.
+
+        Returns
+        -------
+        CompressedBRDF
+            What the model stores of it.
+        """
         ...
 
 
