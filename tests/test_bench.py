@@ -218,3 +218,13 @@ def test_every_shipped_config_checks(name):
         train = training_materials(cfg, evaluated)
         assert len(train) == plan["training"] >= 2
         assert not keys & {(m.corpus, m.name) for m in train}
+
+
+def test_scene_specs_name_their_scenes():
+    assert parse_scene_spec("sphere.xml").key == "sphere"
+    spec = parse_scene_spec("sphere_light:lightangle=70, lightroll=90")
+    assert spec.params == {"lightangle": "70", "lightroll": "90"}
+    assert spec.key == "sphere_light-lightangle=70-lightroll=90"
+    # a key names folders and files: no path separator in it
+    assert parse_scene_spec("sphere.xml:envmap=envmaps/studio.exr").key == \
+        "sphere-envmap=envmaps_studio.exr"

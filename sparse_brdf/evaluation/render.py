@@ -65,6 +65,9 @@ def find_scene(name: str | os.PathLike) -> Path:
                            f"(shipped: {shipped})")
 
 
+_SEPARATORS = re.compile(r"[/\\]")
+
+
 class SceneSpec(NamedTuple):
     """A scene as a bench names it: ``NAME[:KEY=VALUE[,KEY=VALUE...]]``, e.g.
     ``sphere_light.xml:lightangle=40`` (see :func:`parse_scene_spec`).
@@ -77,7 +80,8 @@ class SceneSpec(NamedTuple):
         Scene defaults set for every render of it (as ``-D KEY=VALUE`` would).
     key : str
         Its name in results and file names: the file's stem, then ``-KEY=VALUE`` per
-        parameter in the order given (``sphere_light-lightangle=40``).
+        parameter in the order given (``sphere_light-lightangle=40``; a value's path
+        separators as underscores).
     """
 
     path: Path
@@ -114,7 +118,8 @@ def parse_scene_spec(text: str) -> SceneSpec:
     if unknown:
         raise UsageError(f"scene {text!r}: {path.name} declares no parameter "
                          f"{', '.join(unknown)} (it has {', '.join(sorted(declared))})")
-    key = path.stem + "".join(f"-{k}={v}" for k, v in params.items())
+    # the key names folders and files: a value's path separators become underscores
+    key = path.stem + "".join(f"-{k}={_SEPARATORS.sub('_', v)}" for k, v in params.items())
     return SceneSpec(path, params, key)
 
 
