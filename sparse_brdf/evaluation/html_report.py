@@ -9,7 +9,7 @@ from disk with no network and can be mailed or archived as one file:
   in one frame, a slider wiping from one to the other, ``F`` (or the button) flipping
   between them, ``M`` toggling the model's HDR-FLIP error map (magma, 0 to 1) in place of
   its render; renders are tone-mapped as the report's figures (x / (1 + x), gamma 2.2);
-- the report's charts and figures (the PNGs written beside it).
+- the report's charts (its PNGs, but for the render figures, which the viewer replaces).
 
 Opened as ``report.html#selftest`` the page checks itself (a flip, the FLIP map, a sort)
 and writes the outcome into the element ``#selftest-result`` (what the test suite reads through
@@ -94,7 +94,7 @@ def viewer_data(results: dict, out: Path, scene: str) -> dict:
 def _cell(value, fmt: str) -> str:
     """A table cell; numbers carry their value for sorting."""
     if isinstance(value, str):
-        return f"<td>{html.escape(value)}</td>"
+        return f'<td class="text">{html.escape(value)}</td>'
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return '<td data-v="">-</td>'
     sort = "1e300" if value == math.inf else repr(float(value))
@@ -152,7 +152,7 @@ _STYLE = """
 body{font-family:system-ui,sans-serif;margin:1.5em;color:rgb(34,34,34);max-width:1400px}
 table{border-collapse:collapse;margin:.6em 0;font-size:13px}
 th,td{border:1px solid #ccc;padding:2px 6px;text-align:right}
-td:first-child,th:first-child{text-align:left}
+td.text,th:first-child{text-align:left}
 th{cursor:pointer;background:#f0f0f0;user-select:none}
 th[aria-sort=ascending]::after{content:" \\25B2"} th[aria-sort=descending]::after{content:" \\25BC"}
 .viewer{border:1px solid #bbb;padding:.6em;margin:.8em 0;display:inline-block;outline:none}
@@ -294,7 +294,8 @@ def write_html_report(results: dict, out: Path) -> Path:
         A bench's results (``results.json``).
     out : Path
         The bench's output folder: its ``work/`` renders and FLIP maps are read, and the
-        PNG figures that its ``report.md`` shows are embedded, in that order.
+        PNG charts that its ``report.md`` shows are embedded, in that order (not its render
+        figures: the viewer shows those renders).
 
     Returns
     -------
@@ -303,8 +304,9 @@ def write_html_report(results: dict, out: Path) -> Path:
     """
     out = Path(out)
     md = out / "report.md"
-    charts = [out / name for name in
-              re.findall(r"\]\(([^)/]+\.png)\)", md.read_text() if md.is_file() else "")]
+    charts = [out / name for name in  # the render figures: the viewer shows them better
+              re.findall(r"\]\(([^)/]+\.png)\)", md.read_text() if md.is_file() else "")
+              if not name.startswith("renders-")]
     cfg = results["config"]
     scenes = scenes_of(results)
     body = ["<h1>sparse-brdf bench report</h1>",
@@ -324,7 +326,7 @@ def write_html_report(results: dict, out: Path) -> Path:
                  _model_table(results, scene), "<h3>Renders</h3>", _viewer(scene, i),
                  "<h3>Per material</h3>", _material_table(results, scene)]
     if charts:
-        body.append("<h2>Charts and figures</h2>")
+        body.append("<h2>Charts</h2>")
         body += [f'<p>{html.escape(p.name)}<br><img class="chart" alt="{html.escape(p.stem)}" '
                  f'src="{_png_uri(p)}"></p>' for p in charts if p.is_file()]
     payload = json.dumps(data, allow_nan=False).replace("</", "<\\/")
