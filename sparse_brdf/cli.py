@@ -487,6 +487,9 @@ def _bench_acquisition(args: argparse.Namespace) -> int:
     cfg = AcquisitionConfig.load(args.config)
     if args.out:
         cfg.out = args.out
+    if args.model:
+        raise UsageError(f"--model: the acquisition bench ({cfg.label}) compares encodings "
+                         "from samples, the sparse model and PCA; it takes no --model")
     if args.no_render or args.workers or args.scheduler:
         given = "--no-render" if args.no_render else "--workers/--scheduler"
         raise UsageError(f"{given}: the acquisition bench ({cfg.label}) renders every fit "

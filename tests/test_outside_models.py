@@ -119,6 +119,8 @@ def test_bad_outside_specs_are_one_line_and_exit_2(user_dir, capsys, spec, messa
 def test_model_option_needs_an_output_folder_of_its_own(capsys):
     assert main(["bench", "ci", "--check", "--model", "naive"]) == 2
     assert "--model: give --out too" in capsys.readouterr().err
+    assert main(["bench", "acquisition", "--check", "--model", "naive", "--out", "x"]) == 2
+    assert "it takes no --model" in capsys.readouterr().err
 
 
 def test_outside_specs_in_a_config_pass_check(user_dir, capsys):
