@@ -7,13 +7,13 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test setup llvm lint clean
+.PHONY: demo test setup llvm lint clean chromium
 
 demo: setup
 	$(PY) -m sparse_brdf.demo
 
 test: setup
-	$(VENV)/bin/ruff check sparse_brdf mitsuba_plugin tests benchmarks
+	$(VENV)/bin/ruff check sparse_brdf mitsuba_plugin tests benchmarks examples
 	$(PY) -m pytest -q --durations=10 tests
 
 setup: llvm $(STAMP)
@@ -36,8 +36,16 @@ $(STAMP): pyproject.toml
 	$(PY) -m compileall -q sparse_brdf mitsuba_plugin
 	@touch $(STAMP)
 
+# Optional: Debian's Chromium, which tests/test_html_report.py drives headless to check the
+# bench's HTML report (skipped without it). Not part of `make test`: a large download.
+chromium:
+	@if ! command -v chromium >/dev/null 2>&1; then \
+		SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+		$$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq chromium >/dev/null; \
+	fi
+
 lint: setup
-	$(VENV)/bin/ruff check sparse_brdf mitsuba_plugin tests benchmarks
+	$(VENV)/bin/ruff check sparse_brdf mitsuba_plugin tests benchmarks examples
 
 clean:
 	rm -rf $(VENV) build *.egg-info

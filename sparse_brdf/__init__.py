@@ -32,6 +32,7 @@ from .model.encode import DEFAULT_N_COEFFS, ENCODE_OPTIONS, PAPER_OPTIONS, encod
 from .model.ensemble import Ensemble
 from .model.interpolate import interpolate
 from .model.neural import NeuralFit, train_nbrdf
+from .model.protocol import ComparedModel, CompressedBRDF
 from .model.sbrdf import decode_file, load_sbrdf, save_sbrdf
 from .model.sparse import SparseBRDF
 from .model.train import train_dictionaries, train_ensemble
@@ -49,7 +50,8 @@ from .transforms import inverse as inverse_transform
 __version__ = "0.1.0"
 
 __all__ = [
-    "BRDF", "BRDFFileError", "Corpus", "DEFAULT_N_COEFFS", "ENCODE_OPTIONS", "Ensemble",
+    "BRDF", "BRDFFileError", "ComparedModel", "CompressedBRDF", "Corpus",
+    "DEFAULT_N_COEFFS", "ENCODE_OPTIONS", "Ensemble",
     "EnsembleMismatchError", "FlipResult", "PAPER_OPTIONS",
     "InvalidBRDFError", "Material", "NeuralFit", "SNRForms", "Samples", "SparseBRDF",
     "SparseBRDFError", "TRANSFORMS", "cosine_weighted_snr", "decode_file", "encode",

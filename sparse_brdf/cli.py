@@ -47,6 +47,7 @@ from .evaluation.batch import (
 from .evaluation.bench import Bench, BenchConfig, check_config, config_kind, shipped_configs
 from .evaluation.fit_images import fit_images, load_views
 from .evaluation.fit_scene import fit_scene
+from .evaluation.ranking import RANK_BY, merge_results, write_ranking
 from .evaluation.render import (
     RENDER_PARAMETERS,
     find_scene,
@@ -79,6 +80,7 @@ from .model.interpolate import PARAMETERS as INTERPOLATE
 from .model.interpolate import interpolate
 from .model.layouts import DECODERS, PLUGIN_DEFAULTS, SAMPLING
 from .model.sbrdf import decode_file, load_sbrdf, save_sbrdf
+from .model.specs import parse_spec
 from .model.train import train_dictionaries, train_ensemble
 from .parallel import executor
 from .params import Interval
@@ -450,6 +452,16 @@ def cmd_bench(args: argparse.Namespace) -> int:
         cfg.out = args.out
     if args.no_render:
         cfg.render = False
+    if args.model:
+        if not args.out:  # the config's folder holds its own models' results
+            raise UsageError(f"--model: give --out too, a folder of its own (the results of "
+                             f"{cfg.label}'s models in {cfg.out} would be replaced)")
+        for spec in args.model:
+            try:  # the grammar; check_config imports and checks each model
+                parse_spec(spec)
+            except UsageError as exc:
+                raise UsageError(f"--model: {exc}") from None
+        cfg.models = list(args.model)
     plan = check_config(cfg)  # a config the run would refuse fails here, before any work
     if args.check:
         skipped = "".join(f"; skips {k}: {v}" for k, v in plan["skipped_scenes"].items())
@@ -459,7 +471,15 @@ def cmd_bench(args: argparse.Namespace) -> int:
         return 0
     with executor(args.workers, args.scheduler) as ex:
         Bench(cfg).run(ex)
-    print(f"wrote {cfg.out}/report.md, results.csv, results.json")
+    print(f"wrote {cfg.out}/report.md, report.html, results.csv, results.json")
+    return 0
+
+
+def cmd_bench_merge(args: argparse.Namespace) -> int:
+    merged = merge_results(args.results, by=args.by)
+    paths = write_ranking(merged, args.output)
+    print(f"ranked {len(merged['rows'])} models of {len(args.results)} results files: wrote "
+          f"{', '.join(str(p) for p in paths)}")
     return 0
 
 
@@ -467,6 +487,9 @@ def _bench_acquisition(args: argparse.Namespace) -> int:
     cfg = AcquisitionConfig.load(args.config)
     if args.out:
         cfg.out = args.out
+    if args.model:
+        raise UsageError(f"--model: the acquisition bench ({cfg.label}) compares encodings "
+                         "from samples, the sparse model and PCA; it takes no --model")
     if args.no_render or args.workers or args.scheduler:
         given = "--no-render" if args.no_render else "--workers/--scheduler"
         raise UsageError(f"{given}: the acquisition bench ({cfg.label}) renders every fit "
@@ -864,11 +887,31 @@ def _add_blend_and_bench(sub) -> None:
                    help="a built-in config's name or a TOML file (default: the small suite)")
     b.add_argument("--out", help="output folder (overrides the config's)")
     b.add_argument("--no-render", action="store_true", help="BRDF-space metrics only")
+    b.add_argument("--model", action="append", metavar="SPEC",
+                   help="compare this model instead of the config's models (repeat it for "
+                        "several): a built-in spec (sparse:262, naive, pca:40, tabulated, "
+                        "...) or module:Class[:KEY=VALUE,...], a class of your own imported "
+                        "from the Python path or the current directory "
+                        "(docs/bench-guide.md)")
     b.add_argument("--check", action="store_true",
                    help="check the config (settings, models, corpora, training materials, "
                         "scenes) and exit without running it")
     _add_where(b, "the cells (material x model)")
     b.set_defaults(func=cmd_bench)
+
+    bm = sub.add_parser("bench-merge", help="rank the models of several bench results in "
+                                            "one table (Markdown and CSV)",
+                        description="Merge results.json files of benches that measured "
+                                    "the same protocol (corpora, split, scenes, spp, res, "
+                                    "seed), e.g. the standard suite's shipped models and "
+                                    "your own model's run, from any machines, into one "
+                                    "ranked table: ranking.md and ranking.csv.")
+    bm.add_argument("results", nargs="+", help="results.json files or bench output folders")
+    bm.add_argument("--by", choices=tuple(RANK_BY), default=_default(merge_results, "by"),
+                    help="rank by the mean over the scenes of this figure (higher SNR, "
+                         "lower HDR-FLIP first)")
+    bm.add_argument("-o", "--output", required=True, help="output folder")
+    bm.set_defaults(func=cmd_bench_merge)
 
 
 #: Exit status of an internal error (a bug), as sysexits.h's EX_SOFTWARE.

@@ -21,6 +21,7 @@ from sparse_brdf.evaluation.bench import (
     find_config,
     training_materials,
 )
+from sparse_brdf.evaluation.render import parse_scene_spec
 from sparse_brdf.evaluation.report import pareto
 from sparse_brdf.model.encode import ENCODE_OPTIONS
 from sparse_brdf.model.specs import make_model
@@ -95,9 +96,12 @@ def test_ci_bench_report(tmp_path):
     for name in ("report.md", "results.csv", "results.json", "error_vs_coeffs.png",
                  *(f"speed_accuracy-{s}.png" for s in scenes)):
         assert (out / name).is_file(), name
+    assert "flip@sphere" in (out / "results.csv").read_text()
+    assert (out / "work" / "sphere" / "mitsuba__{}__naive.flip.npy".format(
+        cells[next(iter(cells))]["material"].split("/")[1])).is_file()
     report = (out / "report.md").read_text()
     for heading in ("Table 3", "Table 4", "Table 2", "Fig. 2", "Stability", "Noise floor",
-                    "object-only", "whole-image", *scenes):
+                    "object-only", "whole-image", "FLIP mean", "HDR-FLIP", *scenes):
         assert heading in report, heading
     # every model has its own evaluation speed
     assert set(results["speed"]) == {c["model"] for c in cells.values()}
@@ -107,6 +111,9 @@ def test_ci_bench_report(tmp_path):
         tab = [c["renders"][scene] for c in cells.values() if c["model"] == "tabulated"]
         assert all(t[f] == float("inf") or t[f] > 100 for t in tab
                    for f in ("snr_whole", "snr_object"))
+        assert all(t["flip"] < 1e-6 for t in tab)  # HDR-FLIP: identical renders score 0
+        flips = [c["renders"][scene]["flip"] for c in cells.values()]
+        assert all(0 <= f <= 1 for f in flips) and max(flips) > 0
         for mat in {c["material"] for c in cells.values()}:
             r262, r64 = (cells[f"{mat}|sparse-{n}"]["renders"][scene] for n in (262, 64))
             # more coefficients, better renders; the background adds signal, never error
@@ -122,13 +129,17 @@ def test_ci_bench_report(tmp_path):
 def test_bench_renders_coefficient_files_with_its_own_ensemble(tmp_path, monkeypatch,
                                                                small_ensemble):
     """A bench configured with an ensemble file hands it to the sparse plugin (the plugin
-    would otherwise decode with the shipped ensemble and refuse the files)."""
+    would otherwise decode with the shipped ensemble and refuse the files); both plugins
+    sample cosine-weighted whatever their default, and the scene's parameters are set."""
     import sparse_brdf.evaluation.bench as bench_mod
 
     seen = []
 
-    def fake_render(scene, materials, spp, seed, res, sparse_options=None):
-        seen.append((materials["material"], sparse_options))
+    def fake_render(scene, materials, spp, seed, res, params, sparse_options,
+                    tabulated_options):
+        opts = sparse_options if materials["material"].endswith(".sbrdf") else \
+            tabulated_options
+        seen.append((materials["material"], params, opts))
         return np.zeros((2, 2, 3), np.float32)
 
     monkeypatch.setattr(bench_mod, "render_scene", fake_render)
@@ -136,12 +147,28 @@ def test_bench_renders_coefficient_files_with_its_own_ensemble(tmp_path, monkeyp
     ens = small_ensemble.save(tmp_path / "ens.npz")
     cfg = BenchConfig(out=str(tmp_path / "out"), ensemble=str(ens))
     b = Bench(cfg, progress=False)
-    b.scenes = {"sphere": tmp_path / "sphere.xml"}
-    (b.work / "sphere").mkdir(parents=True)
-    b._render("sphere", "merl/x", str(tmp_path / "x.sbrdf"), 0, "m")
-    b._render("sphere", "merl/x", str(tmp_path / "x.binary"), 0, "ref")
-    assert seen == [(str(tmp_path / "x.sbrdf"), {"ensemble": str(ens.resolve())}),
-                    (str(tmp_path / "x.binary"), None)]
+    spec = parse_scene_spec("sphere_light.xml:lightangle=40")
+    assert spec.key == "sphere_light-lightangle=40"
+    b.scenes = {spec.key: spec}
+    (b.work / spec.key).mkdir(parents=True)
+    b._render(spec.key, "merl/x", str(tmp_path / "x.sbrdf"), 0, "m")
+    b._render(spec.key, "merl/x", str(tmp_path / "x.binary"), 0, "ref")
+    assert seen == [(str(tmp_path / "x.sbrdf"), {"lightangle": "40"},
+                     {"sampling": "cosine", "ensemble": str(ens.resolve())}),
+                    (str(tmp_path / "x.binary"), {"lightangle": "40"}, {"sampling": "cosine"})]
+
+
+@pytest.mark.parametrize("text, message", [
+    ("sphere_light.xml:lightangle", "expected KEY=VALUE"),
+    ("sphere_light.xml:colour=red", "declares no parameter colour"),
+    ("sphere_light.xml:spp=4", "spp is set for every scene"),
+    ("nowhere.xml:lightangle=3", "no such scene file"),
+])
+def test_bad_scene_specs_name_the_config(tmp_path, text, message):
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(f'scenes = ["{text}"]\n')
+    with pytest.raises(ValueError, match=f"c.toml: setting scenes: .*{message}"):
+        BenchConfig.load(cfg)
 
 
 def test_results_of_another_ensemble_or_encoder_are_not_reused(tmp_path, small_ensemble):
@@ -191,3 +218,13 @@ def test_every_shipped_config_checks(name):
         train = training_materials(cfg, evaluated)
         assert len(train) == plan["training"] >= 2
         assert not keys & {(m.corpus, m.name) for m in train}
+
+
+def test_scene_specs_name_their_scenes():
+    assert parse_scene_spec("sphere.xml").key == "sphere"
+    spec = parse_scene_spec("sphere_light:lightangle=70, lightroll=90")
+    assert spec.params == {"lightangle": "70", "lightroll": "90"}
+    assert spec.key == "sphere_light-lightangle=70-lightroll=90"
+    # a key names folders and files: no path separator in it
+    assert parse_scene_spec("sphere.xml:envmap=envmaps/studio.exr").key == \
+        "sphere-envmap=envmaps_studio.exr"

@@ -18,6 +18,7 @@ from sparse_brdf.errors import ConfigError, UsageError
 from sparse_brdf.evaluation.batch import encode_samples_file
 from sparse_brdf.evaluation.fit_images import fit_images
 from sparse_brdf.evaluation.fit_scene import fit_scene
+from sparse_brdf.evaluation.ranking import merge_results
 from sparse_brdf.evaluation.render import RENDER_PARAMETERS, render_scene
 from sparse_brdf.model import encode as encode_module
 from sparse_brdf.model import train as train_module
@@ -167,6 +168,7 @@ MIRRORS = {
     ("fit-scene", "seed"): (fit_scene, "seed"),
     ("fit-scene", "bytes"): (fit_scene, "max_bytes"),
     ("blend", "coeffs"): (interpolate, "n_coeffs"),
+    ("bench-merge", "by"): (merge_results, "by"),
     **{("fit-images", o): (fit_images, o) for o in ("material", "iterations", "lr", "lr_end",
                                                     "spp", "seed", "decoder", "variant",
                                                     "optimizer", "loss", "prior_weight",

@@ -1,13 +1,20 @@
 """The evaluation harness: models side by side on the same scenes, sampler and seed.
 
 ``sparse-brdf bench [CONFIG.toml]`` runs a suite and writes ``results.csv``,
-``results.json`` and ``report.md`` with PNG figures into the output folder. Finished
+``results.json`` (a versioned schema, :mod:`~sparse_brdf.evaluation.results_file`),
+``report.md`` with PNG figures and the self-contained ``report.html`` into the output
+folder. Finished
 cells (material x model) are kept in ``results.json`` and skipped on a re-run, so an
 interrupted bench resumes. Every model is rendered in every scene of the config through
 the same sampler and seed as the reference (the full tabulated BRDF), so the Monte Carlo
 noise cancels in the difference; each rendering SNR is recorded in both forms
 (whole-image, the paper's; object-only, the strict one), beside the noise floor (two
-reference renders with different seeds). A scene whose data is absent (the paper's scene
+reference renders with different seeds), and HDR-FLIP over the object's pixels with its
+error map kept for the reports. Scenes are scene specs (``sphere_light.xml:lightangle=40``,
+:func:`~sparse_brdf.evaluation.render.parse_scene_spec`); both plugins sample
+cosine-weighted (:data:`BENCH_SAMPLING`). Models are specs
+(:mod:`~sparse_brdf.model.specs`), built-in or ``module:Class`` from outside the package,
+all following :mod:`~sparse_brdf.model.protocol`. A scene whose data is absent (the paper's scene
 without the Grace Cathedral map) is skipped with a one-line reason. Each model's speed
 is its own evaluation rate (evaluations per second, :mod:`sparse_brdf.speed`).
 
@@ -43,10 +50,11 @@ from ..errors import (
     short,
 )
 from ..fileio import atomic_write, require_file
-from ..metrics import cosine_weighted_snr, gamma_mse, rae, snr_forms
-from ..model.compact import BRDFModel
+from ..metrics import cosine_weighted_snr, gamma_mse, hdr_flip, rae, snr_forms
+from ..model.compact import Compact
 from ..model.encode import ENCODE_OPTIONS, error_curve
 from ..model.ensemble import resolve_ensemble
+from ..model.protocol import ComparedModel, check_compressed, table_of
 from ..model.sbrdf import VERSION, save_sbrdf
 from ..model.specs import make_model, parse_spec
 from ..parallel import Executor, InProcess
@@ -54,21 +62,31 @@ from ..params import Interval, check
 from ..paths import CONFIGS_DIR
 from ..sources.corpora import SPLITS, get_corpus
 from ..sources.merl import write_merl
+from .html_report import write_html_report
 from .render import (
     RENDER_PARAMETERS,
+    SceneSpec,
     check_scene_data,
-    find_scene,
     noise_floor_snr,
     object_mask,
+    parse_scene_spec,
     read_exr,
     render_scene,
     write_exr,
 )
 from .report import write_report
+from .results_file import SCHEMA, environment
 from .speed import evals_per_second
 from .stability import run_stability
 
 __all__ = ["Bench", "BenchConfig", "check_config"]
+
+#: The one-light scene set (``docs/method.md``, "The bench's protocol"): the studio sphere
+#: under one distant light at 0, 40 and 70 degrees from the camera.
+ONE_LIGHT_SCENES = tuple(f"sphere_light.xml:lightangle={a}" for a in (0, 40, 70))
+#: The plugins' importance sampling in every bench render: fixed here, not left to the
+#: plugins' default, so that a bench's numbers do not move when that default does.
+BENCH_SAMPLING = "cosine"
 
 
 def shipped_configs() -> list[str]:
@@ -99,7 +117,8 @@ class BenchConfig:
         "sparse:262:log-plus-cosine", "naive", "cpd:1", "tucker:1x1x1", "pca:40", "pca:300",
         "tabulated"])
     curve_coeffs: list[int] = field(default_factory=lambda: [16, 32, 64, 128, 262, 512, 1024])
-    scenes: list[str] = field(default_factory=lambda: ["sphere.xml", "paper_sphere.xml"])
+    scenes: list[str] = field(default_factory=lambda: [
+        "sphere.xml", "paper_sphere.xml", *ONE_LIGHT_SCENES])
     spp: int = 16
     res: int = 128
     seed: int = 0
@@ -148,6 +167,11 @@ class BenchConfig:
             check_setting(path, key, value, cls.__dataclass_fields__[key].type)
         for spec in data.get("models", []) + data.get("stability_models", []):
             _check_model_spec(path, spec)
+        for scene in data.get("scenes", []):
+            try:
+                parse_scene_spec(scene)
+            except (UsageError, MissingFileError) as exc:
+                raise ConfigError(f"{path}: setting scenes: {exc}") from None
         cfg = cls(**data)
         if cfg.seed == cfg.noise_seed:
             raise ConfigError(f"{path}: setting noise_seed = seed = {cfg.seed}: the noise "
@@ -234,6 +258,19 @@ def _check_model_spec(path: Path, spec) -> None:
         raise ConfigError(f"{path}: {exc}") from None
 
 
+def make_models(specs: list[str], ensemble) -> list:
+    """The models of ``specs`` (:func:`~sparse_brdf.model.specs.make_model`), unfitted;
+    :class:`UsageError` when two share a name (their results would overwrite each other)."""
+    models = [make_model(s, ensemble) for s in specs]
+    seen: dict[str, str] = {}
+    for spec, m in zip(specs, models, strict=True):
+        if m.name in seen:
+            raise UsageError(f"models {seen[m.name]!r} and {spec!r} are both named "
+                             f"{m.name!r}: give each model its own name")
+        seen[m.name] = spec
+    return models
+
+
 def evaluated_materials(cfg: BenchConfig) -> list:
     """The materials ``cfg`` evaluates: each corpus's split, at most ``max_materials``."""
     mats = []
@@ -298,8 +335,10 @@ def check_config(cfg: BenchConfig) -> dict:
     """
     with _naming(cfg, "ensemble"):
         ens = resolve_ensemble(cfg.ensemble)
-    models = [make_model(s, ens) for s in cfg.models]
-    smodels = [make_model(s, ens) for s in cfg.stability_models] if cfg.stability else []
+    with _naming(cfg, "models"):
+        models = make_models(cfg.models, ens)
+    with _naming(cfg, "stability_models"):
+        smodels = make_models(cfg.stability_models, ens) if cfg.stability else []
     with _naming(cfg, "corpora"):
         mats = evaluated_materials(cfg)
     learners = [m for m in models + smodels if m.learns]
@@ -309,13 +348,13 @@ def check_config(cfg: BenchConfig) -> dict:
     scenes, skipped = [], {}
     for name in cfg.scenes if cfg.render else []:
         with _naming(cfg, "scenes"):
-            path = find_scene(name)
+            spec = parse_scene_spec(name)
             try:
-                check_scene_data(path)
+                check_scene_data(spec.path, spec.params)
             except MissingDataError as exc:
-                skipped[path.name] = str(exc)
+                skipped[spec.key] = str(exc)
                 continue
-        scenes.append(path.name)
+        scenes.append(spec.key)
     return {"materials": len(mats), "training": len(train),
             "models": [m.name for m in models], "scenes": scenes, "skipped_scenes": skipped}
 
@@ -338,7 +377,7 @@ class Bench:
         self.progress = progress
         self.ensemble = resolve_ensemble(cfg.ensemble)  # read once: provenance and models
         self.results = self._load_results()
-        self.scenes: dict[str, Path] = {}  # scene name -> path, the scenes that can run
+        self.scenes: dict[str, SceneSpec] = {}  # scene key -> spec, the scenes that can run
         self._masks: dict[str, np.ndarray] = {}
         self.cell_speed = True  # measure each model's speed in its first cell
         self._loaded: tuple = (None, None)  # the last material loaded (key, BRDF)
@@ -355,11 +394,12 @@ class Bench:
         """Earlier results of this config (a resumed run), else a fresh record; results of
         another config, ensemble or encoder are discarded with the renders they cached."""
         p = self.out / "results.json"
-        fresh = {"config": asdict(self.cfg), "provenance": self._provenance(), "cells": {},
-                 "curves": {}, "noise_floor": {}, "speed": {}, "skipped_scenes": {}}
+        fresh = {"schema": SCHEMA, "config": asdict(self.cfg),
+                 "provenance": self._provenance(), "cells": {}, "curves": {},
+                 "noise_floor": {}, "speed": {}, "skipped_scenes": {}}
         if p.is_file():
             data = json.loads(p.read_text())
-            if all(data.get(k) == fresh[k] for k in ("config", "provenance")):
+            if all(data.get(k) == fresh[k] for k in ("schema", "config", "provenance")):
                 return data
             if self.work.is_dir():  # cached renders and files of the old results
                 shutil.rmtree(self.work)
@@ -380,14 +420,14 @@ class Bench:
     def _resolve_scenes(self) -> None:
         """The config's scenes that can run here; the others are skipped with a reason."""
         for name in self.cfg.scenes:
-            path = find_scene(name)
+            spec = parse_scene_spec(name)
             try:
-                check_scene_data(path)
+                check_scene_data(spec.path, spec.params)
             except MissingDataError as exc:
-                self.results["skipped_scenes"][path.stem] = str(exc)
-                print(f"bench: skipping scene {path.name}: {exc}", file=sys.stderr)
+                self.results["skipped_scenes"][spec.key] = str(exc)
+                print(f"bench: skipping scene {spec.key}: {exc}", file=sys.stderr)
                 continue
-            self.scenes[path.stem] = path
+            self.scenes[spec.key] = spec
 
     # ------------------------------------------------------------------ running
     def run(self, ex: Executor | None = None) -> dict:
@@ -399,7 +439,7 @@ class Bench:
         if self.cfg.render:
             self._resolve_scenes()
         ens = self.ensemble
-        models = [make_model(s, ens) for s in self.cfg.models]
+        models = make_models(self.cfg.models, ens)
         mats = self.materials()
         self._train(models, mats)
         self._run_cells(ex or InProcess(), ens, models, mats)
@@ -415,13 +455,16 @@ class Bench:
                     continue
                 self._save()
         if self.cfg.stability and "stability" not in self.results and mats:
-            smodels = [make_model(s, ens) for s in self.cfg.stability_models]
+            smodels = make_models(self.cfg.stability_models, ens)
             self._train(smodels, mats)
             self.results["stability"] = {
                 "material": _key(mats[0]),
                 "rows": run_stability(mats[0].load(), smodels, self.work / "stability")}
             self._save()
+        self.results["environment"] = environment()  # where the last run ran
+        self._save()
         write_report(self.results, self.out)
+        write_html_report(self.results, self.out)
         return self.results
 
     def _run_cells(self, ex: Executor, ens, models, mats) -> None:
@@ -496,7 +539,8 @@ class Bench:
             if path.is_file():
                 mask = np.load(path)
             else:
-                mask = object_mask(self.scenes[scene], res=self.cfg.res)
+                spec = self.scenes[scene]
+                mask = object_mask(spec.path, res=self.cfg.res, params=spec.params)
                 path.parent.mkdir(parents=True, exist_ok=True)
                 with atomic_write(path, "wb") as f:
                     np.save(f, mask)
@@ -514,14 +558,32 @@ class Bench:
         # id is found from the file itself)
         ens = ({"ensemble": str(Path(self.cfg.ensemble).resolve())}
                if self.cfg.ensemble and filename.endswith(".sbrdf")
-               and Path(self.cfg.ensemble).exists() else None)
-        img = render_scene(self.scenes[scene], {"material": filename}, spp=self.cfg.spp,
-                           seed=seed, res=self.cfg.res, sparse_options=ens)
+               and Path(self.cfg.ensemble).exists() else {})
+        spec = self.scenes[scene]
+        img = render_scene(spec.path, {"material": filename}, spp=self.cfg.spp,
+                           seed=seed, res=self.cfg.res, params=spec.params,
+                           sparse_options={"sampling": BENCH_SAMPLING, **ens},
+                           tabulated_options={"sampling": BENCH_SAMPLING})
         seconds = time.perf_counter() - t0
         write_exr(exr, img)
         with atomic_write(exr.with_suffix(".json"), "w") as f:
             json.dump({"seconds": seconds}, f)
         return img, seconds
+
+    def _flip(self, scene: str, key: str, model: str, ref: np.ndarray,
+              img: np.ndarray) -> float | None:
+        """HDR-FLIP of a model's render over the object's pixels; its error map is kept
+        beside the render (``work/SCENE/MATERIAL__MODEL.flip.npy``, float16) for the
+        reports. None where FLIP is undefined (a black reference)."""
+        try:
+            res = hdr_flip(ref, img, self._mask(scene))
+        except ValueError as exc:
+            print(f"bench: no HDR-FLIP for {key} / {model} in {scene}: {exc}", file=sys.stderr)
+            return None
+        path = self.work / scene / f"{_stem(key)}__{model}.flip.npy"
+        with atomic_write(path, "wb") as f:
+            np.save(f, res.map.astype(np.float16))
+        return res.mean
 
     def _reference_file(self, key: str, brdf) -> str:
         ref_file = self.work / f"{_stem(key)}__reference.binary"
@@ -541,32 +603,42 @@ class Bench:
             floors[scene] = noise_floor_snr(ref, alt, self._mask(scene)).as_dict()
         return floors
 
-    def _speed(self, model: BRDFModel, compact) -> None:
-        """Evaluations per second of ``model``'s own evaluator, measured once per model."""
+    def _speed(self, model: ComparedModel, compact) -> None:
+        """Evaluations per second of ``model``'s own evaluator, measured once per model;
+        None for an outside model without a Dr.Jit evaluator (``drjit_evaluator()``)."""
         if not self.cfg.speed or model.name in self.results["speed"]:
+            return
+        if not (isinstance(compact, Compact) or hasattr(compact, "drjit_evaluator")):
+            self.results["speed"][model.name] = None
             return
         self.results["speed"][model.name] = evals_per_second(
             compact, n=self.cfg.speed_evals, ensemble=getattr(model, "ensemble", None))
 
-    def _cell(self, key: str, brdf, model: BRDFModel) -> dict:
+    def _cell(self, key: str, brdf, model: ComparedModel) -> dict:
         row = {"material": key, "model": model.name}
         try:
             t0 = time.perf_counter()
             compact = model.compress(brdf)
-            rec = compact.reconstruct()
+            problem = check_compressed(compact)
+            if problem:
+                raise TypeError(f"{model.name}: compress() returned a "
+                                f"{type(compact).__name__}: {problem}")
+            rec = table_of(compact, brdf)
             row["fit_s"] = time.perf_counter() - t0
             if not np.all(np.isfinite(rec)):
                 raise FloatingPointError("reconstruction holds NaN/inf")
-            row.update(bytes=compact.nbytes, rae=rae(brdf.values, rec, brdf.valid),
+            row.update(bytes=int(compact.nbytes), rae=rae(brdf.values, rec, brdf.valid),
                        cos_snr=cosine_weighted_snr(brdf.values, rec, brdf.valid),
                        gamma_mse=gamma_mse(brdf.values, rec, brdf.valid))
-            if compact.info and "transform" in compact.info:
-                row["transform"] = compact.info["transform"]
+            info = (getattr(compact, "info", None) or {}) if isinstance(compact, Compact) \
+                else {}
+            if "transform" in info:
+                row["transform"] = info["transform"]
             if self.cfg.render and self.scenes:
                 base = self.work / f"{_stem(key)}__{model.name}"
-                if compact.info and "model" in compact.info:
-                    path = str(save_sbrdf(base.with_suffix(".sbrdf"), compact.info["model"],
-                                          compact.info.get("version", VERSION)))
+                if "model" in info:
+                    path = str(save_sbrdf(base.with_suffix(".sbrdf"), info["model"],
+                                          info.get("version", VERSION)))
                 else:
                     path = str(write_merl(base.with_suffix(".binary"),
                                           BRDF(rec, brdf.valid, brdf.name)))
@@ -576,6 +648,8 @@ class Bench:
                     ref, _ = self._render(scene, key, ref_file, self.cfg.seed, "reference")
                     img, secs = self._render(scene, key, path, self.cfg.seed, model.name)
                     row["renders"][scene] = {**snr_forms(ref, img, self._mask(scene)).as_dict(),
+                                             "flip": self._flip(scene, key, model.name, ref,
+                                                                img),
                                              "render_s": secs}
             if self.cell_speed:
                 self._speed(model, compact)

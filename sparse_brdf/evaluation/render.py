@@ -22,6 +22,7 @@ import tempfile
 import xml.etree.ElementTree as ET
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -62,6 +63,64 @@ def find_scene(name: str | os.PathLike) -> Path:
     shipped = ", ".join(sorted(q.stem for q in SCENES_DIR.glob("*.xml")))
     raise MissingFileError(f"{name}: no such scene file, and no shipped scene of that name "
                            f"(shipped: {shipped})")
+
+
+_SEPARATORS = re.compile(r"[/\\]")
+
+
+class SceneSpec(NamedTuple):
+    """A scene as a bench names it: ``NAME[:KEY=VALUE[,KEY=VALUE...]]``, e.g.
+    ``sphere_light.xml:lightangle=40`` (see :func:`parse_scene_spec`).
+
+    Attributes
+    ----------
+    path : Path
+        The scene file (:func:`find_scene`).
+    params : dict of str to str
+        Scene defaults set for every render of it (as ``-D KEY=VALUE`` would).
+    key : str
+        Its name in results and file names: the file's stem, then ``-KEY=VALUE`` per
+        parameter in the order given (``sphere_light-lightangle=40``; a value's path
+        separators as underscores).
+    """
+
+    path: Path
+    params: dict
+    key: str
+
+
+def parse_scene_spec(text: str) -> SceneSpec:
+    """Read a scene spec ``NAME[:KEY=VALUE[,KEY=VALUE...]]``: a scene file or shipped
+    scene, then scene defaults to set (the ``<default>`` names the scene declares; spp,
+    seed and res are the bench's own settings).
+
+    Raises
+    ------
+    MissingFileError
+        No such scene.
+    UsageError
+        A malformed parameter, one the scene does not declare, or spp/seed/res.
+    """
+    name, params = text, {}
+    head, sep, tail = text.rpartition(":")
+    if sep and head and not Path(text).is_file():
+        name = head
+        fixed = sorted({x.partition("=")[0].strip() for x in tail.split(",")}
+                       & set(RENDER_PARAMETERS))
+        if fixed:
+            raise UsageError(f"scene {text!r}: {', '.join(fixed)} is set for every scene "
+                             "(a setting of its own), not per scene")
+        params = parse_defaults(filter(None, (x.strip() for x in tail.split(","))),
+                                f"scene {text!r}:")
+    path = find_scene(name)
+    declared = {d.get("name") for d in parse_scene(path).getroot().iter("default")}
+    unknown = sorted(set(params) - declared)
+    if unknown:
+        raise UsageError(f"scene {text!r}: {path.name} declares no parameter "
+                         f"{', '.join(unknown)} (it has {', '.join(sorted(declared))})")
+    # the key names folders and files: a value's path separators become underscores
+    key = path.stem + "".join(f"-{k}={_SEPARATORS.sub('_', v)}" for k, v in params.items())
+    return SceneSpec(path, params, key)
 
 
 def parse_overrides(items: Iterable[str]) -> dict[str, str]:

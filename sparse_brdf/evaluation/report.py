@@ -32,6 +32,11 @@ def _plt():
     return plt
 
 
+def _number(x) -> float:
+    """A recorded figure as a float; nan where none was recorded (None)."""
+    return math.nan if x is None else float(x)
+
+
 def _finite(xs):
     return [x for x in xs if x is not None and math.isfinite(x)]
 
@@ -120,12 +125,15 @@ def summary_table(results: dict, scene: str | None = None,
                "rae": float(np.mean([c["rae"] for c in ok])) if ok else math.nan,
                "cos_snr": _mean_snr([c["cos_snr"] for c in ok]),
                "fit_s": float(np.mean([c["fit_s"] for c in ok])) if ok else math.nan,
-               "evals_per_s": speed.get(model, math.nan)}
+               "evals_per_s": _number(speed.get(model))}
         renders = [c["renders"][scene] for c in ok if scene in (c.get("renders") or {})]
         if renders:
             for key, _ in FORMS:
                 for stat, v in _stats([x[key] for x in renders]).items():
                     row[f"{key}_{stat}"] = v
+            flips = _finite([x.get("flip") for x in renders])
+            row["flip_mean"] = float(np.mean(flips)) if flips else math.nan
+            row["flip_max"] = float(np.max(flips)) if flips else math.nan
             row["render_s"] = float(np.mean([x["render_s"] for x in renders]))
         rows.append(row)
     rows.sort(key=lambda r: -r.get("snr_object_mean", r["cos_snr"]))
@@ -204,9 +212,20 @@ def curve_figure(results: dict, path: Path) -> None:
     plt.close(fig)
 
 
+def tone(img: np.ndarray) -> np.ndarray:
+    """A linear render for display: Reinhard's x / (1 + x), then gamma 2.2, in [0, 1]."""
+    return np.clip(img / (1 + img), 0, 1) ** (1 / 2.2)
+
+
+def flip_map_path(out: Path, scene: str, material: str, model: str) -> Path:
+    """Where a bench keeps the HDR-FLIP error map of a cell's render (float16 (H, W))."""
+    return out / "work" / scene / f"{material.replace('/', '__')}__{model}.flip.npy"
+
+
 def difference_figure(results: dict, out: Path, scene: str,
                       max_materials: int = 4) -> list[Path]:
-    """Renders and false-colour |ref - img| x 10 (jet) per material (Figs. 3, 4)."""
+    """Renders, false-colour |ref - img| x 10 (jet) and the HDR-FLIP error map (magma,
+    0 to 1) per material (Figs. 3, 4)."""
     work = out / "work" / scene
     mats = sorted({r["material"] for r in results["cells"].values()})[:max_materials]
     models = sorted({r["model"] for r in results["cells"].values()})
@@ -219,13 +238,13 @@ def difference_figure(results: dict, out: Path, scene: str,
             continue
         ref = read_exr(ref_p)
         shown = [m for m in models if (work / f"{stem}__{m}.exr").is_file()]
-        fig, axes = plt.subplots(2, len(shown) + 1, figsize=(2.2 * (len(shown) + 1), 4.8),
+        fig, axes = plt.subplots(3, len(shown) + 1, figsize=(2.2 * (len(shown) + 1), 7.0),
                                  constrained_layout=True)
         axes = np.atleast_2d(axes)
-        tone = lambda im: np.clip(im / (1 + im), 0, 1) ** (1 / 2.2)  # noqa: E731
         axes[0, 0].imshow(tone(ref))
         axes[0, 0].set_title("reference", fontsize=8)
         axes[1, 0].axis("off")
+        axes[2, 0].axis("off")
         for i, m in enumerate(shown, start=1):
             img = read_exr(work / f"{stem}__{m}.exr")
             r = (results["cells"].get(f"{key}|{m}", {}).get("renders") or {}).get(scene, {})
@@ -235,6 +254,12 @@ def difference_figure(results: dict, out: Path, scene: str,
             diff = np.abs(ref - img).mean(-1) * 10  # linear radiance, as the paper's figures
             axes[1, i].imshow(np.clip(diff, 0, 1), cmap="jet", vmin=0, vmax=1)
             axes[1, i].set_title("|ref - img| x 10", fontsize=7)
+            fp = flip_map_path(out, scene, key, m)
+            if fp.is_file():
+                axes[2, i].imshow(np.load(fp).astype(np.float32), cmap="magma", vmin=0, vmax=1)
+                axes[2, i].set_title(f"HDR-FLIP, mean {_f(r.get('flip'), '.3f')}", fontsize=7)
+            else:
+                axes[2, i].axis("off")
         for a in axes.ravel():
             a.set_xticks([])
             a.set_yticks([])
@@ -316,10 +341,13 @@ def _model_table(rows: list[dict], scene: str) -> list[str]:
     md = [f"### Rendering SNR per model (Table 3), `{scene}`", "",
           f"SNR in dB; *obj* = {OBJECT_ONLY} (pixels whose camera rays hit the object), "
           f"*whole* = {WHOLE_IMAGE} (every pixel, background included: the paper's form). "
-          "evals/s: the model's own evaluator on 2^20 random direction pairs.", "",
+          "evals/s: the model's own evaluator on 2^20 random direction pairs. FLIP: "
+          "HDR-FLIP over the object's pixels, mean and worst material (0 is identical; "
+          "lower is better).", "",
           "| model | materials | failed | bytes | evals/s | fit (s) | RAE | cos-SNR | "
-          "obj mean | obj std | obj min | obj max | whole mean | whole min | whole max |",
-          "|---" * 15 + "|"]
+          "obj mean | obj std | obj min | obj max | whole mean | whole min | whole max | "
+          "FLIP mean | FLIP max |",
+          "|---" * 17 + "|"]
     for r in rows:
         md.append(
             f"| {r['model']} | {r['n']} | {r['failed']} | {_f(r['bytes'], '.0f')} | "
@@ -327,7 +355,8 @@ def _model_table(rows: list[dict], scene: str) -> list[str]:
             f"{_f(r['cos_snr'])} | {_f(r.get('snr_object_mean'))} | "
             f"{_f(r.get('snr_object_std'))} | {_f(r.get('snr_object_min'))} | "
             f"{_f(r.get('snr_object_max'))} | {_f(r.get('snr_whole_mean'))} | "
-            f"{_f(r.get('snr_whole_min'))} | {_f(r.get('snr_whole_max'))} |")
+            f"{_f(r.get('snr_whole_min'))} | {_f(r.get('snr_whole_max'))} | "
+            f"{_f(r.get('flip_mean'), '.3f')} | {_f(r.get('flip_max'), '.3f')} |")
     return md
 
 
@@ -355,12 +384,13 @@ def _corpus_table(results: dict, rows: list[dict], scene: str) -> list[str]:
 def _material_table(results: dict, scene: str) -> list[str]:
     """Table 4: every cell's SNRs in ``scene``."""
     md = ["", f"### Per material (Table 4), `{scene}`", "",
-          "| material | model | SNR obj (dB) | SNR whole (dB) | RAE | status |",
-          "|---|---|---|---|---|---|"]
+          "| material | model | SNR obj (dB) | SNR whole (dB) | HDR-FLIP | RAE | status |",
+          "|---|---|---|---|---|---|---|"]
     for r in sorted(results["cells"].values(), key=lambda r: (r["material"], r["model"])):
         s = (r.get("renders") or {}).get(scene, {})
         md.append(f"| {r['material']} | {r['model']} | {_f(s.get('snr_object'))} | "
-                  f"{_f(s.get('snr_whole'))} | {_f(r.get('rae'), '.4f')} | {r['status']}"
+                  f"{_f(s.get('snr_whole'))} | {_f(s.get('flip'), '.3f')} | "
+                  f"{_f(r.get('rae'), '.4f')} | {r['status']}"
                   f"{': ' + r['error'] if r.get('error') else ''} |")
     return md
 

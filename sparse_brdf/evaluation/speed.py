@@ -105,9 +105,11 @@ def evals_per_second(model, n: int = 1 << 20, repeats: int = 5, ensemble=None, *
 
     Parameters
     ----------
-    model : Compact, SparseBRDF or BRDF
+    model : Compact, SparseBRDF, BRDF or CompressedBRDF
         A fitted :class:`~sparse_brdf.model.compact.Compact` of any baseline kind (naive,
-        cpd, tucker, pca, nbrdf, tabulated, sparse), a sparse model, or a tabulated BRDF.
+        cpd, tucker, pca, nbrdf, tabulated, sparse), a sparse model, a tabulated BRDF, or
+        any compressed material with a ``drjit_evaluator()``
+        (:mod:`sparse_brdf.model.protocol`).
     n : int, default 2**20
         Random upper-hemisphere direction pairs per timed call.
     repeats : int, default 5
@@ -174,6 +176,9 @@ def _evaluator(model, ensemble, decoder: str) -> Callable:
 
     import mitsuba_plugin  # lazy: imports Mitsuba and Dr.Jit
 
+    if callable(getattr(model, "drjit_evaluator", None)):  # an outside model's own
+        own = model.drjit_evaluator()
+        return lambda si, wo: own.eval(si.wi, wo)
     kind = _kind(model)
     if kind in ("sparse", "tabulated"):
         mitsuba_plugin.register()

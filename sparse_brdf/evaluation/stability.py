@@ -28,7 +28,7 @@ from ..coords import grid_angles
 from ..errors import SparseBRDFError
 from ..fileio import atomic_write
 from ..metrics import cosine_weighted_snr
-from ..model.compact import BRDFModel
+from ..model.protocol import ComparedModel, table_of
 from ..sources.merl import MERL_SCALE, read_merl
 
 Perturb = Callable[[np.ndarray, np.ndarray, np.random.Generator], tuple[np.ndarray, np.ndarray]]
@@ -113,7 +113,7 @@ def _write_raw(path: Path, values: np.ndarray, valid: np.ndarray) -> Path:
 
 def run_stability(
     clean: BRDF,
-    methods: Sequence[BRDFModel],
+    methods: Sequence[ComparedModel],
     work: Path,
     cases: Sequence[Case] = CASES,
     seed: int = 0,
@@ -137,7 +137,7 @@ def run_stability(
                 rows.append(row)
                 continue
             try:
-                rec = m.compress(brdf).reconstruct()
+                rec = table_of(m.compress(brdf), brdf)
                 if not np.all(np.isfinite(rec)):
                     row.update(status="failed", message="NaN/inf in reconstruction")
                 else:

@@ -9,8 +9,12 @@ The convention, scikit-learn's:
   A model that needs ``fit`` raises :class:`~sparse_brdf.errors.UsageError` when it is
   used unfitted.
 
-The models: :class:`~sparse_brdf.model.sparse_model.SparseModel` (the paper's), the
-baselines of :mod:`sparse_brdf.model.baselines` and Neural-BRDF
+This is the compared-model protocol of :mod:`sparse_brdf.model.protocol` (a
+:class:`BRDFModel` is a :class:`~sparse_brdf.model.protocol.ComparedModel`, a
+:class:`Compact` a :class:`~sparse_brdf.model.protocol.CompressedBRDF`), with what the
+built-in models share. The models:
+:class:`~sparse_brdf.model.sparse_model.SparseModel` (the paper's), the baselines of
+:mod:`sparse_brdf.model.baselines` and Neural-BRDF
 (:class:`~sparse_brdf.model.neural.NBRDFModel`); a bench builds them from their specs
 (:mod:`sparse_brdf.model.specs`).
 """

@@ -20,6 +20,12 @@ A spec is ``KIND`` or ``KIND:ARGS``; each kind of :data:`KINDS` states its own g
 - ``naive`` Bagher et al.'s separable model; ``cpd:L`` rank-L CPD (default 1);
   ``tucker:AxBxC`` Tucker ranks (default 1x1x1); ``pca:N`` N principal components
   (default 40); ``tabulated`` the full table.
+- ``module:Class[:KEY=VALUE,...]`` a model from outside the package: ``Class`` of the
+  Python module ``module`` (dotted), built with the options as keyword arguments (each
+  value an integer, a float, ``true``/``false`` or else a string), which must follow the
+  compared-model protocol (:mod:`sparse_brdf.model.protocol`); imported by
+  :func:`make_model` (:mod:`sparse_brdf.model.outside`), not by :func:`parse_spec`. E.g.
+  ``mymodels:QuantisedTable:bits=8``. A built-in kind's name is never read as a module.
 
 :func:`parse_spec` reads a spec into a :class:`ModelSpec` (every value checked against
 the models' declared parameters, no ensemble read, nothing trained); :func:`make_model`
@@ -30,6 +36,7 @@ builder.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -40,10 +47,11 @@ from .compact import BRDFModel
 from .encode import DEFAULT_N_COEFFS, PAPER_OPTIONS
 from .neural import PARAMETERS as NBRDF_PARAMETERS
 from .neural import NBRDFModel, nbrdf_name
+from .outside import load_outside_model, parse_value
 from .sbrdf import VERSION, VERSIONS
 from .sparse_model import SparseModel, sparse_name
 
-__all__ = ["KINDS", "ModelSpec", "make_model", "parse_spec"]
+__all__ = ["KINDS", "OUTSIDE", "ModelSpec", "make_model", "parse_spec"]
 
 
 @dataclass(frozen=True)
@@ -171,6 +179,30 @@ KINDS: dict[str, Kind] = {
 }
 
 
+#: The kind of a model from outside the package, and its grammar.
+OUTSIDE = "module:Class[:KEY=VALUE,...]"
+_OUTSIDE_SPEC = re.compile(r"([A-Za-z_]\w*(?:\.[A-Za-z_]\w*)*):([A-Za-z_]\w*)(?::(.*))?",
+                           re.ASCII)
+
+
+def _parse_outside(spec: str) -> ModelSpec | None:
+    """The :class:`ModelSpec` of an outside model's spec (kind ``"outside"``; its name
+    until built: ``Class-KEY=VALUE...``), or None when ``spec`` is not of that form."""
+    m = _OUTSIDE_SPEC.fullmatch(spec)
+    if m is None:
+        return None
+    module, cls, arg = m.groups()
+    options: dict = {}
+    for item in filter(None, (arg or "").split(",")):
+        key, eq, value = (x.strip() for x in item.partition("="))
+        if not eq or not key.isidentifier() or key in options:
+            raise UsageError(f"model {spec!r}: expected distinct KEY=VALUE options, got "
+                             f"{item!r}")
+        options[key] = parse_value(value)
+    name = cls + "".join(f"-{k}={v}" for k, v in options.items())
+    return ModelSpec("outside", {"module": module, "cls": cls, "options": options}, name, spec)
+
+
 def parse_spec(spec: str) -> ModelSpec:
     """Read and check a model spec (see the module doc); no ensemble is read.
 
@@ -193,8 +225,11 @@ def parse_spec(spec: str) -> ModelSpec:
         raise UsageError(f"model {spec!r}: a model spec is a string")
     kind, _, arg = spec.partition(":")
     if kind not in KINDS:
+        outside = _parse_outside(spec)
+        if outside is not None:
+            return outside
         raise UsageError(f"unknown model {spec!r}: the models are "
-                         f"{', '.join(k.grammar for k in KINDS.values())}")
+                         f"{', '.join(k.grammar for k in KINDS.values())}, or {OUTSIDE}")
     try:
         kwargs = KINDS[kind].parse(arg)
         name = KINDS[kind].name(kwargs)
@@ -215,8 +250,18 @@ def make_model(spec: str | ModelSpec, ensemble=None) -> BRDFModel:
 
     Returns
     -------
-    BRDFModel
-        Unfitted; its ``name`` is ``parse_spec(spec).name``.
+    ComparedModel
+        Unfitted; a built-in model's ``name`` is ``parse_spec(spec).name``, an outside
+        model's is its own.
+
+    Raises
+    ------
+    UsageError
+        A bad spec; for an outside model, also a module or class that cannot be imported
+        or built, or an object that does not follow the protocol.
     """
     s = parse_spec(spec) if isinstance(spec, str) else spec
+    if s.kind == "outside":
+        return load_outside_model(s.kwargs["module"], s.kwargs["cls"], s.kwargs["options"],
+                                  s.text)
     return KINDS[s.kind].build(s.kwargs, ensemble)

@@ -1,0 +1,344 @@
+"""The bench report as one self-contained HTML page (``report.html`` beside ``report.md``).
+
+Everything is inside the file (styles, script, every image as a data URI), so it opens
+from disk with no network and can be mailed or archived as one file:
+
+- per scene, the models' table and the per-material table, sortable by any column (click
+  a header; again for the reverse order);
+- per scene, a viewer of every material and model: the reference and the model's render
+  in one frame, a slider wiping from one to the other, ``F`` (or the button) flipping
+  between them, ``M`` toggling the model's HDR-FLIP error map (magma, 0 to 1) in place of
+  its render; renders are tone-mapped as the report's figures (x / (1 + x), gamma 2.2);
+- the report's charts (its PNGs, but for the render figures, which the viewer replaces).
+
+Opened as ``report.html#selftest`` the page checks itself (a flip, the FLIP map, a sort)
+and writes the outcome into the element ``#selftest-result`` (what the test suite reads through
+headless Chromium, ``tests/test_html_report.py``).
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+
+from ..fileio import atomic_write
+from ..metrics import OBJECT_ONLY, WHOLE_IMAGE
+from .render import read_exr
+from .report import flip_map_path, scenes_of, summary_table, tone
+
+__all__ = ["write_html_report"]
+
+#: JPEG quality of the renders and maps in the viewer (a 128x128 render: about 6 kB).
+_JPEG_QUALITY = 92
+
+
+def _image_uri(rgb: np.ndarray | None = None, scalar: np.ndarray | None = None) -> str:
+    """A data URI of a JPEG: ``rgb`` in [0, 1] (H, W, 3), or ``scalar`` in [0, 1] (H, W)
+    through the magma colour map."""
+    import matplotlib  # lazy: matplotlib takes ~0.4 s to import; only reports need it
+
+    matplotlib.use("Agg")
+    from matplotlib import image as mimage
+
+    buf = io.BytesIO()
+    if scalar is not None:
+        mimage.imsave(buf, np.clip(scalar, 0, 1), cmap="magma", vmin=0, vmax=1, format="jpeg",
+                      pil_kwargs={"quality": _JPEG_QUALITY})
+    else:
+        mimage.imsave(buf, np.clip(rgb, 0, 1), format="jpeg",
+                      pil_kwargs={"quality": _JPEG_QUALITY})
+    return "data:image/jpeg;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def _png_uri(path: Path) -> str:
+    return "data:image/png;base64," + base64.b64encode(path.read_bytes()).decode("ascii")
+
+
+def _num(x) -> float | str | None:
+    """A figure for JSON: None for none or nan, ``"inf"`` for an infinite SNR (a model
+    identical to the reference)."""
+    if x is None or (isinstance(x, float) and math.isnan(x)):
+        return None
+    return float(x) if math.isfinite(x) else ("inf" if x > 0 else "-inf")
+
+
+def viewer_data(results: dict, out: Path, scene: str) -> dict:
+    """Per material of ``scene``: the reference render and each model's render and FLIP
+    map (data URIs) with its figures; materials without a reference render are left out."""
+    work = out / "work" / scene
+    mats: dict = {}
+    cells = sorted(results["cells"].values(), key=lambda c: (c["material"], c["model"]))
+    for c in cells:
+        stem = c["material"].replace("/", "__")
+        ref_p, img_p = work / f"{stem}__reference.exr", work / f"{stem}__{c['model']}.exr"
+        if not (ref_p.is_file() and img_p.is_file()):
+            continue
+        entry = mats.setdefault(c["material"], {"reference": _image_uri(tone(read_exr(ref_p))),
+                                                "models": {}})
+        fp = flip_map_path(out, scene, c["material"], c["model"])
+        figures = (c.get("renders") or {}).get(scene, {})
+        entry["models"][c["model"]] = {
+            "render": _image_uri(tone(read_exr(img_p))),
+            "flip_map": _image_uri(scalar=np.load(fp).astype(np.float32)) if fp.is_file() else None,
+            **{k: _num(figures.get(k)) for k in ("snr_object", "snr_whole", "flip")}}
+    return mats
+
+
+def _cell(value, fmt: str) -> str:
+    """A table cell; numbers carry their value for sorting."""
+    if isinstance(value, str):
+        return f'<td class="text">{html.escape(value)}</td>'
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return '<td data-v="">-</td>'
+    sort = "1e300" if value == math.inf else repr(float(value))
+    return f'<td data-v="{sort}">{format(value, fmt)}</td>'
+
+
+def _table(head: list[str], rows: list[list[str]]) -> str:
+    ths = "".join(f"<th>{html.escape(h)}</th>" for h in head)
+    trs = "".join(f"<tr>{''.join(r)}</tr>" for r in rows)
+    return f'<table class="sortable"><thead><tr>{ths}</tr></thead><tbody>{trs}</tbody></table>'
+
+
+def _model_table(results: dict, scene: str) -> str:
+    cols = [("bytes", ".0f"), ("evals_per_s", ".3g"), ("rae", ".4f"), ("cos_snr", ".1f"),
+            ("snr_object_mean", ".1f"), ("snr_object_min", ".1f"), ("snr_whole_mean", ".1f"),
+            ("snr_whole_min", ".1f"), ("flip_mean", ".3f"), ("flip_max", ".3f")]
+    head = ["model", "materials", "failed", "bytes", "evals/s", "RAE", "cos-SNR (dB)",
+            "obj mean (dB)", "obj min (dB)", "whole mean (dB)", "whole min (dB)",
+            "FLIP mean", "FLIP max"]
+    rows = [[_cell(r["model"], ""), _cell(r["n"], "d"), _cell(r["failed"], "d"),
+             *(_cell(r.get(k, math.nan), f) for k, f in cols)]
+            for r in summary_table(results, scene)]
+    return _table(head, rows)
+
+
+def _material_table(results: dict, scene: str) -> str:
+    rows = []
+    for c in sorted(results["cells"].values(), key=lambda c: (c["material"], c["model"])):
+        s = (c.get("renders") or {}).get(scene, {})
+        rows.append([_cell(c["material"], ""), _cell(c["model"], ""),
+                     _cell(s.get("snr_object", math.nan), ".1f"),
+                     _cell(s.get("snr_whole", math.nan), ".1f"),
+                     _cell(math.nan if s.get("flip") is None else s["flip"], ".3f"),
+                     _cell(c.get("rae", math.nan), ".4f"), _cell(c["status"], "")])
+    return _table(["material", "model", "SNR obj (dB)", "SNR whole (dB)", "HDR-FLIP", "RAE",
+                   "status"], rows)
+
+
+def _viewer(scene: str, index: int) -> str:
+    return f'''<div class="viewer" id="viewer-{index}" data-scene="{html.escape(scene)}"
+ tabindex="0">
+ <div class="controls">
+  <label>material <select class="material"></select></label>
+  <label>model <select class="model"></select></label>
+  <button class="flip" title="key F">reference / model (F)</button>
+  <button class="flipmap" title="key M">HDR-FLIP map (M)</button>
+  <label>wipe <input class="wipe" type="range" min="0" max="100" value="100"></label>
+ </div>
+ <div class="frame"><img class="base" alt="reference"><img class="top" alt="model"></div>
+ <div class="caption"></div>
+</div>'''
+
+
+_STYLE = """
+body{font-family:system-ui,sans-serif;margin:1.5em;color:rgb(34,34,34);max-width:1400px}
+table{border-collapse:collapse;margin:.6em 0;font-size:13px}
+th,td{border:1px solid #ccc;padding:2px 6px;text-align:right}
+td.text,th:first-child{text-align:left}
+th{cursor:pointer;background:#f0f0f0;user-select:none}
+th[aria-sort=ascending]::after{content:" \\25B2"} th[aria-sort=descending]::after{content:" \\25BC"}
+.viewer{border:1px solid #bbb;padding:.6em;margin:.8em 0;display:inline-block;outline:none}
+.viewer:focus{border-color:#36c}
+.frame{position:relative;width:384px;height:384px;background:black}
+.frame img{position:absolute;left:0;top:0;width:384px;height:384px;image-rendering:pixelated}
+.controls{margin-bottom:.4em} .controls label{margin-right:.8em}
+.caption{font-size:13px;margin-top:.3em;min-height:1.2em}
+img.chart{max-width:100%;border:1px solid #ddd;margin:.4em 0}
+"""
+
+_SCRIPT = r"""
+const errors = [];
+window.addEventListener('error', e => errors.push(String(e.message)));
+const consoleError = console.error;
+console.error = (...a) => { errors.push(a.join(' ')); consoleError(...a); };
+const DATA = JSON.parse(document.getElementById('bench-data').textContent);
+
+function sortTable(th) {
+  const table = th.closest('table'), body = table.tBodies[0];
+  const col = Array.from(th.parentNode.children).indexOf(th);
+  const asc = th.getAttribute('aria-sort') !== 'ascending';
+  table.querySelectorAll('th').forEach(h => h.removeAttribute('aria-sort'));
+  th.setAttribute('aria-sort', asc ? 'ascending' : 'descending');
+  const key = tr => {
+    const td = tr.children[col];
+    if (td.dataset.v === undefined) return td.textContent;
+    return td.dataset.v === '' ? NaN : parseFloat(td.dataset.v);
+  };
+  const rows = Array.from(body.rows);
+  rows.sort((a, b) => {
+    const x = key(a), y = key(b);
+    if (typeof x === 'number' && typeof y === 'number') {
+      if (isNaN(x) || isNaN(y)) return isNaN(x) - isNaN(y);  // no figure: last
+      return asc ? x - y : y - x;
+    }
+    return asc ? String(x).localeCompare(y) : String(y).localeCompare(x);
+  });
+  rows.forEach(r => body.appendChild(r));
+}
+document.querySelectorAll('table.sortable th').forEach(th =>
+  th.addEventListener('click', () => sortTable(th)));
+
+const viewers = [];
+let active = null;
+function fmt(x, d) {
+  if (x === null || x === undefined) return '-';
+  return typeof x === 'string' ? x : Number(x).toFixed(d);
+}
+function setupViewer(el) {
+  const mats = DATA.viewer[el.dataset.scene] || {};
+  const matSel = el.querySelector('.material'), modSel = el.querySelector('.model');
+  const base = el.querySelector('.base'), top = el.querySelector('.top');
+  const wipe = el.querySelector('.wipe'), caption = el.querySelector('.caption');
+  const v = {el, showMap: false, base, top, wipe};
+  for (const m of Object.keys(mats)) matSel.add(new Option(m, m));
+  function fillModels() {
+    const keep = modSel.value;
+    modSel.innerHTML = '';
+    for (const m of Object.keys((mats[matSel.value] || {}).models || {}))
+      modSel.add(new Option(m, m));
+    if (keep && Array.from(modSel.options).some(o => o.value === keep)) modSel.value = keep;
+  }
+  v.cell = () => ((mats[matSel.value] || {}).models || {})[modSel.value];
+  v.update = () => {
+    const mat = mats[matSel.value], cell = v.cell();
+    if (!mat || !cell) { caption.textContent = 'no renders in this scene'; return; }
+    base.src = mat.reference;
+    const map = v.showMap && cell.flip_map;
+    top.src = map ? cell.flip_map : cell.render;
+    const w = Number(wipe.value);
+    top.style.clipPath = 'inset(0 ' + (100 - w) + '% 0 0)';
+    const shown = w === 100 ? (map ? 'HDR-FLIP map of ' + modSel.value : 'model ' + modSel.value)
+      : w === 0 ? 'reference' : 'left: ' + (map ? 'FLIP map' : 'model') + ', right: reference';
+    el.dataset.shown = w === 100 ? (map ? 'flipmap' : 'model') : w === 0 ? 'reference' : 'wipe';
+    caption.textContent = 'showing ' + shown + ' | SNR ' + fmt(cell.snr_object, 1) +
+      ' dB object-only, ' + fmt(cell.snr_whole, 1) + ' dB whole-image | HDR-FLIP ' +
+      fmt(cell.flip, 3);
+  };
+  v.flip = () => { wipe.value = Number(wipe.value) === 0 ? 100 : 0; v.update(); };
+  v.toggleMap = () => { v.showMap = !v.showMap; if (Number(wipe.value) === 0) wipe.value = 100;
+                        v.update(); };
+  matSel.addEventListener('change', () => { fillModels(); v.update(); });
+  modSel.addEventListener('change', v.update);
+  wipe.addEventListener('input', v.update);
+  el.querySelector('.flip').addEventListener('click', v.flip);
+  el.querySelector('.flipmap').addEventListener('click', v.toggleMap);
+  el.addEventListener('focusin', () => { active = v; });
+  el.addEventListener('pointerdown', () => { active = v; });
+  fillModels();
+  v.update();
+  viewers.push(v);
+}
+document.querySelectorAll('.viewer').forEach(setupViewer);
+active = viewers[0] || null;
+document.addEventListener('keydown', e => {
+  if (!active || e.target.tagName === 'SELECT' || e.target.tagName === 'INPUT') return;
+  if (e.key === 'f' || e.key === 'F') { active.flip(); e.preventDefault(); }
+  if (e.key === 'm' || e.key === 'M') { active.toggleMap(); e.preventDefault(); }
+});
+
+function selftest() {
+  const out = {checks: {}, errors};
+  out.checks.images_loaded = Array.from(document.images).every(
+    i => !i.getAttribute('src') || (i.complete && i.naturalWidth > 0));
+  const v = viewers.find(x => x.cell());
+  if (v) {
+    const key = k => document.dispatchEvent(new KeyboardEvent('keydown', {key: k}));
+    active = v;
+    out.checks.starts_on_model = v.el.dataset.shown === 'model';
+    key('f');
+    out.checks.flips_to_reference = v.el.dataset.shown === 'reference' &&
+      v.top.style.clipPath.includes('100%');
+    key('f');
+    out.checks.flips_back = v.el.dataset.shown === 'model';
+    key('m');
+    out.checks.flip_map = v.el.dataset.shown === 'flipmap' && v.top.src === v.cell().flip_map;
+    v.wipe.value = 50; v.wipe.dispatchEvent(new Event('input'));
+    out.checks.wipe = v.el.dataset.shown === 'wipe';
+  } else {
+    out.checks.viewer = false;
+  }
+  const th = document.querySelector('table.sortable th:nth-child(2)');
+  if (th) { th.click(); out.checks.sorts = th.getAttribute('aria-sort') === 'ascending'; }
+  out.ok = Object.values(out.checks).every(Boolean) && errors.length === 0;
+  document.getElementById('selftest-result').textContent = JSON.stringify(out);
+  document.title = 'selftest ' + (out.ok ? 'ok' : 'failed');
+}
+if (location.hash === '#selftest') window.addEventListener('load', selftest);
+"""
+
+
+def write_html_report(results: dict, out: Path) -> Path:
+    """Write ``report.html`` in ``out`` (see the module doc), after ``report.md``.
+
+    Parameters
+    ----------
+    results : dict
+        A bench's results (``results.json``).
+    out : Path
+        The bench's output folder: its ``work/`` renders and FLIP maps are read, and the
+        PNG charts that its ``report.md`` shows are embedded, in that order (not its render
+        figures: the viewer shows those renders).
+
+    Returns
+    -------
+    Path
+        The page written.
+    """
+    out = Path(out)
+    md = out / "report.md"
+    charts = [out / name for name in  # the render figures: the viewer shows them better
+              re.findall(r"\]\(([^)/]+\.png)\)", md.read_text() if md.is_file() else "")
+              if not name.startswith("renders-")]
+    cfg = results["config"]
+    scenes = scenes_of(results)
+    body = ["<h1>sparse-brdf bench report</h1>",
+            f"<p>Corpora {html.escape(', '.join(cfg['corpora']))} ({html.escape(cfg['split'])}"
+            f" split), {cfg['res']}x{cfg['res']}, {cfg['spp']} spp, seed {cfg['seed']}. "
+            f"SNR in dB: <i>obj</i> = {OBJECT_ONLY}, <i>whole</i> = {WHOLE_IMAGE}; HDR-FLIP "
+            "over the object's pixels (0 is identical). Click a column's header to sort; in "
+            "a viewer, F flips between reference and model, M shows the HDR-FLIP map, the "
+            "slider wipes.</p>"]
+    for scene, why in results.get("skipped_scenes", {}).items():
+        body.append(f"<p>Skipped scene <code>{html.escape(scene)}</code>: "
+                    f"{html.escape(why)}</p>")
+    data: dict = {"viewer": {}}
+    for i, scene in enumerate(scenes):
+        data["viewer"][scene] = viewer_data(results, out, scene)
+        body += [f"<h2>Scene <code>{html.escape(scene)}</code></h2>", "<h3>Models</h3>",
+                 _model_table(results, scene), "<h3>Renders</h3>", _viewer(scene, i),
+                 "<h3>Per material</h3>", _material_table(results, scene)]
+    if charts:
+        body.append("<h2>Charts</h2>")
+        body += [f'<p>{html.escape(p.name)}<br><img class="chart" alt="{html.escape(p.stem)}" '
+                 f'src="{_png_uri(p)}"></p>' for p in charts if p.is_file()]
+    payload = json.dumps(data, allow_nan=False).replace("</", "<\\/")
+    page = ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
+            "<meta http-equiv=\"Content-Security-Policy\" content=\"default-src 'none'; "
+            "img-src data:; style-src 'unsafe-inline'; script-src 'unsafe-inline'\">"
+            f"<title>sparse-brdf bench report</title><style>{_STYLE}</style></head><body>"
+            + "\n".join(body)
+            + '\n<pre id="selftest-result"></pre>'
+            + f'<script type="application/json" id="bench-data">{payload}</script>'
+            + f"<script>{_SCRIPT}</script></body></html>\n")
+    path = out / "report.html"
+    with atomic_write(path, "w") as f:
+        f.write(page)
+    return path

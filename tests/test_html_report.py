@@ -1,0 +1,83 @@
+"""The bench's HTML report: self-contained, and working in a browser (headless Chromium):
+the page loads without console errors, its viewer flips between reference and model and
+shows the FLIP map, its tables sort, and a screenshot shows it."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from sparse_brdf.evaluation.bench import Bench, BenchConfig
+
+
+def _chromium() -> str | None:
+    """A Chromium to run headless: $SPARSE_BRDF_CHROMIUM, else chromium on the PATH."""
+    for name in (os.environ.get("SPARSE_BRDF_CHROMIUM"), "chromium", "chromium-browser",
+                 "google-chrome"):
+        if name and shutil.which(name):
+            return shutil.which(name)
+    return None
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory):
+    """A tiny bench's output folder: one material, naive and the table, the studio scene
+    and one angle of the one-light set, 16x16 at 2 spp."""
+    out = tmp_path_factory.mktemp("html") / "bench"
+    cfg = BenchConfig(corpora=["mitsuba"], max_materials=1, models=["naive", "tabulated"],
+                      scenes=["sphere.xml", "sphere_light.xml:lightangle=70"], res=16, spp=2,
+                      curve_coeffs=[16], stability=False, speed=False, out=str(out))
+    Bench(cfg, progress=False).run()
+    return out
+
+
+def test_the_page_is_self_contained(report):
+    page = (report / "report.html").read_text()
+    assert "default-src 'none'" in page  # the browser may fetch nothing
+    assert not re.search(r"""(src|href)\s*=\s*["'](?!data:|#)""", page)
+    assert page.count("data:image/jpeg;base64,") >= 6  # reference, renders and maps
+    assert "data:image/png;base64," in page  # the charts
+    data = json.loads(re.search(r'<script type="application/json" id="bench-data">(.*?)'
+                                r"</script>", page, re.S).group(1).replace("<\\/", "</"))
+    cells = data["viewer"]["sphere_light-lightangle=70"]
+    (material,) = cells
+    assert set(cells[material]["models"]) == {"naive", "tabulated"}
+    assert cells[material]["models"]["tabulated"]["flip"] == 0.0
+
+
+def test_the_page_in_headless_chromium(report, tmp_path):
+    browser = _chromium()
+    if browser is None:
+        pytest.skip("no Chromium to run headless: install Debian's chromium "
+                    "(apt-get install chromium) or set SPARSE_BRDF_CHROMIUM")
+    url = (report / "report.html").as_uri() + "#selftest"
+    common = [browser, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars",
+              "--virtual-time-budget=5000", f"--user-data-dir={tmp_path / 'profile'}"]
+    dom = subprocess.run([*common, "--enable-logging=stderr", "--v=0", "--dump-dom", url],
+                         capture_output=True, text=True, timeout=120)
+    assert dom.returncode == 0, dom.stderr[-2000:]
+    console = [ln for ln in dom.stderr.splitlines() if ":CONSOLE" in ln]
+    assert not console, console  # the page logs nothing: no error, no blocked fetch
+    found = re.search(r'<pre id="selftest-result">(.*?)</pre>', dom.stdout, re.S)
+    assert found and found.group(1), "the page's self-check did not run"
+    check = json.loads(found.group(1).replace("&quot;", '"'))
+    assert check["ok"] and not check["errors"], check
+    assert set(check["checks"]) >= {"flips_to_reference", "flips_back", "flip_map", "sorts"}
+    shot = tmp_path / "shot.png"
+    run = subprocess.run([*common, "--window-size=1000,900", f"--screenshot={shot}", url],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0 and shot.is_file(), run.stderr[-2000:]
+    from matplotlib import image as mimage
+
+    pixels = mimage.imread(shot)[..., :3]
+    assert pixels.shape[:2] == (900, 1000)
+    assert pixels.std() > 0.05  # a page, not a blank frame
+    # the viewer's frame (black behind the images) is on screen
+    assert (pixels.max(-1) < 0.05).mean() > 0.02
+    assert np.isfinite(pixels).all()
