@@ -18,6 +18,10 @@ ENSEMBLES_DIR = DATA_DIR / "ensembles"
 #: The content hash of the ensemble used when none is given (docs/ensemble.md).
 DEFAULT_ENSEMBLE_ID = "5fea9b89b97e561857b3380fdef7d438"
 DEFAULT_ENSEMBLE_PATH = ENSEMBLES_DIR / f"{DEFAULT_ENSEMBLE_ID}.npz"
+#: The shipped ensemble trained for the paper's transforms (log-plus, log-plus-cosine):
+#: the paper's encoder (``PAPER_OPTIONS``, ``--paper``) encodes over it when no other
+#: ensemble is named (docs/ensemble.md).
+PAPER_ENSEMBLE_ID = "5fea9b89b97e561857b3380fdef7d438"
 #: fit-scene's calibration of its SNR proxy (written by ``benchmarks/calibrate.py``).
 CALIBRATION_PATH = DATA_DIR / "snr_calibration.json"
 #: Six measured ``merl`` test-split networks shipped for the demo (licence beside them).

@@ -30,8 +30,15 @@ import numpy as np
 from ..brdf import BRDF
 from ..errors import UsageError
 from ..params import Interval
-from .encode import ENCODE_OPTIONS, check_options, choose_transform, encode, encode_sized
-from .ensemble import Ensemble, resolve_ensemble
+from .encode import (
+    ENCODE_OPTIONS,
+    check_options,
+    choose_transform,
+    encode,
+    encode_sized,
+    encoder_ensemble,
+)
+from .ensemble import Ensemble
 from .sbrdf import VERSION, as_stored, check_version, min_file_size, to_bytes
 from .sparse import SparseBRDF
 
@@ -186,7 +193,7 @@ def encode_to_bytes(brdf: BRDF, ensemble: Ensemble | None = None, n_bytes: int |
     if "n_coeffs" in encode_options or n_bytes is None:
         raise UsageError("encode_to_bytes: give a byte budget n_bytes (and no n_coeffs)")
     check_budget(brdf.name, n_bytes, version)
-    ens = resolve_ensemble(ensemble)
+    ens = encoder_ensemble(ensemble, encode_options)
     floor = min_file_size(len(brdf.name.encode("utf-8")[:255]), version)
     atoms = int(np.prod(ens.shape))
     n = _clip(math.ceil(first_count(n_bytes - floor, version) / 3), atoms)

@@ -18,6 +18,8 @@ basis with a joint budget of 3 ``n_coeffs``. ``PAPER_OPTIONS`` gives the paper's
 
 from __future__ import annotations
 
+import os
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Protocol
 
@@ -36,6 +38,7 @@ from ..metrics import (
 )
 from ..parallel import parallel_map
 from ..params import Interval, check, check_choice
+from ..paths import DEFAULT_ENSEMBLE_ID, PAPER_ENSEMBLE_ID
 from ..transforms import (
     COLOUR_BASES,
     TRANSFORMS,
@@ -507,7 +510,7 @@ def encode_sized(
     """
     max_error = options.pop("max_error", None)
     transform = options.pop("transform", "auto")
-    ens = resolve_ensemble(ensemble)
+    ens = encoder_ensemble(ensemble, options)
     check_grid_matches(brdf, ens)
     check("n_coeffs", n_coeffs, PARAMETERS["n_coeffs"])
     if max_error is not None:
@@ -523,6 +526,22 @@ def encode_sized(
     model = choose_transform(brdf, models, ens, kw["selector"])
     model.stats["options"] = kw
     return model
+
+
+def encoder_ensemble(ensemble: Ensemble | str | os.PathLike | None,
+                     options: Mapping[str, object]) -> Ensemble:
+    """The ensemble an encoding with ``options`` runs on.
+
+    ``ensemble`` resolved (:func:`~sparse_brdf.model.ensemble.resolve_ensemble`: the
+    shipped default when None), except for the paper's encoder (``options`` holding
+    ``PAPER_OPTIONS``) over the default: it encodes over the shipped ensemble trained for
+    the paper's transforms (``paths.PAPER_ENSEMBLE_ID``), so that ``--paper`` keeps the
+    paper's model. An ensemble named otherwise is used as it is."""
+    ens = resolve_ensemble(ensemble)
+    if (ens.id == DEFAULT_ENSEMBLE_ID != PAPER_ENSEMBLE_ID
+            and all(options.get(k) == v for k, v in PAPER_OPTIONS.items())):
+        return Ensemble.shipped(PAPER_ENSEMBLE_ID)
+    return ens
 
 
 def check_n_coeffs(n_coeffs: int, ensemble: Ensemble) -> int:

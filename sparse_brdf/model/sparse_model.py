@@ -14,9 +14,15 @@ from ..params import check, check_choice
 from .budget import PARAMETERS as BUDGET_PARAMETERS
 from .budget import encode_to_bytes
 from .compact import BRDFModel, Compact
-from .encode import DEFAULT_N_COEFFS, ENCODE_OPTIONS, PAPER_OPTIONS, check_options, encode
+from .encode import (
+    DEFAULT_N_COEFFS,
+    ENCODE_OPTIONS,
+    PAPER_OPTIONS,
+    check_options,
+    encode,
+    encoder_ensemble,
+)
 from .encode import PARAMETERS as ENCODE_PARAMETERS
-from .ensemble import resolve_ensemble
 from .sbrdf import VERSION, as_stored, check_version, to_bytes
 
 
@@ -75,7 +81,7 @@ class SparseModel(BRDFModel):
                  transform: str = "auto", n_bytes: int | None = None,
                  version: int = VERSION, **options):
         self.name, self.options = sparse_name(n_coeffs, transform, n_bytes, version, options)
-        self.ensemble = resolve_ensemble(ensemble)
+        self.ensemble = encoder_ensemble(ensemble, check_options(**options))
         self.n_coeffs, self.n_bytes, self.version = n_coeffs, n_bytes, version
         self.transform = transform
 
