@@ -41,6 +41,7 @@ from sparse_brdf.model.layouts import (
     LAYOUTS,
     PACK_BITS,
     PACKET,
+    PLUGIN_DEFAULTS,
     SAMPLING,
     SLOT,
     UNION_ATOMS,
@@ -522,9 +523,11 @@ class TabulatedBRDF(GlossyBSDF):
            shipped ensemble).
        * - sampling
          - string
-         - ``cosine`` (default: cosine-weighted hemisphere, independent of the BRDF, so a
-           reference and a model render share their sample paths) or ``lobe`` (cosine mixed
-           with a power-cosine half-vector lobe fitted to the BRDF at load time).
+         - ``lobe`` (default: cosine mixed with a power-cosine half-vector lobe fitted to
+           the BRDF at load time; lower noise on glossy materials) or ``cosine``
+           (cosine-weighted hemisphere, independent of the BRDF, so a reference and a
+           model rendered with one seed and spp share their sample paths: set it for
+           comparisons of renders).
        * - interpolate
          - boolean
          - Trilinear interpolation between the bins' lower-edge samples (default: false,
@@ -533,7 +536,7 @@ class TabulatedBRDF(GlossyBSDF):
     Example::
 
         {"type": "tabulated_brdf", "filename": "gold-metallic-paint.binary",
-         "sampling": "cosine"}
+         "sampling": "lobe"}
     """
 
     plugin = "tabulated_brdf"
@@ -541,7 +544,8 @@ class TabulatedBRDF(GlossyBSDF):
     def __init__(self, props) -> None:
         GlossyBSDF.__init__(self, props)
         ops = self._ops
-        p = _read_props(props, self.plugin, {"filename": _REQUIRED, "sampling": "cosine",
+        p = _read_props(props, self.plugin, {"filename": _REQUIRED,
+                                             "sampling": PLUGIN_DEFAULTS["sampling"],
                                              "interpolate": False, "ensemble": None})
         self.sampling = _choice(p["sampling"], SAMPLING, self.plugin, "sampling")
         self.interpolate = _as_bool(p["interpolate"], self.plugin, "interpolate")
@@ -616,7 +620,7 @@ class SparseBSDF(GlossyBSDF):
            the same kernel.
        * - sampling
          - string
-         - ``cosine`` (default) or ``lobe``, as for ``tabulated_brdf``.
+         - ``lobe`` (default) or ``cosine``, as for ``tabulated_brdf``.
        * - interpolate
          - boolean
          - Trilinear interpolation of the transformed value X (separable: each mode's atoms
@@ -635,7 +639,8 @@ class SparseBSDF(GlossyBSDF):
         ops = self._ops
         p = _read_props(props, self.plugin, {
             "filename": _REQUIRED, "ensemble": None, "decoder": "auto",
-            "sampling": "cosine", "interpolate": False, "layout": "auto"})
+            "sampling": PLUGIN_DEFAULTS["sampling"], "interpolate": False,
+            "layout": "auto"})
         self.sampling = _choice(p["sampling"], SAMPLING, self.plugin, "sampling")
         self.interpolate = _as_bool(p["interpolate"], self.plugin, "interpolate")
         decoder = _choice(p["decoder"], DECODERS, self.plugin, "decoder")
@@ -852,7 +857,7 @@ class NeuralBRDF(GlossyBSDF):
            with ``NeuralFit.save``).
        * - sampling
          - string
-         - ``cosine`` (default) or ``lobe``, as for ``tabulated_brdf``; the lobe is fitted
+         - ``lobe`` (default) or ``cosine``, as for ``tabulated_brdf``; the lobe is fitted
            to the network's table on the MERL grid at load time, so it equals the lobe of
            ``tabulated_brdf`` reading the same file.
 
@@ -865,7 +870,8 @@ class NeuralBRDF(GlossyBSDF):
 
     def __init__(self, props) -> None:
         GlossyBSDF.__init__(self, props)
-        p = _read_props(props, self.plugin, {"filename": _REQUIRED, "sampling": "cosine"})
+        p = _read_props(props, self.plugin, {"filename": _REQUIRED,
+                                             "sampling": PLUGIN_DEFAULTS["sampling"]})
         self.sampling = _choice(p["sampling"], SAMPLING, self.plugin, "sampling")
         self.filename = _resolve(str(p["filename"]))
         try:

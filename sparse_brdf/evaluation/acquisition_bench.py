@@ -46,6 +46,7 @@ from .acquisition_report import write_acquisition_report
 from .bench import check_setting, read_config
 from .render import (
     RENDER_PARAMETERS,
+    SHARED_PATHS,
     check_scene_data,
     find_scene,
     object_mask,
@@ -304,7 +305,8 @@ class AcquisitionBench:
                if self.cfg.ensemble and material.endswith(".sbrdf")
                and Path(self.cfg.ensemble).exists() else None)
         return render_scene(path, {"material": material}, spp=self.cfg.spp,
-                            seed=self.cfg.seed, res=self.cfg.res, sparse_options=ens)
+                            seed=self.cfg.seed, res=self.cfg.res, sparse_options=ens,
+                            sampling=SHARED_PATHS)
 
     def _score(self, brdf: BRDF, rec: np.ndarray, file: str, refs: dict) -> dict:
         row = {"cos_snr": cosine_weighted_snr(brdf.values, rec, brdf.valid), "renders": {}}

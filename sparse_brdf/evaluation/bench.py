@@ -56,6 +56,7 @@ from ..sources.corpora import SPLITS, get_corpus
 from ..sources.merl import write_merl
 from .render import (
     RENDER_PARAMETERS,
+    SHARED_PATHS,
     check_scene_data,
     find_scene,
     noise_floor_snr,
@@ -516,7 +517,8 @@ class Bench:
                if self.cfg.ensemble and filename.endswith(".sbrdf")
                and Path(self.cfg.ensemble).exists() else None)
         img = render_scene(self.scenes[scene], {"material": filename}, spp=self.cfg.spp,
-                           seed=seed, res=self.cfg.res, sparse_options=ens)
+                           seed=seed, res=self.cfg.res, sparse_options=ens,
+                           sampling=SHARED_PATHS)
         seconds = time.perf_counter() - t0
         write_exr(exr, img)
         with atomic_write(exr.with_suffix(".json"), "w") as f:

@@ -86,7 +86,12 @@ def load_brdf(
     if suffix == ".h5":
         data = require_file(path, "Neural-BRDF file").read_bytes()
         key = content_key("nbrdf", data, list(shape))
-        return cached_brdf(key, lambda: tabulate_nbrdf(path, shape), cache)
+        brdf = cached_brdf(key, lambda: tabulate_nbrdf(path, shape), cache)
+        # the key is the content; the name and path are those of the file asked for (a
+        # byte-identical copy elsewhere must not take the cached file's name)
+        brdf.name = path.name.removesuffix(path.suffix)
+        brdf.source = os.fspath(path)
+        return brdf
     if suffix == ".sbrdf":
         try:
             return decode_file(path)
