@@ -103,8 +103,15 @@ def test_render_and_snr(tmp_path, capsys):
     assert main(["snr", str(a), str(b), "--scene", "sphere"]) == 0
     line = capsys.readouterr().out
     assert "whole-image" in line and "object-only" in line
-    assert main(["snr", str(a), str(b)]) == 2  # no way to tell the object's pixels
-    assert "--scene" in capsys.readouterr().err
+    # no way to tell the object's pixels: the whole-image form, and why the other is missing
+    assert main(["snr", str(a), str(b)]) == 0
+    line = capsys.readouterr().out
+    assert f"whole-image {by_scene['snr_whole_db']:.2f} dB" in line
+    assert "object-only not computed" in line and "--scene" in line and "--mask" in line
+    assert main(["snr", str(a), str(b), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["snr_whole_db"] == by_scene["snr_whole_db"] and out["snr_object_db"] is None
+    assert "--mask" in out["object_missing"]
     assert main(["render", "sphere.xml", "-o", str(a), "--material",
                  f"material={tmp_path / 'missing.sbrdf'}"]) == 2
     assert "missing.sbrdf" in capsys.readouterr().err
