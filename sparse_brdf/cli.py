@@ -289,7 +289,7 @@ def cmd_encode_samples(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     _check_outputs([(args.output, SBRDF, "-o")], [args.samples, args.ensemble])
     samples = read_samples(args.samples)
-    if samples_constant(samples):
+    if samples_constant(samples) and np.any(samples.rgb):  # all zeros: refused below
         print(f"sparse-brdf: warning: {args.samples}: every sample has the same value "
               f"{samples.rgb[0].tolist()}: a Lambertian material, or values not measured "
               "(a plan's zeros or one value copied into every row)", file=sys.stderr)
@@ -1129,6 +1129,11 @@ def main(argv: list[str] | None = None) -> int:
             return 128 + signal.SIGPIPE
         except (SparseBRDFError, OSError) as exc:
             _report(debug, f"error: {_describe(exc)}")
+            return 2
+        except MemoryError:  # a size the options ask for that this machine cannot hold
+            _report(debug, "error: not enough memory for what the options ask (a size, "
+                           "count or resolution too large for this machine); no output "
+                           "was written")
             return 2
         except Exception as exc:  # noqa: BLE001 - anything else is a bug, said so
             _report(debug, f"internal error (a bug, please report it): "

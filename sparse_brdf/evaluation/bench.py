@@ -47,7 +47,7 @@ from ..metrics import cosine_weighted_snr, gamma_mse, rae, snr_forms
 from ..model.compact import BRDFModel
 from ..model.encode import ENCODE_OPTIONS, error_curve
 from ..model.ensemble import resolve_ensemble
-from ..model.sbrdf import VERSION, save_sbrdf
+from ..model.sbrdf import VERSION, min_file_size, save_sbrdf
 from ..model.specs import make_model, parse_spec
 from ..parallel import Executor, InProcess
 from ..params import Interval, check
@@ -300,9 +300,12 @@ def check_config(cfg: BenchConfig) -> dict:
     with _naming(cfg, "ensemble"):
         ens = resolve_ensemble(cfg.ensemble)
     models = [make_model(s, ens) for s in cfg.models]
+    if not models:
+        raise ConfigError(f"{cfg.label}: models = [] lists no model: nothing to bench")
     smodels = [make_model(s, ens) for s in cfg.stability_models] if cfg.stability else []
     with _naming(cfg, "corpora"):
         mats = evaluated_materials(cfg)
+    _check_byte_budgets(cfg, models + smodels, mats)
     learners = [m for m in models + smodels if m.learns]
     with _naming(cfg, "corpora"):
         train = training_materials(cfg, mats) if learners else []
@@ -319,6 +322,19 @@ def check_config(cfg: BenchConfig) -> dict:
         scenes.append(path.name)
     return {"materials": len(mats), "training": len(train),
             "models": [m.name for m in models], "scenes": scenes, "skipped_scenes": skipped}
+
+
+def _check_byte_budgets(cfg: BenchConfig, models: list, mats: list) -> None:
+    """:class:`ConfigError` for a model whose byte budget (``sparse-bN``) cannot hold one
+    coefficient in the file of some material (its header, name and checksum come first)."""
+    for m in models:
+        if getattr(m, "n_bytes", None) is None or not mats:
+            continue
+        floor = max(min_file_size(len(x.name.encode("utf-8")[:255]), m.version) for x in mats)
+        if m.n_bytes <= floor:
+            raise ConfigError(f"{cfg.label}: model {m.name}: {m.n_bytes} bytes hold no "
+                              f"coefficient: a file of these materials takes up to {floor} "
+                              "bytes before its first (header, name, checksum)")
 
 
 def _key(m) -> str:

@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from ..brdf import BRDF
-from ..errors import BRDFFileError, EnsembleMismatchError, InvalidBRDFError, UsageError
+from ..errors import BRDFFileError, EnsembleMismatchError, UsageError
 from ..fileio import atomic_write, require_file
 from ..params import check_choice
 from ..transforms import TRANSFORMS
@@ -364,9 +364,6 @@ def save_sbrdf(path: str | os.PathLike, model: SparseBRDF, version: int = VERSIO
         For an unknown version or a grid too large for the format.
     """
     path = Path(path)
-    if not all(np.all(np.isfinite(v)) for v in model.values):
-        raise InvalidBRDFError(f"{path}: the coefficient values hold NaN or inf (inputs out "
-                               "of range?): refusing to write them")
     data = to_bytes(model, version)
     with atomic_write(path) as f:
         f.write(data)
