@@ -39,7 +39,8 @@ from ..errors import (
 from ..fileio import atomic_path, atomic_write, require_file
 from ..metrics import SNRForms, snr_forms
 from ..mitsuba_env import DEFAULT_VARIANT, set_variant
-from ..params import SEED, Interval, check
+from ..model.layouts import SAMPLING
+from ..params import SEED, Interval, check, check_choice
 from ..paths import SCENES_DIR, shared_envmaps_dir
 
 SPARSE_SUFFIX = ".sbrdf"
@@ -404,11 +405,7 @@ def _with_sampling(options: Mapping[str, object] | None,
                    sampling: str | None) -> dict[str, object] | None:
     if sampling is None:
         return None if options is None else dict(options)
-    from ..model.layouts import SAMPLING  # the plugins' choices, declared once
-
-    if sampling not in SAMPLING:
-        raise UsageError(f"sampling: expected one of {', '.join(SAMPLING)}, got {sampling!r}")
-    return {**(options or {}), "sampling": sampling}
+    return {**(options or {}), "sampling": check_choice("sampling", sampling, SAMPLING)}
 
 
 def load_scene(
@@ -663,7 +660,7 @@ def write_image(path: str | os.PathLike, img: np.ndarray, exposure: float = 0.0)
     if arr.ndim != 3 or arr.shape[2] != 3:
         raise ImageFileError(f"{path}: expected an image of shape (H, W, 3), got "
                              f"{arr.shape}")
-    from PIL import Image  # lazy: only previews need it
+    from PIL import Image  # lazy: only previews need it (Pillow comes with matplotlib)
 
     fmt = "PNG" if suffix == ".png" else "JPEG"
     with atomic_write(path, "wb") as f:
