@@ -578,7 +578,8 @@ class _Help(argparse.RawDescriptionHelpFormatter):
 
     def _get_help_string(self, action: argparse.Action) -> str:
         text = action.help or ""
-        if ("default" in text or not action.option_strings or action.required
+        said = any(w in text for w in ("%(default)", "(default", "default:", "default per"))
+        if (said or not action.option_strings or action.required
                 or any(action.default is v for v in (None, False, argparse.SUPPRESS))):
             return text
         return f"{text} (default: %(default)s)"
@@ -864,8 +865,10 @@ def _add_render(sub) -> None:
                         "sample paths for one seed and spp, so renders to compare (snr) "
                         "share their noise")
     r.add_argument("--decoder", default=PLUGIN_DEFAULTS["decoder"], choices=DECODERS,
-                   help="how the sparse_brdf plugin evaluates .sbrdf materials (auto picks "
-                        "by the file's size)")
+                   help="how the sparse_brdf plugin evaluates .sbrdf materials: grouped "
+                        "tables (fastest), strict (a loop over the terms: least memory), or "
+                        "auto: grouped "
+                        "unless its tables would be too large")
     r.add_argument("--ensemble", help="ensemble .npz for .sbrdf materials "
                    "(default: the shipped one each file names)")
     r.add_argument("--mask", metavar="MASK.exr",
