@@ -1,10 +1,14 @@
-"""Rendering helpers: scenes with overridable materials, EXR files, the noise floor.
+"""Rendering helpers: scenes with overridable materials, images, masks, the noise floor.
 
-A scene (e.g. ``scenes/sphere.xml``) names its materials by id; :func:`render_scene`
-replaces each overridden id by ``sparse_brdf`` (for a ``.sbrdf`` file) or
-``tabulated_brdf`` (any other source :func:`sparse_brdf.sources.load.load_brdf` reads),
-fills the scene's ``<default>`` parameters (``spp``, ``res``, ``seed``, ...) and renders
-with Mitsuba 3. Errors raised inside a render surface as "drjit.custom ... (see above)";
+Any Mitsuba 3 scene file names its materials by id; :func:`render_scene` replaces each
+overridden id by ``sparse_brdf`` (for a ``.sbrdf`` file) or ``tabulated_brdf`` (any other
+source :func:`sparse_brdf.sources.load.load_brdf` reads) and renders with Mitsuba 3. The
+scene's ``$``-parameters get values only where it declares them (``<default>``, as the
+shipped ``scenes/`` declare ``spp``, ``res`` and ``seed``); otherwise spp and seed are set
+on its first sensor's sampler and the resolution on its film (aspect ratio kept).
+:func:`object_mask` gives the pixels of the object-only SNR: those whose camera rays first
+hit a shape carrying one of the replaced materials. Images are written by suffix
+(:func:`write_image`: ``.exr`` linear, ``.png``/``.jpg`` an sRGB preview). Errors raised inside a render surface as "drjit.custom ... (see above)";
 :class:`RenderError` carries the real message from the ``__cause__`` chain
 (``docs/method.md``, "Rendering with Mitsuba").
 
