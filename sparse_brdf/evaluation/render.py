@@ -9,8 +9,9 @@ on its first sensor's sampler and the resolution on its film (aspect ratio kept)
 :func:`object_mask` gives the pixels of the object-only SNR: those whose camera rays first
 hit a shape carrying one of the replaced materials. Images are written by suffix
 (:func:`write_image`: ``.exr`` linear, ``.png``/``.jpg`` an sRGB preview). Errors raised
-inside a render surface as "drjit.custom ... (see above)"; :class:`RenderError` carries the real message from the ``__cause__`` chain
-(``docs/method.md``, "Rendering with Mitsuba").
+inside a render surface as "drjit.custom ... (see above)"; :class:`RenderError` carries
+the real message from the ``__cause__`` chain (``docs/method.md``, "Rendering with
+Mitsuba").
 
 Mitsuba, Dr.Jit and :mod:`mitsuba_plugin` are imported inside the functions that render,
 so that ``import sparse_brdf`` and ``sparse-brdf --help`` never load them.
