@@ -741,6 +741,8 @@ class SparseBSDF(GlossyBSDF):
             self._build_grouped(model, self._ens, self.layout)
         else:
             self._build_strict(model, self._ens)
+        if self.sampling == "lobe":  # the lobe follows the values, as from a file
+            self._setup_sampling(self.sampling, sparse_profile(model, self._ens), model.shape)
         self._grad = self._ops.jit and any(dr.grad_enabled(v) for v in self._values)
         if self._grad:
             self._attach_gradients()

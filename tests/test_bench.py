@@ -127,7 +127,8 @@ def test_bench_renders_coefficient_files_with_its_own_ensemble(tmp_path, monkeyp
 
     seen = []
 
-    def fake_render(scene, materials, spp, seed, res, sparse_options=None):
+    def fake_render(scene, materials, spp, seed, res, sparse_options=None, sampling=None):
+        assert sampling == "cosine"  # the bench's renders share their sample paths
         seen.append((materials["material"], sparse_options))
         return np.zeros((2, 2, 3), np.float32)
 

@@ -107,7 +107,7 @@ def test_fit_resumes_from_its_checkpoint(case, monkeypatch):
                    **{**kw, "lr": 0.01})
 
 
-@pytest.mark.parametrize("bad", ["missing-view", "wrong-size", "variant", "lr-end",
+@pytest.mark.parametrize("bad", ["missing-view", "variant", "lr-end",
                                  "output-is-start", "corrupt-start", "view-key",
                                  "view-own-option", "view-no-key", "view-missing-map",
                                  "prior-weight", "validate-every", "validation-key",
@@ -118,10 +118,6 @@ def test_fit_images_bad_input_is_one_line(capsys, case, tmp_path, bad):
     named = ""
     if bad == "missing-view":
         view, named = str(tmp_path / "nope.exr"), "nope.exr"
-    elif bad == "wrong-size":
-        img = np.ones((RES, RES + 4, 3), np.float32)
-        view = str(write_exr(tmp_path / "wide.exr", img))
-        named = "wide.exr"
     elif bad == "variant":
         extra, named = ["--variant", "scalar_rgb"], "scalar_rgb"
     elif bad == "lr-end":

@@ -173,7 +173,7 @@ def test_render_refuses_its_scene_materials_and_mask(capsys, tmp_path, merl):
     fails(capsys, "render", scene, "-o", merl, "--material", f"material={merl}",
           names=["m.binary"])
     fails(capsys, "render", scene, "-o", tmp_path / "a.exr", "--mask", tmp_path / "a.exr",
-          names=["a.exr"])
+          "--material", f"material={merl}", names=["a.exr"])
     assert digest(scene) == before
 
 
