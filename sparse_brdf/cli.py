@@ -950,7 +950,9 @@ def _add_fit_images(sub) -> None:
                     "Adam through the plugin's differentiable values (docs/fit-images.md)."
                     " Each --view is an EXR image and the scene defaults it was taken "
                     "with, e.g. ref.exr:envrot=90 or ref.exr:envmap=forest.exr,envrot=90,"
-                    "envtilt=30; square images set the scene's res.")
+                    "envtilt=30; each image's size sets the film's. The fit renders with "
+                    f"{SHARED_PATHS} sampling: render the references with --sampling "
+                    f"{SHARED_PATHS}, the fit's --seed and --spp.")
     fi.add_argument("scene", help="scene XML (a path, or a name in the shipped scenes/)")
     fi.add_argument("--view", action="append", required=True, metavar="IMAGE.exr[:K=V,...]",
                     help="a reference image and its scene defaults (repeatable)")

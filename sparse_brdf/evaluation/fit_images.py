@@ -504,9 +504,9 @@ def fit_images(  # long: the fit loop with its checkpointing and progress bar
     Parameters
     ----------
     scene : path
-        Scene XML whose BSDF ``material`` is replaced by the model (e.g. a shipped
-        ``sphere.xml``); its first sensor must render the references' size (square
-        references set the scene's ``res``).
+        Any Mitsuba 3 scene XML whose BSDF ``material`` is replaced by the model (e.g. a
+        shipped ``sphere.xml``); each reference's size sets the film of its view's render
+        (any aspect ratio). The renders use cosine sampling (shared sample paths).
     views : sequence of View
         Reference images (float32 (H, W, 3), linear RGB) and the scene defaults of each.
     start : path or SparseBRDF
