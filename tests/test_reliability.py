@@ -853,3 +853,21 @@ def test_a_blend_across_ensembles_says_how_to_re_encode(tmp_path, capsys, sbrdf,
           "--ensemble", ens_file, names=["b.sbrdf", "re-encode", "sparse-brdf encode",
                                          "--ensemble"])
     assert not (tmp_path / "ab.sbrdf").exists()
+
+
+def test_encode_samples_checks_its_output_before_reading_or_fitting(tmp_path, capsys,
+                                                                    monkeypatch):
+    from sparse_brdf.evaluation import acquisition
+
+    def never(*args, **kwargs):
+        raise AssertionError("the prior was built before the output was checked")
+
+    monkeypatch.setattr(acquisition, "default_prior", never)
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    samples = _samples_csv(tmp_path / "s.csv", 0.1)
+    fails(capsys, "encode-samples", samples, "-o", blocker / "x.sbrdf",
+          names=["x.sbrdf", "not a folder"])
+    fails(capsys, "encode-samples", samples, "-o", tmp_path / "x.binary",
+          names=["x.binary", ".sbrdf"])
+    assert leftovers(tmp_path) == ["file", "s.csv"]
