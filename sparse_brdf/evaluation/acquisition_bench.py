@@ -296,7 +296,8 @@ class AcquisitionBench:
                 write_exr(exr, self._render(path, str(ref_file)))
             if not mask_file.is_file():
                 with atomic_write(mask_file, "wb") as f:
-                    np.save(f, object_mask(path, res=self.cfg.res))
+                    np.save(f, object_mask(path, res=self.cfg.res,
+                                           materials=["material"]))
             out[scene] = (read_exr(exr), np.load(mask_file))
         return out
 

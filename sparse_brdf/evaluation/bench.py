@@ -513,7 +513,7 @@ class Bench:
             if path.is_file():
                 mask = np.load(path)
             else:
-                mask = object_mask(self.scenes[scene], res=self.cfg.res)
+                mask = object_mask(self.scenes[scene], res=self.cfg.res, materials=["material"])
                 path.parent.mkdir(parents=True, exist_ok=True)
                 with atomic_write(path, "wb") as f:
                     np.save(f, mask)
