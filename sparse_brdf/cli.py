@@ -11,6 +11,7 @@ import math
 import os
 import signal
 import sys
+import textwrap
 import time
 import traceback
 import warnings
@@ -112,9 +113,9 @@ EPILOG = f"""examples (built-in materials and shipped scenes; nothing to downloa
   sparse-brdf render sphere -o gold.png --material material=gold.sbrdf
   sparse-brdf train --corpus mitsuba -o my_ensemble.npz --checkpoint-dir ckpt/
 
-Outputs follow their names: each -o takes the suffix of what the command writes (a
-.sbrdf, a MERL .binary, an .exr or .png/.jpg image, ...); another suffix, or a name
-ending in / (a folder), is refused before any work.
+Outputs follow their names: each -o takes the suffix of what the command
+writes (a .sbrdf, a MERL .binary, an .exr or .png/.jpg image, ...); another
+suffix, or a name ending in / (a folder), is refused before any work.
 """
 
 
@@ -573,8 +574,15 @@ def _bench_acquisition(args: argparse.Namespace) -> int:
 
 
 class _Help(argparse.RawDescriptionHelpFormatter):
-    """Descriptions and epilogs as written; every option's help ends with its default
+    """Descriptions and epilogs line by line: a long line is wrapped, an indented one
+    (an example command) kept as written; every option's help ends with its default
     (unless it says it itself; flags are off by default; required options have none)."""
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        return "\n".join(
+            line if line[:1].isspace() or len(line) + len(indent) <= width
+            else textwrap.fill(line, width, initial_indent=indent, subsequent_indent=indent)
+            for line in text.splitlines())
 
     def _get_help_string(self, action: argparse.Action) -> str:
         text = action.help or ""
