@@ -9,7 +9,7 @@ The model-level functions take what they learned from explicitly
 learned from the training split of the merl corpus only (every
 :data:`TRAINING_STRIDE`-th material): the prior computed on first use and cached on
 disk (``sources.cache``, keyed by the ensemble and the materials; a few minutes once),
-the PCA basis kept in memory for the process.
+the PCA basis likewise (about 30 s once; read back memory-mapped, kept for the process).
 """
 
 from __future__ import annotations
@@ -110,7 +110,8 @@ def trained_pca(training: Sequence | None = None) -> PCAModel:
             from tqdm.auto import tqdm  # lazy: tqdm.auto adds ~40 ms to `import sparse_brdf`
 
             print(f"sparse-brdf: fitting the PCA fallback's basis on {len(mats)} training "
-                  f"materials (once, then cached in {cache_dir()})", file=sys.stderr)
+                  f"materials (once, about 30 s on 2 cores; then cached in {cache_dir()})",
+                  file=sys.stderr)
             brdfs = [m.load() for m in tqdm(mats, desc="PCA basis", unit="material",
                                              leave=False)]
             pca = PCAModel(max(1, len(mats) - 1)).fit(brdfs)
