@@ -40,7 +40,13 @@ from harness import header, parser, write_json
 
 from sparse_brdf import decode_file, encode, load_brdf, load_sbrdf
 from sparse_brdf.evaluation.fit_images import fit_images, views_for
-from sparse_brdf.evaluation.render import find_scene, object_mask, parse_defaults, render_scene
+from sparse_brdf.evaluation.render import (
+    SHARED_PATHS,
+    find_scene,
+    object_mask,
+    parse_defaults,
+    render_scene,
+)
 from sparse_brdf.metrics import snr_forms
 from sparse_brdf.model.sbrdf import save_sbrdf
 from sparse_brdf.paths import DEMO_MATERIALS_DIR
@@ -107,9 +113,11 @@ def _rated(scene, mask, table, files: dict, specs, spp: int, res: int) -> dict:
     """view -> model -> [object-only, whole-image] SNR at ``spp`` (seed 0, shared paths)."""
     out: dict = {}
     for v in specs:
-        ref = render_scene(scene, {"material": str(table)}, spp=spp, res=res, params=_params(v))
+        ref = render_scene(scene, {"material": str(table)}, sampling=SHARED_PATHS,
+                           spp=spp, res=res, params=_params(v))
         for k, f in files.items():
-            img = render_scene(scene, {"material": str(f)}, spp=spp, res=res,
+            img = render_scene(scene, {"material": str(f)}, sampling=SHARED_PATHS,
+                               spp=spp, res=res,
                                params=_params(v))
             s = snr_forms(ref, img, mask)
             out.setdefault(v, {})[k] = [round(s.object, 2), round(s.whole, 2)]
@@ -157,13 +165,15 @@ def _attribution(scene, mask, table, clean_file, fit_file, tmp: Path, specs, spp
     clean, fit = decode_file(clean_file), decode_file(fit_file)
     out: dict = {}
     for v in specs:
-        ref = render_scene(scene, {"material": str(table)}, spp=spp, res=res, params=_params(v))
+        ref = render_scene(scene, {"material": str(table)}, sampling=SHARED_PATHS,
+                           spp=spp, res=res, params=_params(v))
         for h0, h1 in H_BANDS:
             for d0, d1 in D_BANDS:
                 vals = clean.values.copy()
                 vals[h0:h1, d0:d1] = fit.values[h0:h1, d0:d1]
                 f = write_merl(tmp / "hybrid.binary", dataclasses.replace(clean, values=vals))
-                img = render_scene(scene, {"material": str(f)}, spp=spp, res=res,
+                img = render_scene(scene, {"material": str(f)}, sampling=SHARED_PATHS,
+                                   spp=spp, res=res,
                                    params=_params(v))
                 out.setdefault(v, {})[f"h{h0}-{h1},d{d0}-{d1}"] = round(
                     snr_forms(ref, img, mask).object, 2)
@@ -172,7 +182,8 @@ def _attribution(scene, mask, table, clean_file, fit_file, tmp: Path, specs, spp
 
 def _fit(args, fit_scene, source: Path, start: Path):
     """The fit from ``start`` to references of ``source`` on the fitting views."""
-    refs = [render_scene(fit_scene, {"material": str(source)}, spp=args.spp, res=args.res,
+    refs = [render_scene(fit_scene, {"material": str(source)}, sampling=SHARED_PATHS,
+                         spp=args.spp, res=args.res,
                          params=_params(v)) for v in args.fit_views]
     t0 = time.perf_counter()
     fit = fit_images(fit_scene, views_for([_params(v) for v in args.fit_views], refs), start,

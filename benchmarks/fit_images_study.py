@@ -46,7 +46,13 @@ from sparse_brdf.evaluation.fit_images import (
     fit_images,
     views_for,
 )
-from sparse_brdf.evaluation.render import find_scene, object_mask, parse_defaults, render_scene
+from sparse_brdf.evaluation.render import (
+    SHARED_PATHS,
+    find_scene,
+    object_mask,
+    parse_defaults,
+    render_scene,
+)
 from sparse_brdf.metrics import snr_forms
 from sparse_brdf.model.sbrdf import save_sbrdf
 from sparse_brdf.paths import DEMO_MATERIALS_DIR
@@ -78,7 +84,8 @@ def _held_out(scene, refs, mask, specs, src, spp, res, seeds=None,
     [object-only, whole-image, share of the squared error in its 5 worst pixels] goes
     into ``per_view`` when given."""
     seeds = seeds or {}
-    imgs = [render_scene(scene, {"material": str(src)}, spp=spp, seed=seeds.get(v, 0),
+    imgs = [render_scene(scene, {"material": str(src)}, sampling=SHARED_PATHS,
+                         spp=spp, seed=seeds.get(v, 0),
                          res=res, params=_params(v)) for v in specs]
     forms = [snr_forms(refs[v], img, mask) for v, img in zip(specs, imgs, strict=True)]
     if per_view is not None:
@@ -128,10 +135,12 @@ def _references(scene, brdf_path: Path, args, spps: dict, seeds: dict) -> tuple[
     """The references: view -> image of the fitting, validation and (at the first
     --held-out-spp) held-out views, and spp -> view -> image of the held-out views at
     each --held-out-spp."""
-    refs = {v: render_scene(scene, {"material": str(brdf_path)}, spp=spps.get(v, args.spp),
+    refs = {v: render_scene(scene, {"material": str(brdf_path)}, sampling=SHARED_PATHS,
+                            spp=spps.get(v, args.spp),
                             seed=seeds.get(v, 0), res=args.res, params=_params(v))
             for v in [*args.fit_views, *args.validation]}
-    held = {n: {v: render_scene(scene, {"material": str(brdf_path)}, spp=n, res=args.res,
+    held = {n: {v: render_scene(scene, {"material": str(brdf_path)}, sampling=SHARED_PATHS,
+                                spp=n, res=args.res,
                                 params=_params(v)) for v in args.held_out}
             for n in args.held_out_spp}
     refs.update(held[args.held_out_spp[0]])

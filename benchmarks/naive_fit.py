@@ -30,7 +30,14 @@ import numpy as np
 from harness import header, machine, parser, write_json
 
 from sparse_brdf.brdf import BRDF
-from sparse_brdf.evaluation.render import find_scene, object_mask, read_exr, render_scene, write_exr
+from sparse_brdf.evaluation.render import (
+    SHARED_PATHS,
+    find_scene,
+    object_mask,
+    read_exr,
+    render_scene,
+    write_exr,
+)
 from sparse_brdf.metrics import snr_forms
 from sparse_brdf.model.baselines import NaiveModel
 from sparse_brdf.model.compact import BRDFModel
@@ -64,7 +71,8 @@ class RenderCache:
         self._key = _digest(self.scene.read_text(), str(res), str(spp), str(seed))
 
     def render(self, material: str) -> np.ndarray:
-        return render_scene(self.scene, {"material": material}, spp=self.spp,
+        return render_scene(self.scene, {"material": material}, sampling=SHARED_PATHS,
+                            spp=self.spp,
                             seed=self.seed, res=self.res)
 
     def reference(self, mat: Material, brdf: BRDF, tmp: Path) -> np.ndarray:

@@ -31,6 +31,7 @@ from harness import header, machine, parser, write_json
 from sparse_brdf.brdf import BRDF
 from sparse_brdf.errors import MissingDataError
 from sparse_brdf.evaluation.render import (
+    SHARED_PATHS,
     check_scene_data,
     find_scene,
     noise_floor_snr,
@@ -78,9 +79,12 @@ def refit(path: Path, budget: float | None, epochs: int, seed: int) -> tuple[BRD
 def render_pair(scene: Path, original: str, refitted: str, mask: np.ndarray, spp: int,
                 res: int, seed: int) -> dict:
     """Both SNR forms of the refit against the original, and the original's noise floor."""
-    ref = render_scene(scene, {"material": original}, spp=spp, seed=seed, res=res)
-    alt = render_scene(scene, {"material": original}, spp=spp, seed=seed + 1, res=res)
-    img = render_scene(scene, {"material": refitted}, spp=spp, seed=seed, res=res)
+    ref = render_scene(scene, {"material": original}, sampling=SHARED_PATHS,
+                       spp=spp, seed=seed, res=res)
+    alt = render_scene(scene, {"material": original}, sampling=SHARED_PATHS,
+                       spp=spp, seed=seed + 1, res=res)
+    img = render_scene(scene, {"material": refitted}, sampling=SHARED_PATHS,
+                       spp=spp, seed=seed, res=res)
     snr, floor = snr_forms(ref, img, mask), noise_floor_snr(ref, alt, mask)
     return {"snr_whole": snr.whole, "snr_object": snr.object,
             "floor_whole": floor.whole, "floor_object": floor.object}

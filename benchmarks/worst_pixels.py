@@ -19,7 +19,13 @@ import numpy as np
 from harness import header, parser
 
 from sparse_brdf import encode, load_brdf
-from sparse_brdf.evaluation.render import find_scene, object_mask, parse_defaults, render_scene
+from sparse_brdf.evaluation.render import (
+    SHARED_PATHS,
+    find_scene,
+    object_mask,
+    parse_defaults,
+    render_scene,
+)
 from sparse_brdf.model.sbrdf import save_sbrdf
 from sparse_brdf.paths import DEMO_MATERIALS_DIR
 from sparse_brdf.sources.merl import write_merl
@@ -42,7 +48,8 @@ def main() -> None:
     sources = {"table": write_merl(tmp / "m.binary", brdf),
                "encoding": save_sbrdf(tmp / "m.sbrdf", encode(brdf))}
     params = parse_defaults(args.view.split(","), f"view {args.view!r}:")
-    img = {k: render_scene(scene, {"material": str(f)}, spp=args.spp, res=args.res,
+    img = {k: render_scene(scene, {"material": str(f)}, sampling=SHARED_PATHS,
+                           spp=args.spp, res=args.res,
                            params=params) for k, f in sources.items()}
     err = np.sum(np.square(img["encoding"].astype(np.float64) - img["table"]), axis=-1)
     ys, xs = np.nonzero(mask)

@@ -41,6 +41,7 @@ from sparse_brdf.model.layouts import (
     LAYOUTS,
     PACK_BITS,
     PACKET,
+    PLUGIN_DEFAULTS,
     SAMPLING,
     SLOT,
     UNION_ATOMS,
@@ -524,9 +525,11 @@ class TabulatedBRDF(GlossyBSDF):
            shipped ensemble).
        * - sampling
          - string
-         - ``cosine`` (default: cosine-weighted hemisphere, independent of the BRDF, so a
-           reference and a model render share their sample paths) or ``lobe`` (cosine mixed
-           with a power-cosine half-vector lobe fitted to the BRDF at load time).
+         - ``lobe`` (default: cosine mixed with a power-cosine half-vector lobe fitted to
+           the BRDF at load time; lower noise on glossy materials) or ``cosine``
+           (cosine-weighted hemisphere, independent of the BRDF, so a reference and a
+           model rendered with one seed and spp share their sample paths: set it for
+           comparisons of renders).
        * - interpolate
          - boolean
          - Trilinear interpolation between the bins' lower-edge samples (default: false,
@@ -535,7 +538,7 @@ class TabulatedBRDF(GlossyBSDF):
     Example::
 
         {"type": "tabulated_brdf", "filename": "gold-metallic-paint.binary",
-         "sampling": "cosine"}
+         "sampling": "lobe"}
     """
 
     plugin = "tabulated_brdf"
@@ -543,7 +546,8 @@ class TabulatedBRDF(GlossyBSDF):
     def __init__(self, props) -> None:
         GlossyBSDF.__init__(self, props)
         ops = self._ops
-        p = _read_props(props, self.plugin, {"filename": _REQUIRED, "sampling": "cosine",
+        p = _read_props(props, self.plugin, {"filename": _REQUIRED,
+                                             "sampling": PLUGIN_DEFAULTS["sampling"],
                                              "interpolate": False, "ensemble": None})
         self.sampling = _choice(p["sampling"], SAMPLING, self.plugin, "sampling")
         self.interpolate = _as_bool(p["interpolate"], self.plugin, "interpolate")
@@ -618,7 +622,7 @@ class SparseBSDF(GlossyBSDF):
            the same kernel.
        * - sampling
          - string
-         - ``cosine`` (default) or ``lobe``, as for ``tabulated_brdf``.
+         - ``lobe`` (default) or ``cosine``, as for ``tabulated_brdf``.
        * - interpolate
          - boolean
          - Trilinear interpolation of the transformed value X (separable: each mode's atoms
@@ -637,7 +641,8 @@ class SparseBSDF(GlossyBSDF):
         ops = self._ops
         p = _read_props(props, self.plugin, {
             "filename": _REQUIRED, "ensemble": None, "decoder": "auto",
-            "sampling": "cosine", "interpolate": False, "layout": "auto"})
+            "sampling": PLUGIN_DEFAULTS["sampling"], "interpolate": False,
+            "layout": "auto"})
         self.sampling = _choice(p["sampling"], SAMPLING, self.plugin, "sampling")
         self.interpolate = _as_bool(p["interpolate"], self.plugin, "interpolate")
         decoder = _choice(p["decoder"], DECODERS, self.plugin, "decoder")
@@ -741,6 +746,8 @@ class SparseBSDF(GlossyBSDF):
             self._build_grouped(model, self._ens, self.layout)
         else:
             self._build_strict(model, self._ens)
+        if self.sampling == "lobe":  # the lobe follows the values, as from a file
+            self._setup_sampling(self.sampling, sparse_profile(model, self._ens), model.shape)
         self._grad = self._ops.jit and any(dr.grad_enabled(v) for v in self._values)
         if self._grad:
             self._attach_gradients()
@@ -861,7 +868,7 @@ class NeuralBRDF(GlossyBSDF):
            with ``NeuralFit.save``).
        * - sampling
          - string
-         - ``cosine`` (default) or ``lobe``, as for ``tabulated_brdf``; the lobe is fitted
+         - ``lobe`` (default) or ``cosine``, as for ``tabulated_brdf``; the lobe is fitted
            to the network's table on the MERL grid at load time, so it equals the lobe of
            ``tabulated_brdf`` reading the same file.
 
@@ -874,7 +881,8 @@ class NeuralBRDF(GlossyBSDF):
 
     def __init__(self, props) -> None:
         GlossyBSDF.__init__(self, props)
-        p = _read_props(props, self.plugin, {"filename": _REQUIRED, "sampling": "cosine"})
+        p = _read_props(props, self.plugin, {"filename": _REQUIRED,
+                                             "sampling": PLUGIN_DEFAULTS["sampling"]})
         self.sampling = _choice(p["sampling"], SAMPLING, self.plugin, "sampling")
         self.filename = _resolve(str(p["filename"]))
         try:

@@ -11,6 +11,7 @@ import math
 import os
 import signal
 import sys
+import textwrap
 import time
 import traceback
 import warnings
@@ -25,6 +26,7 @@ from .errors import (
     EnsembleMismatchError,
     ImageFileError,
     InvalidBRDFError,
+    OutputError,
     SparseBRDFError,
     UsageError,
     one_line,
@@ -38,31 +40,44 @@ from .evaluation.acquisition_bench import (
     check_acquisition_config,
 )
 from .evaluation.batch import (
+    PLAN_PAIRS,
     encode_batch,
     encode_file,
     encode_samples_file,
     is_batch,
     plan_samples_file,
+    samples_constant,
 )
 from .evaluation.bench import Bench, BenchConfig, check_config, config_kind, shipped_configs
 from .evaluation.fit_images import fit_images, load_views
 from .evaluation.fit_scene import fit_scene
 from .evaluation.ranking import RANK_BY, merge_results, write_ranking
 from .evaluation.render import (
+    IMAGE_SUFFIXES,
+    MASK_SUFFIXES,
     RENDER_PARAMETERS,
+    SHARED_PATHS,
     find_scene,
     noise_floor_snr,
     object_mask,
     parse_defaults,
     parse_overrides,
+    parse_scene,
     read_exr,
     read_mask,
     render_scene,
-    write_exr,
+    write_image,
     write_mask,
 )
-from .fileio import check_output, cleanup_on_signals, remove_temporaries
-from .metrics import FLIP, OBJECT_ONLY, hdr_flip, snr_forms
+from .fileio import (
+    check_output,
+    check_suffix,
+    check_writable,
+    cleanup_on_signals,
+    remove_temporaries,
+    staged,
+)
+from .metrics import FLIP, OBJECT_ONLY, WHOLE_IMAGE, hdr_flip, snr_forms
 from .model import acquire as acquire_module
 from .model import budget as budget_module
 from .model import encode as encode_module
@@ -88,16 +103,21 @@ from .sources.corpora import SPLITS, TRAINING_CORPORA, get_corpus, list_corpora
 from .sources.dataset import training_data
 from .sources.load import load_brdf
 from .sources.merl import write_merl
-from .sources.samples import PLACEMENTS, plan
+from .sources.samples import PLACEMENTS, plan, read_samples
 from .transforms import COLOUR_BASES, TRANSFORMS
 
-EPILOG = f"""examples:
-  sparse-brdf corpus list
+EPILOG = f"""examples (built-in materials and shipped scenes; nothing to download):
+  sparse-brdf corpus list mitsuba
   sparse-brdf info mitsuba:au-ggx-0.08
-  sparse-brdf convert ../shared/data/nbrdf/merl/gold-metallic-paint.h5 gold.binary
+  sparse-brdf convert mitsuba:au-ggx-0.08 gold.binary
   sparse-brdf encode gold.binary -o gold.sbrdf --coeffs {DEFAULT_N_COEFFS}
   sparse-brdf decode gold.sbrdf -o gold-decoded.binary
-  sparse-brdf train -o my_ensemble.npz --checkpoint-dir ckpt/
+  sparse-brdf render sphere -o gold.png --material material=gold.sbrdf
+  sparse-brdf train --corpus mitsuba -o my_ensemble.npz --checkpoint-dir ckpt/
+
+Outputs follow their names: each -o takes the suffix of what the command
+writes (a .sbrdf, a MERL .binary, an .exr or .png/.jpg image, ...); another
+suffix, or a name ending in / (a folder), is refused before any work.
 """
 
 
@@ -129,11 +149,28 @@ def _default(func, name: str):
     return list(d) if isinstance(d, tuple) else d
 
 
+#: The kinds of file the commands write: their suffixes and what they are called.
+SBRDF = ((".sbrdf",), "a .sbrdf coefficient file")
+MERL = ((".binary",), "a MERL .binary file")
+ENSEMBLE_NPZ = ((".npz",), "an ensemble .npz file")
+SAMPLES_FILE = ((".csv", ".npz"), "a samples .csv or .npz file")
+IMAGE = (IMAGE_SUFFIXES, "an image (.exr: linear HDR; .png, .jpg: an sRGB preview)")
+MASK = (MASK_SUFFIXES, "an object mask (.exr or .npy)")
+
+
 def _check_outputs(outputs, inputs) -> None:
-    """Refuse an output that is a folder, one of the ``inputs``, or another output."""
-    outputs = [o for o in outputs if o]
-    for i, out in enumerate(outputs):
-        check_output(out, [*inputs, *outputs[:i]])
+    """Check every output of a command before its work: ``outputs`` are (path, kind,
+    option) with ``kind`` one of the kinds above (None paths skipped). Each must take
+    its kind's suffix, not name a folder, be none of the ``inputs`` nor another output,
+    and be writable."""
+    done: list = []
+    for out, (suffixes, kind), option in outputs:
+        if not out:
+            continue
+        check_suffix(out, suffixes, option, kind)
+        check_output(out, [*inputs, *done])
+        check_writable(out)
+        done.append(out)
 
 
 def _add_source_help(p: argparse.ArgumentParser) -> None:
@@ -170,9 +207,7 @@ def cmd_info(args: argparse.Namespace) -> int:
 
 def cmd_convert(args: argparse.Namespace) -> int:
     out = Path(args.output)
-    if out.suffix != ".binary":
-        raise UsageError(f"{out}: output must be a MERL .binary file")
-    _check_outputs([out], [args.source])
+    _check_outputs([(out, MERL, "output")], [args.source])
     write_merl(out, load_brdf(args.source))
     print(f"wrote {out}")
     return 0
@@ -186,7 +221,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     if max(args.taus) > math.prod(shape):
         raise UsageError(f"--taus {max(args.taus)}: a tensor of that grid has only "
                          f"{math.prod(shape)} coefficients")
-    _check_outputs([args.output], [args.extend])
+    _check_outputs([(args.output, ENSEMBLE_NPZ, "-o")], [args.extend])
     t0 = time.perf_counter()
     data = training_data(materials, args.transform, shape, basis=args.basis)
     x = data.x
@@ -224,6 +259,9 @@ def cmd_encode(args: argparse.Namespace) -> int:
     if args.paper:
         options.update(PAPER_OPTIONS)
     if is_batch(args.source):
+        if Path(args.output).is_file():
+            raise OutputError(f"-o {args.output}: a batch writes a folder (one .sbrdf per "
+                              "material and its summary), not a file")
         if args.bytes is not None:
             raise UsageError("--bytes: byte budgets encode one material at a time (not a "
                              "batch yet); give --coeffs for a batch")
@@ -232,6 +270,7 @@ def cmd_encode(args: argparse.Namespace) -> int:
                                    {"n_coeffs": args.coeffs, **options}, ex)
         _note_capped(args, summary["grid"])
         return _report_batch(args, summary)
+    _check_outputs([(args.output, SBRDF, "-o")], [args.source, args.ensemble])
     path, model = encode_file(args.source, args.output, args.ensemble, args.coeffs,
                               args.bytes, **options)
     _note_capped(args, model.shape)
@@ -250,16 +289,25 @@ def cmd_encode(args: argparse.Namespace) -> int:
 
 
 def cmd_encode_samples(args: argparse.Namespace) -> int:
-    path, model = encode_samples_file(args.samples, args.output, args.ensemble, args.coeffs,
+    t0 = time.perf_counter()
+    _check_outputs([(args.output, SBRDF, "-o")], [args.samples, args.ensemble])
+    samples = read_samples(args.samples)
+    if samples_constant(samples) and np.any(samples.rgb):  # all zeros: refused below
+        print(f"sparse-brdf: warning: {args.samples}: every sample has the same value "
+              f"{samples.rgb[0].tolist()}: a Lambertian material, or values not measured "
+              "(a plan's zeros or one value copied into every row)", file=sys.stderr)
+    path, model = encode_samples_file(samples, args.output, args.ensemble, args.coeffs,
                                       args.bytes, seed=args.seed, prior=args.prior)
     st = model.stats
     print(f"wrote {path} ({path.stat().st_size} bytes) from {st['samples']} samples: "
           f"{model.transform}, coefficients {model.n_coeffs.tolist()}, dictionaries "
-          f"{model.dict_index.tolist()}, {st['seconds']:.1f} s")
+          f"{model.dict_index.tolist()}; {time.perf_counter() - t0:.1f} s in all (the "
+          f"sparse fit {st['seconds']:.1f} s)")
     return 0
 
 
 def cmd_plan_samples(args: argparse.Namespace) -> int:
+    _check_outputs([(args.output, SAMPLES_FILE, "-o")], [])
     path = plan_samples_file(args.output, args.n, args.placement, args.seed)
     print(f"wrote {path}: {args.n} direction pairs ({args.placement}); measure them and "
           "fill in r,g,b")
@@ -287,7 +335,8 @@ def _add_where(p: argparse.ArgumentParser, what: str) -> None:
                    help=f"run {what} on a local Dask cluster of N processes (default: in "
                         "this process, no cluster)")
     g.add_argument("--scheduler", metavar="ADDRESS",
-                   help=f"run {what} on an existing Dask cluster (e.g. tcp://host:8786)")
+                   help=f"run {what} on an existing Dask cluster (e.g. tcp://host:8786; "
+                        "default: in this process)")
 
 
 def _note_capped(args: argparse.Namespace, shape: tuple[int, ...]) -> None:
@@ -309,7 +358,7 @@ class _Given(argparse.Action):
 
 
 def cmd_decode(args: argparse.Namespace) -> int:
-    _check_outputs([args.output], [args.source, args.ensemble])
+    _check_outputs([(args.output, MERL, "-o")], [args.source, args.ensemble])
     try:
         brdf = decode_file(args.source, args.ensemble)
     except InvalidBRDFError as exc:  # e.g. coefficients so large that the values overflow
@@ -320,14 +369,21 @@ def cmd_decode(args: argparse.Namespace) -> int:
 
 
 def cmd_blend(args: argparse.Namespace) -> int:
-    _check_outputs([args.output], [args.a, args.b, args.ensemble])
+    _check_outputs([(args.output, SBRDF, "-o")], [args.a, args.b, args.ensemble])
     try:  # the shipped ensemble A names, unless one is given
         ens = resolve_ensemble(args.ensemble, for_id=load_sbrdf(args.a).ensemble_id)
     except EnsembleMismatchError as exc:
         raise EnsembleMismatchError(f"{args.a}: {exc}") from exc
     n = None if args.coeffs is None else check_n_coeffs(args.coeffs, ens)
     _note_capped(args, ens.shape)
-    a, b = load_sbrdf(args.a, ens), load_sbrdf(args.b, ens)
+    a = load_sbrdf(args.a, ens)
+    try:
+        b = load_sbrdf(args.b, ens)
+    except EnsembleMismatchError as exc:
+        raise EnsembleMismatchError(
+            f"{args.b}: encoded with another ensemble than {args.a} ({ens.id}): blending "
+            f"needs one ensemble; re-encode the material of {args.b} with it (sparse-brdf "
+            f"encode SOURCE -o NEW.sbrdf --ensemble {args.ensemble or ens.id})") from exc
     if a.transform != b.transform:
         raise UsageError(f"cannot blend {args.a} ({a.transform}) with {args.b} "
                          f"({b.transform}): encode both with the same --transform")
@@ -337,24 +393,33 @@ def cmd_blend(args: argparse.Namespace) -> int:
 
 
 def cmd_render(args: argparse.Namespace) -> int:
-    opts = {"decoder": args.decoder, "sampling": args.sampling}
+    opts = {"decoder": args.decoder}
     if args.ensemble:
         opts["ensemble"] = args.ensemble
     t0 = time.perf_counter()
     scene, materials = find_scene(args.scene), parse_overrides(args.material)
-    _check_outputs([args.output, args.mask], [scene, *materials.values(), args.ensemble])
+    if args.mask and not materials:
+        raise UsageError("--mask: the object is the shapes of the replaced materials; give "
+                         "--material ID=FILE")
+    _check_outputs([(args.output, IMAGE, "-o"), (args.mask, MASK, "--mask")],
+                   [scene, *materials.values(), args.ensemble])
     defines = parse_defaults(args.define, "-D")
-    img = render_scene(scene, materials, spp=args.spp,
-                       seed=args.seed, res=args.res, params=defines, sparse_options=opts,
-                       tabulated_options={"sampling": args.sampling})
-    seconds = time.perf_counter() - t0
-    write_exr(args.output, img)
-    print(f"wrote {args.output} ({img.shape[1]}x{img.shape[0]}, {args.spp} spp, "
-          f"{seconds:.2f} s)")
+    img = render_scene(scene, materials, spp=args.spp, seed=args.seed, res=args.res,
+                       params=defines, sparse_options=opts, sampling=args.sampling)
+    mask = None
     if args.mask:
-        write_mask(args.mask, object_mask(find_scene(args.scene), res=img.shape[0],
-                                          params=defines))
-        print(f"wrote {args.mask} (object mask: pixels whose camera rays hit the geometry)")
+        mask = object_mask(scene, res=(img.shape[1], img.shape[0]), params=defines,
+                           materials=list(materials))
+    seconds = time.perf_counter() - t0
+    with staged([args.output, *([args.mask] if args.mask else [])]) as tmp:
+        write_image(tmp[0], img, args.exposure)
+        if mask is not None:
+            write_mask(tmp[1], mask)
+    print(f"wrote {args.output} ({img.shape[1]}x{img.shape[0]}, {args.spp} spp, "
+          f"{args.sampling} sampling, {seconds:.2f} s)")
+    if mask is not None:
+        print(f"wrote {args.mask} (object mask: pixels whose camera rays first hit a shape "
+              f"of {', '.join(materials)}; {int(mask.sum())} of {mask.size})")
     return 0
 
 
@@ -371,41 +436,72 @@ def _read_image(path: str, like: tuple[str, object] | None = None):
 
 
 def cmd_snr(args: argparse.Namespace) -> int:
-    if not (args.mask or args.scene):
-        raise UsageError("snr: the object-only SNR needs the object's pixels: give --scene "
-                         "SCENE (traced from the scene) or --mask FILE")
     ref = _read_image(args.reference)
     img = _read_image(args.image, (args.reference, ref))
     ref2 = _read_image(args.reference2, (args.reference, ref)) if args.reference2 else None
+    mask, why = None, None
     if args.mask:
         mask = read_mask(args.mask)
+    elif args.scene:
+        scene = find_scene(args.scene)
+        mask = object_mask(scene, res=(ref.shape[1], ref.shape[0]),
+                           materials=_object_materials(scene, args.material))
     else:
-        if ref.shape[0] != ref.shape[1]:
-            raise UsageError(f"{args.reference}: --scene needs a square image (the shipped "
-                             f"scenes render res x res), got {ref.shape[1]}x{ref.shape[0]}: "
-                             "give --mask instead")
-        mask = object_mask(find_scene(args.scene), res=ref.shape[0])
-    if mask.shape != ref.shape[:2]:
+        why = ("object-only not computed: give --scene SCENE (with --material ID) or --mask "
+               "FILE to tell which pixels are the object")
+    if mask is not None and mask.shape != ref.shape[:2]:
         raise ImageFileError(f"{args.mask or args.scene}: mask is {mask.shape[1]}x"
                              f"{mask.shape[0]}, the images {ref.shape[1]}x{ref.shape[0]}")
-    if not mask.any():
+    if mask is not None and not mask.any():
         raise ImageFileError(f"{args.mask or args.scene}: the mask selects no pixel")
-    snr = snr_forms(ref, img, mask)
-    flip = hdr_flip(ref, img, mask).mean
-    floor = noise_floor_snr(ref, ref2, mask) if ref2 is not None else None
+    whole = np.ones(ref.shape[:2], bool)
+    snr = snr_forms(ref, img, whole if mask is None else mask)
+    flip = hdr_flip(ref, img, mask).mean  # over the object's pixels; without a mask, all
+    floor = None
+    if ref2 is not None:
+        floor = noise_floor_snr(ref, ref2, whole if mask is None else mask)
     if args.json:
-        out = {"snr_whole_db": snr.whole, "snr_object_db": snr.object, "flip_object": flip,
-               "object_pixels": int(mask.sum()), "pixels": int(mask.size)}
+        out = {"snr_whole_db": snr.whole,
+               "snr_object_db": None if mask is None else snr.object,
+               "flip_object": None if mask is None else flip,
+               "object_pixels": None if mask is None else int(mask.sum()),
+               "pixels": int(ref.shape[0] * ref.shape[1])}
+        if mask is None:
+            out["flip_whole"] = flip
+        if why:
+            out["object_missing"] = why
         if floor is not None:
-            out.update(noise_floor_whole_db=floor.whole, noise_floor_object_db=floor.object)
+            out.update(noise_floor_whole_db=floor.whole,
+                       noise_floor_object_db=None if mask is None else floor.object)
         print(json.dumps(out))
+    elif mask is None:
+        print(f"{WHOLE_IMAGE} {snr.whole:.2f} dB, {FLIP} {flip:.4f} ({WHOLE_IMAGE} mean)"
+              + (f" (noise floor: {WHOLE_IMAGE} {floor.whole:.2f} dB)" if floor else "")
+              + f"; {why}")
     else:
         print(f"{snr}, {FLIP} {flip:.4f} ({OBJECT_ONLY} mean)"
               + (f" (noise floor: {floor})" if floor is not None else ""))
     return 0
 
 
+def _object_materials(scene: Path, given: list[str]) -> list[str]:
+    """The BSDF ids whose shapes are the object of ``snr --scene``: ``--material`` (IDs,
+    or ID=FILE as render takes them), else the shipped scenes' ``material``."""
+    if given:
+        return [g.partition("=")[0].strip() for g in given]
+    ids = {e.get("id") for e in parse_scene(scene).getroot().iter("bsdf") if e.get("id")}
+    if "material" in ids:
+        return ["material"]
+    raise UsageError(f"--scene {scene}: give --material ID, the id of the BSDF the images "
+                     f"replaced, whose shapes are the object (the scene's BSDF ids: "
+                     f"{', '.join(sorted(ids)) or 'none'})")
+
+
 def cmd_fit_scene(args: argparse.Namespace) -> int:
+    if Path(args.output).exists() and not Path(args.output).is_dir():
+        raise OutputError(f"-o {args.output}: fit-scene writes a folder (a .sbrdf per "
+                          "material and fit-scene.md), not a file")
+    check_writable(Path(args.output) / "fit-scene.md")
     rep = fit_scene(find_scene(args.scene), args.target_snr, parse_overrides(args.material),
                     args.output, ensemble_path=args.ensemble, spp=args.spp, res=args.res,
                     seed=args.seed, max_bytes=args.bytes)
@@ -421,7 +517,7 @@ def cmd_fit_images(args: argparse.Namespace) -> int:
     validation = args.validation_view or []
     paths = [*(fit_images_module.parse_view(v)[0] for v in args.view),
              *(fit_images_module.parse_view(v, "--validation-view")[0] for v in validation)]
-    _check_outputs([args.output], [args.start, *paths])
+    _check_outputs([(args.output, SBRDF, "-o")], [args.start, *paths])
     views = load_views(args.view, read_exr)
     held = load_views(validation, read_exr, option="--validation-view")
     result = fit_images(scene, views, args.start, material=args.material,
@@ -505,6 +601,35 @@ def _bench_acquisition(args: argparse.Namespace) -> int:
     return 0
 
 
+class _Help(argparse.RawDescriptionHelpFormatter):
+    """Descriptions and epilogs line by line: a long line is wrapped, an indented one
+    (an example command) kept as written; every option's help ends with its default
+    (unless it says it itself; flags are off by default; required options have none)."""
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        return "\n".join(
+            line if line[:1].isspace() or len(line) + len(indent) <= width
+            else textwrap.fill(line, width, initial_indent=indent, subsequent_indent=indent)
+            for line in text.splitlines())
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        said = any(w in text for w in ("%(default)", "(default", "default:", "default per"))
+        if (said or not action.option_strings or action.required
+                or any(action.default is v for v in (None, False, argparse.SUPPRESS))):
+            return text
+        return f"{text} (default: %(default)s)"
+
+
+def parsers(parser: argparse.ArgumentParser):
+    """``parser`` and every sub-command's parser below it."""
+    yield parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in dict.fromkeys(action.choices.values()):
+                yield from parsers(sub)
+
+
 class _Parser(argparse.ArgumentParser):
     """An argument parser whose usage errors are one line on stderr (exit status 2); its
     subparsers are of the same class."""
@@ -526,6 +651,8 @@ def build_parser() -> argparse.ArgumentParser:
     for add in (_add_data_commands, _add_train, _add_codec_commands, _add_render, _add_snr,
                 _add_fit_scene, _add_fit_images, _add_blend_and_bench):  # in the order of the help
         add(sub)
+    for q in parsers(p):
+        q.formatter_class = _Help
     return p
 
 
@@ -552,15 +679,15 @@ def _add_data_commands(sub) -> None:
 
 
 def _add_train(sub) -> None:
-    t = sub.add_parser("train", help="train a dictionary ensemble (docs/method.md, Training)",
-                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    t = sub.add_parser("train", help="train a dictionary ensemble (docs/method.md, Training)")
     t.add_argument("--corpus", nargs="+", default=list(TRAINING_CORPORA),
                    help="corpora to train on (names or folders)")
-    t.add_argument("--split", default="train", choices=SPLITS)
+    t.add_argument("--split", default="train", choices=SPLITS,
+                   help="which materials of the corpora to train on")
     t.add_argument("--transform", nargs="+", default=_default(training_data, "transforms"),
                    choices=TRANSFORMS,
-                   help="the transforms trained for (the paper's ensembles: log-plus "
-                        "log-plus-cosine)")
+                   help="value transforms the dictionaries are trained in, one set each (the "
+                        "paper's ensembles: log-plus log-plus-cosine)")
     t.add_argument("--basis", default=_default(training_data, "basis"), choices=COLOUR_BASES,
                    help="colour basis of the training channels (the encoder's coded channels)")
     t.add_argument("--taus", nargs="+", type=_typed(TRAIN["tau"].capped(GRID_BINS.hi)),
@@ -593,11 +720,15 @@ def _add_train(sub) -> None:
     t.add_argument("--init", default=_default(train_dictionaries, "init"), choices=TRAIN["init"],
                    help="initial clusters: seeded (k-means++ in the training error) or "
                         "random balanced")
-    t.add_argument("--seed", type=_typed(TRAIN["seed"]), default=_default(train_ensemble, "seed"))
+    t.add_argument("--seed", type=_typed(TRAIN["seed"]), default=_default(train_ensemble, "seed"),
+                   help="seed of the initial clusters: the same seed gives the same ensemble")
     t.add_argument("--grid", nargs=3, type=_typed(GRID_SIDE),
-                   default=_default(training_data, "shape"), metavar=("N_H", "N_D", "N_P"))
-    t.add_argument("--checkpoint-dir", help="checkpoint every iteration here and resume")
-    t.add_argument("--extend", help="unite the new dictionaries with this ensemble")
+                   default=_default(training_data, "shape"), metavar=("N_H", "N_D", "N_P"),
+                   help="the tensors' grid (theta_h, theta_d, phi_d bins)")
+    t.add_argument("--checkpoint-dir", help="checkpoint every iteration here and resume "
+                                            "(default: no checkpoints)")
+    t.add_argument("--extend", help="unite the new dictionaries with this ensemble (default: "
+                                    "a new ensemble of these alone)")
     t.add_argument("-o", "--output", required=True, help="output ensemble .npz")
     _add_where(t, "the per-tensor work of each iteration")
     t.set_defaults(func=cmd_train)
@@ -605,8 +736,7 @@ def _add_train(sub) -> None:
 
 def _add_codec_commands(sub) -> None:
     """``encode`` and ``decode``."""
-    e = sub.add_parser("encode", help="encode a BRDF as sparse coefficients (.sbrdf)",
-                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    e = sub.add_parser("encode", help="encode a BRDF as sparse coefficients (.sbrdf)",)
     e.add_argument("source", help="BRDF source (see below), or a folder or quoted glob "
                                   "of materials to encode them all (batch)")
     e.add_argument("-o", "--output", required=True,
@@ -616,17 +746,22 @@ def _add_codec_commands(sub) -> None:
     size = e.add_mutually_exclusive_group()
     size.add_argument("--coeffs", type=_typed(COEFFS), default=_default(encode, "n_coeffs"),
                       action=_Given,
-                      help="max coefficients per channel (capped to a channel's entries on "
-                           "a smaller grid)")
+                      help="the coefficient budget N. With the joint budget (--budget joint, "
+                           "the default of the default --basis opponent) the file holds 3 x N "
+                           "coefficients shared over the three coded channels where they "
+                           "lower the error most, so one channel may hold more than N (e.g. "
+                           "262 may give [475, 161, 150]); with --budget channel (--paper) at "
+                           "most N per channel. Capped to a channel's entries on a small grid")
     size.add_argument("--bytes", type=_typed(budget_module.PARAMETERS["n_bytes"]),
                       default=_default(encode_to_bytes, "n_bytes"), metavar="N",
                       help="byte budget instead: the .sbrdf file holds at most N bytes "
                            "(header included), the coefficients kept the largest over the "
-                           "channels (docs/file-format.md, Byte budgets)")
+                           "channels (docs/file-format.md, Byte budgets; default: --coeffs)")
     e.add_argument("--max-error", type=_typed(ENCODE["max_error"]),
                    default=_default(encode, "max_error"),
                    help="stop adding coefficients once the relative squared residual in the "
-                        "transformed domain is below this (e.g. 1e-4)")
+                        "transformed domain is below this (e.g. 1e-4; default: never, the "
+                        "budget decides)")
     e.add_argument("--transform", default=_default(encode, "transform"),
                    choices=ENCODE["transform"],
                    help="auto: the one --selector prefers")
@@ -687,12 +822,13 @@ def _add_samples_commands(sub) -> None:
     budget = es.add_mutually_exclusive_group()
     budget.add_argument("--coeffs", type=_typed(acq["n_coeffs"].capped(GRID_BINS.hi)),
                         default=_default(acquire_module.encode_samples, "n_coeffs"),
-                        help="coefficients per channel at most (a joint budget of 3 x this; "
-                             "fewer when held-out samples say more would overfit; default "
+                        help="the coefficient budget N: a joint budget of 3 x N shared over "
+                             "the three coded channels (one channel may hold more than N), "
+                             "fewer when held-out samples say more would overfit (default "
                              "%(default)s)")
     budget.add_argument("--bytes", type=_typed(budget_module.PARAMETERS["n_bytes"]),
                         default=_default(acquire_module.encode_samples, "n_bytes"),
-                        metavar="N", help="the file holds at most N bytes")
+                        metavar="N", help="the file holds at most N bytes (default: --coeffs)")
     es.add_argument("--ensemble", help="ensemble .npz or id (default: the shipped default)")
     es.add_argument("--seed", type=_typed(acq["seed"]),
                     default=_default(acquire_module.encode_samples, "seed"),
@@ -706,43 +842,76 @@ def _add_samples_commands(sub) -> None:
     es.set_defaults(func=cmd_encode_samples)
 
     ps = sub.add_parser(
-        "plan-samples", formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-        help="write direction pairs to measure, as a samples CSV with zero values",
+        "plan-samples", help="write direction pairs to measure, as a samples CSV with zero values",
         description="uniform: each direction uniform over the hemisphere; stratified: "
                     "strata of the grid's coordinates (dense near the specular peak); "
                     "bins: random valid bins at their lower-edge angles.")
-    ps.add_argument("n", type=_typed(Interval(int, 1)), help="direction pairs")
-    ps.add_argument("-o", "--output", required=True, help="output CSV")
-    ps.add_argument("--placement", default=_default(plan, "placement"), choices=PLACEMENTS)
-    ps.add_argument("--seed", type=_typed(acq["seed"]), default=_default(plan, "seed"))
+    ps.add_argument("n", type=_typed(PLAN_PAIRS), help="direction pairs")
+    ps.add_argument("-o", "--output", required=True,
+                    help="output samples file: .csv (or .npz)")
+    ps.add_argument("--placement", default=_default(plan, "placement"), choices=PLACEMENTS,
+                    help="where the pairs lie (see above)")
+    ps.add_argument("--seed", type=_typed(acq["seed"]), default=_default(plan, "seed"),
+                    help="the same seed gives the same pairs")
     ps.set_defaults(func=cmd_plan_samples)
 
 
 def _add_render(sub) -> None:
-    r = sub.add_parser("render", help="render a Mitsuba scene with materials overridden",
-                       formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-                       epilog="examples:\n  sparse-brdf render sphere.xml -o ref.exr "
-                              "--material material=gold.binary\n  sparse-brdf render "
-                              "sphere.xml -o model.exr --material material=gold.sbrdf")
-    r.add_argument("scene", help="scene XML (a path, or a name in the shipped scenes/)")
-    r.add_argument("-o", "--output", required=True, help="output EXR (float32, linear)")
+    r = sub.add_parser(
+        "render", help="render a Mitsuba scene with materials overridden",
+        description="Render any Mitsuba 3 scene file with some of its BSDFs (by id) replaced "
+                    "by measured materials. spp, seed and the resolution fill the scene's "
+                    "$spp, $seed and $res where it declares them, and are set on its "
+                    "sampler and film otherwise; a scene's other parameters are set with -D.",
+        epilog="examples:\n  sparse-brdf convert mitsuba:au-ggx-0.08 gold.binary\n"
+               "  sparse-brdf encode gold.binary -o gold.sbrdf\n"
+               "  sparse-brdf render sphere -o ref.exr --material material=gold.binary "
+               f"--sampling {SHARED_PATHS}\n"
+               "  sparse-brdf render sphere -o model.exr --material material=gold.sbrdf "
+               f"--sampling {SHARED_PATHS} --mask mask.exr\n"
+               "  sparse-brdf snr ref.exr model.exr --mask mask.exr\n"
+               "  sparse-brdf render sphere -o look.png --material material=gold.sbrdf "
+               "--exposure 1")
+    r.add_argument("scene", help="scene XML: any Mitsuba 3 scene file, or the name of a "
+                                 "shipped scene (sphere, spheres, sphere_light, paper_sphere)")
+    r.add_argument("-o", "--output", required=True,
+                   help="output image: .exr (linear HDR, float32) or .png/.jpg (an 8-bit "
+                        "sRGB preview, see --exposure)")
     r.add_argument("--material", action="append", default=[], metavar="ID=FILE",
                    help="replace BSDF ID: a .sbrdf selects sparse_brdf, any other BRDF "
-                        "source tabulated_brdf (repeatable)")
+                        "source tabulated_brdf (repeatable; default: none, the scene as it "
+                        "is)")
     r.add_argument("-D", "--define", action="append", default=[], metavar="KEY=VALUE",
-                   help="set a scene default, e.g. -D envrot=90 (repeatable)")
-    r.add_argument("--spp", type=_typed(RENDER["spp"]), default=_default(render_scene, "spp"))
-    r.add_argument("--seed", type=_typed(RENDER["seed"]), default=_default(render_scene, "seed"))
+                   help="set a parameter the scene declares, e.g. -D envrot=90 (repeatable; "
+                        "default: the scene's values)")
+    r.add_argument("--spp", type=_typed(RENDER["spp"]), default=_default(render_scene, "spp"),
+                   help="samples per pixel")
+    r.add_argument("--seed", type=_typed(RENDER["seed"]), default=_default(render_scene, "seed"),
+                   help="the sampler's seed: the same seed and spp give the same image")
     r.add_argument("--res", type=_typed(RENDER["res"]), default=_default(render_scene, "res"),
-                   help="square resolution (scene default)")
+                   help="the film's longer side in pixels, its aspect ratio kept (the "
+                        "scene's $res where it declares one; default: the scene's film)")
+    r.add_argument("--exposure", type=_typed(Interval(float, -64.0, 64.0)), default=0.0,
+                   metavar="STOPS",
+                   help="a .png/.jpg preview's exposure: values times 2^STOPS before the "
+                        "sRGB curve (an .exr is written as rendered)")
     r.add_argument("--sampling", default=PLUGIN_DEFAULTS["sampling"], choices=SAMPLING,
-                   help="cosine: shared sample paths (for SNR); lobe: lower variance")
-    r.add_argument("--decoder", default=PLUGIN_DEFAULTS["decoder"], choices=DECODERS)
+                   help="BSDF sampling of the replaced materials: lobe (the plugins' "
+                        "default) follows each material's highlight, the lower noise for "
+                        f"looking at an image; {SHARED_PATHS} gives every material the same "
+                        "sample paths for one seed and spp, so renders to compare (snr) "
+                        "share their noise")
+    r.add_argument("--decoder", default=PLUGIN_DEFAULTS["decoder"], choices=DECODERS,
+                   help="how the sparse_brdf plugin evaluates .sbrdf materials: grouped "
+                        "tables (fastest), strict (a loop over the terms: least memory), or "
+                        "auto: grouped "
+                        "unless its tables would be too large")
     r.add_argument("--ensemble", help="ensemble .npz for .sbrdf materials "
                    "(default: the shipped one each file names)")
     r.add_argument("--mask", metavar="MASK.exr",
-                   help="also write the object mask (1 where camera rays hit the geometry), "
-                        "for `sparse-brdf snr --mask`")
+                   help="also write the object mask (.exr or .npy; 1 where camera rays first "
+                        "hit a shape of a replaced material), for `sparse-brdf snr --mask` "
+                        "(default: none)")
     r.set_defaults(func=cmd_render)
 
 
@@ -751,73 +920,92 @@ def _add_snr(sub) -> None:
         "snr", help="rendering SNR (dB) of an image against a reference, in both forms",
         description="Rendering SNR 10 log10(sum ref^2 / sum (ref - img)^2) in two forms: "
                     "whole-image (every pixel, background included: the paper's form) and "
-                    "object-only (the pixels whose camera rays hit the object; the strict "
-                    "form). The object pixels come from the scene (--scene, traced at the "
-                    "image's resolution) or from a mask file (--mask, e.g. written by "
-                    "`sparse-brdf render --mask`). Beside them it prints HDR-FLIP, the "
+                    "object-only (the pixels whose camera rays first hit a shape carrying a "
+                    "replaced material; the strict form). The object pixels come from the "
+                    "scene (--scene, traced at the images' size) or from a mask file (--mask, "
+                    "e.g. written by `sparse-brdf render --mask`); without either, only the "
+                    "whole-image form is printed. Beside them it prints HDR-FLIP, the "
                     "perceptual difference of the two HDR images (0 = identical, 1 = most "
                     "different; a 10 % brightness change scores about 0.1), averaged over "
-                    "the object's pixels.",
-        epilog="example:\n  sparse-brdf snr ref.exr model.exr --scene paper_sphere "
+                    "the object's pixels (every pixel without a mask).",
+        epilog="example:\n  sparse-brdf snr ref.exr model.exr --scene sphere "
                "--reference2 ref-seed1.exr",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     n.add_argument("reference", help="reference EXR")
     n.add_argument("image", help="image EXR")
     where = n.add_mutually_exclusive_group()
     where.add_argument("--scene", help="the scene the images were rendered from (a path or a "
-                                       "shipped scene name): its object mask is traced")
+                                       "shipped scene name): its object mask is traced at "
+                                       "the images' size (default: none)")
     where.add_argument("--mask", help="object mask: an EXR (nonzero = object) or a .npy of "
-                                      "booleans, the images' size")
+                                      "booleans, the images' size (default: none; without "
+                                      "--scene or --mask only the whole-image SNR is printed)")
+    n.add_argument("--material", action="append", default=[], metavar="ID",
+                   help="with --scene: the id of a BSDF the images replaced; the shapes "
+                        "carrying it are the object (repeatable; default: the shipped "
+                        "scenes' material)")
     n.add_argument("--reference2", help="a second reference (other seed): prints the noise "
-                                        "floor beside the SNR")
-    n.add_argument("--json", action="store_true")
+                                        "floor beside the SNR (default: none)")
+    n.add_argument("--json", action="store_true", help="print JSON")
     n.set_defaults(func=cmd_snr)
 
 
 def _add_fit_scene(sub) -> None:
-    fs = sub.add_parser("fit-scene", formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-                        help="give each material of a scene the fewest coefficients that "
-                             "reach a target rendering SNR in that scene")
-    fs.add_argument("scene", help="scene XML (a path, or a name in the shipped scenes/)")
-    fs.add_argument("--target-snr", type=_typed(Interval(float)), required=True, metavar="DB")
+    fs = sub.add_parser("fit-scene", help="give each material of a scene the fewest "
+                                          "coefficients that reach a target rendering SNR "
+                                          "in that scene")
+    fs.add_argument("scene", help="scene XML: any Mitsuba 3 scene file, or the name of a "
+                                  "shipped scene")
+    fs.add_argument("--target-snr", type=_typed(Interval(float)), required=True, metavar="DB",
+                    help="the object-only rendering SNR each material must reach (the "
+                         "object: the shapes of the fitted materials)")
     fs.add_argument("--material", action="append", default=[], metavar="ID=FILE",
                     help="measured material of BSDF ID (repeatable); tabulated_brdf BSDFs "
                          "with a filename in the XML are found by themselves")
-    fs.add_argument("-o", "--output", default=_default(fit_scene, "out"), help="output folder")
+    fs.add_argument("-o", "--output", default=_default(fit_scene, "out"),
+                    help="output folder (a .sbrdf per material and fit-scene.md)")
     fs.add_argument("--spp", type=_typed(RENDER["spp"]), default=_default(fit_scene, "spp"),
                     help="spp of the verification renders")
     fs.add_argument("--res", type=_typed(RENDER["res"]), default=_default(fit_scene, "res"),
-                    help="resolution of verification renders")
-    fs.add_argument("--seed", type=_typed(RENDER["seed"]), default=_default(fit_scene, "seed"))
+                    help="the verification renders' longer side in pixels (aspect ratio "
+                         "kept; the scene's $res where it declares one)")
+    fs.add_argument("--seed", type=_typed(RENDER["seed"]), default=_default(fit_scene, "seed"),
+                    help="seed of the verification renders (reference and models share it, "
+                         f"with {SHARED_PATHS} sampling)")
     fs.add_argument("--bytes", type=_typed(budget_module.PARAMETERS["n_bytes"]),
                     default=_default(fit_scene, "max_bytes"), metavar="N",
                     help="per material: no .sbrdf file holds more than N bytes (the ladder "
-                         "of budgets ends at the largest coefficients that fit)")
+                         "of budgets ends at the largest coefficients that fit; default: no "
+                         "limit)")
     fs.add_argument("--ensemble", help="ensemble .npz (default: the shipped one)")
     fs.set_defaults(func=cmd_fit_scene)
 
 
 def _add_fit_images(sub) -> None:
     fi = sub.add_parser(
-        "fit-images", formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        "fit-images",
         help="fit a .sbrdf's coefficient values to reference images (inverse rendering)",
         description="Optimise the coefficient values of START (its support is kept) so "
                     "that renders of SCENE match the reference images, with Mitsuba's "
                     "Adam through the plugin's differentiable values (docs/fit-images.md)."
                     " Each --view is an EXR image and the scene defaults it was taken "
                     "with, e.g. ref.exr:envrot=90 or ref.exr:envmap=forest.exr,envrot=90,"
-                    "envtilt=30; square images set the scene's res.")
+                    "envtilt=30; each image's size sets the film's. The fit renders with "
+                    f"{SHARED_PATHS} sampling: render the references with --sampling "
+                    f"{SHARED_PATHS}, the fit's --seed and --spp.")
     fi.add_argument("scene", help="scene XML (a path, or a name in the shipped scenes/)")
     fi.add_argument("--view", action="append", required=True, metavar="IMAGE.exr[:K=V,...]",
                     help="a reference image and its scene defaults (repeatable)")
     fi.add_argument("--start", required=True, metavar="FILE.sbrdf",
                     help="the starting coefficients (their dictionaries and atoms are kept)")
-    fi.add_argument("-o", "--output", required=True, metavar="OUT.sbrdf")
+    fi.add_argument("-o", "--output", required=True, metavar="OUT.sbrdf",
+                    help="the fitted .sbrdf (checked writable before the fit)")
     fi.add_argument("--material", default=_default(fit_images, "material"),
                     help="id of the scene's BSDF that the model replaces")
     fip = fit_images_module.PARAMETERS
     fi.add_argument("--iterations", type=_typed(fip["iterations"]),
-                    default=_default(fit_images, "iterations"))
+                    default=_default(fit_images, "iterations"),
+                    help="optimiser iterations (evaluations of the loss)")
     fi.add_argument("--optimizer", choices=fit_images_module.OPTIMIZERS,
                     default=_default(fit_images, "optimizer"),
                     help="adam, or lbfgs (L-BFGS-B on the shared-path loss; --iterations "
@@ -833,12 +1021,13 @@ def _add_fit_images(sub) -> None:
                          "value's starting magnitude, floored at 1e-3 of its channel's "
                          "largest); the relative loss is a relative squared error (1e-4 "
                          "at 40 dB), so useful weights are small, e.g. 1e-6 to 1e-4; with "
-                         "--loss log 1 dB is 0.23 of the loss, so weights are larger; 0: "
-                         "the views alone")
+                         "--loss log 1 dB is 0.23 of the loss, so weights are larger; 0 "
+                         "(the default): the views alone")
     fi.add_argument("--validation-view", action="append", metavar="IMAGE.exr[:K=V,...]",
                     help="a reference never fitted, as --view: every --validate-every "
                          "evaluations the fit renders these, and writes the iterate they "
-                         "match best (early stopping; repeatable)")
+                         "match best (early stopping; repeatable; default: none, the last "
+                         "iterate is written)")
     fi.add_argument("--validate-every", type=_typed(fip["validate_every"]),
                     default=_default(fit_images, "validate_every"),
                     help="evaluations (iterations) between two validations")
@@ -850,10 +1039,13 @@ def _add_fit_images(sub) -> None:
     fi.add_argument("--spp", type=_typed(fip["spp"]), default=_default(fit_images, "spp"),
                     help="samples per pixel of each render (use the references' spp)")
     fi.add_argument("--seed", type=_typed(RENDER["seed"]), default=_default(fit_images, "seed"),
-                    help="the references' seed: the fit's renders share their sample paths")
+                    help="the references' seed: the fit's renders share their sample paths "
+                         f"(render the references with --sampling {SHARED_PATHS})")
     fi.add_argument("--checkpoint-dir", default=None,
-                    help="keep fit-images.npz here; a rerun resumes from it")
-    fi.add_argument("--decoder", choices=DECODERS, default=_default(fit_images, "decoder"))
+                    help="keep fit-images.npz here; a rerun resumes from it (default: no "
+                         "checkpoint)")
+    fi.add_argument("--decoder", choices=DECODERS, default=_default(fit_images, "decoder"),
+                    help="the sparse_brdf plugin's decoder of the fit's renders")
     fi.add_argument("--variant", default=_default(fit_images, "variant"),
                     help="a differentiable Mitsuba variant (llvm_ad_*, cuda_ad_*)")
     fi.add_argument("--ensemble", help="ensemble .npz (default: the shipped one)")
@@ -885,7 +1077,7 @@ def _add_blend_and_bench(sub) -> None:
                                    "neither --no-render nor a Dask cluster.")
     b.add_argument("config", nargs="?",
                    help="a built-in config's name or a TOML file (default: the small suite)")
-    b.add_argument("--out", help="output folder (overrides the config's)")
+    b.add_argument("--out", help="output folder (default: the config's)")
     b.add_argument("--no-render", action="store_true", help="BRDF-space metrics only")
     b.add_argument("--model", action="append", metavar="SPEC",
                    help="compare this model instead of the config's models (repeat it for "
@@ -1002,6 +1194,11 @@ def main(argv: list[str] | None = None) -> int:
             return 128 + signal.SIGPIPE
         except (SparseBRDFError, OSError) as exc:
             _report(debug, f"error: {_describe(exc)}")
+            return 2
+        except MemoryError:  # a size the options ask for that this machine cannot hold
+            _report(debug, "error: not enough memory for what the options ask (a size, "
+                           "count or resolution too large for this machine); no output "
+                           "was written")
             return 2
         except Exception as exc:  # noqa: BLE001 - anything else is a bug, said so
             _report(debug, f"internal error (a bug, please report it): "

@@ -120,6 +120,58 @@ def check_output(path: str | os.PathLike, inputs: Iterable[str | os.PathLike | N
     return path
 
 
+def check_suffix(path: str | os.PathLike, suffixes: Iterable[str], option: str = "-o",
+                 kind: str = "") -> Path:
+    """``path`` as a Path, or :class:`~sparse_brdf.errors.OutputError` when its name does
+    not end in one of ``suffixes`` (case-insensitive; e.g. ``(".sbrdf",)``) or ends in a
+    path separator (``-o DIR/`` names a folder: a command that writes one file asks for
+    the file's name). ``kind`` describes the file (e.g. "a .sbrdf coefficient file")."""
+    text = os.fspath(path)
+    suffixes = tuple(suffixes)
+    want = kind or " or ".join(suffixes) + " file"
+    if text.endswith((os.sep, "/")) or (os.altsep and text.endswith(os.altsep)):
+        raise OutputError(f"{option} {text}: names a folder; give the file's name, e.g. "
+                          f"{text.rstrip('/' + os.sep)}/NAME{suffixes[0]} ({want})")
+    p = Path(text)
+    if p.suffix.lower() not in suffixes:
+        raise OutputError(f"{option} {text}: this command writes {want}; give a name ending "
+                          f"in {' or '.join(suffixes)}")
+    return p
+
+
+def check_writable(path: str | os.PathLike, what: str = "output") -> Path:
+    """``path`` as a Path, or :class:`~sparse_brdf.errors.OutputError` when it could not be
+    written: its folder (or the nearest existing folder above it) is not a folder, or a
+    probe file cannot be created there (permissions, a read-only file system). Commands
+    check every output this way before their work."""
+    path = Path(path)
+    _check_replaceable(path, what)
+    folder = path.parent
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    if not folder.is_dir():
+        raise OutputError(f"{path}: cannot write the {what}: {folder} is not a folder")
+    try:
+        probe = _create_temporary(folder / path.name, ".probe")
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot write the {what}: {exc.strerror or exc}") from exc
+    try:
+        os.unlink(probe)
+    finally:
+        _TEMPORARIES.discard(probe)
+    return path
+
+
+@contextlib.contextmanager
+def staged(paths: Iterable[str | os.PathLike]) -> Iterator[list[Path]]:
+    """Temporary paths beside each of ``paths`` (same suffix), to write a command's
+    outputs to; they are renamed onto ``paths`` only once the block has written them all
+    without an error, else every one is removed: no command leaves part of its outputs."""
+    with contextlib.ExitStack() as stack:
+        yield [stack.enter_context(atomic_path(p, suffix=Path(p).suffix or ".tmp"))
+               for p in paths]
+
+
 def _check_replaceable(path: Path, what: str = "output") -> None:
     """Refuse to replace a folder, a device or a pipe (renaming onto /dev/null would
     replace the device itself)."""

@@ -23,6 +23,10 @@ from .errors import UsageError, short
 #: How far from unit length a direction may be (relative): such directions are
 #: normalised; farther ones are refused (a wrong column, degrees for cosines...).
 UNIT_TOL = 1e-3
+#: The largest sample value accepted (1/sr): far above any measured BRDF (grazing peaks of
+#: the published fits reach about 1e6), and far enough below float32's range that the
+#: decoded table of a fit through such values stays finite.
+MAX_VALUE = 1e12
 
 
 @dataclass
@@ -128,6 +132,11 @@ def check(wi, wo, rgb, weight=None, source: str = "samples"):
         bad = (a.reshape(n, -1) < 0).any(axis=1)
         if bad.any():
             raise UsageError(f"{source}: row {_first_bad(bad)}: negative {key} value")
+        bad = (a.reshape(n, -1) > MAX_VALUE).any(axis=1)
+        if bad.any():
+            r = _first_bad(bad)
+            raise UsageError(f"{source}: row {r}: {key} value {a.reshape(n, -1)[r - 1].max():.3g}"
+                             f" out of range (at most {MAX_VALUE:.0e}; a BRDF value is in 1/sr)")
     if not np.any(w > 0):
         raise UsageError(f"{source}: every weight is 0")
     return arrays["wi"], arrays["wo"], arrays["rgb"], w

@@ -270,3 +270,54 @@ def test_the_pca_fallback_is_taken_when_pca_predicts_better(ens, prior_and_truth
                                  pca_fallback=False)
     assert "fallback" not in plain.stats
     assert _coded_error(model, truth, ens) < _coded_error(plain, truth, ens)
+
+
+def test_the_pca_fallback_basis_is_cached_like_the_prior(tmp_path, monkeypatch, capsys):
+    """The first use fits the basis and says so; the next process reads it back from the
+    cache (memory-mapped), the same arrays, without fitting again."""
+    from sparse_brdf.evaluation import acquisition
+
+    rng = np.random.default_rng(4)
+
+    class Material:  # a corpus material: a source path and a load()
+        def __init__(self, i):
+            self.source, self.name = f"/data/m{i}.binary", f"m{i}"
+            values = rng.uniform(0.01, 2.0, (*SMALL, 3)).astype(np.float32)
+            self.brdf = BRDF(values, geometric_valid(SMALL), name=self.name)
+
+        def load(self, shape=None):
+            return self.brdf
+
+    monkeypatch.setenv("SPARSE_BRDF_CACHE", str(tmp_path))
+    monkeypatch.setattr(acquisition, "_PCA", {})
+    mats = [Material(i) for i in range(4)]
+    first = acquisition.trained_pca(mats)
+    assert "fitting the PCA fallback's basis on 4 training materials" in capsys.readouterr().err
+    assert len(list(tmp_path.glob("*.pca"))) == 1
+    acquisition._PCA.clear()  # as a new process
+
+    def no_fit(self, brdfs):
+        raise AssertionError("fitted again")
+
+    monkeypatch.setattr(acquisition.PCAModel, "fit", no_fit)
+    again = acquisition.trained_pca(mats)
+    assert capsys.readouterr().err == ""
+    assert isinstance(again.basis_, np.memmap)
+    for name in ("basis_", "mean_", "median_", "mask_"):
+        np.testing.assert_array_equal(getattr(again, name), getattr(first, name))
+    assert again.n_coeffs == first.n_coeffs == 3
+
+
+def test_missing_training_data_names_the_way_without_it(monkeypatch):
+    """Without the measured training corpus the default prior cannot be built: the error
+    says so and names ``--prior none``."""
+    from sparse_brdf.errors import MissingDataError
+    from sparse_brdf.evaluation import acquisition
+
+    class Empty:
+        def split(self, name):
+            return []
+
+    monkeypatch.setattr(acquisition, "get_corpus", lambda name: Empty())
+    with pytest.raises(MissingDataError, match="--prior none"):
+        acquisition.training_materials()

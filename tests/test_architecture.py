@@ -22,7 +22,8 @@ PACKAGES = ("sparse_brdf", "mitsuba_plugin")
 PLUGIN_USERS = {"sparse_brdf.evaluation.render", "sparse_brdf.evaluation.speed"}
 # Imports that may sit inside a function, with a comment saying why (heavy or optional).
 LAZY_OK = ("mitsuba", "drjit", "mitsuba_plugin", "matplotlib", "tqdm", "dask", "distributed",
-           "OpenEXR", "Imath", "h5py", "scipy", "tensorly", "threadpoolctl", "flip_evaluator")
+           "OpenEXR", "Imath", "h5py", "scipy", "tensorly", "threadpoolctl", "flip_evaluator",
+           "PIL")
 
 
 def _module_name(path: Path) -> str:

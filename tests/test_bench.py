@@ -135,11 +135,10 @@ def test_bench_renders_coefficient_files_with_its_own_ensemble(tmp_path, monkeyp
 
     seen = []
 
-    def fake_render(scene, materials, spp, seed, res, params, sparse_options,
-                    tabulated_options):
-        opts = sparse_options if materials["material"].endswith(".sbrdf") else \
-            tabulated_options
-        seen.append((materials["material"], params, opts))
+    def fake_render(scene, materials, spp, seed, res, params, sparse_options=None,
+                    sampling=None):
+        assert sampling == "cosine"  # the bench's renders share their sample paths
+        seen.append((materials["material"], params, sparse_options))
         return np.zeros((2, 2, 3), np.float32)
 
     monkeypatch.setattr(bench_mod, "render_scene", fake_render)
@@ -154,8 +153,8 @@ def test_bench_renders_coefficient_files_with_its_own_ensemble(tmp_path, monkeyp
     b._render(spec.key, "merl/x", str(tmp_path / "x.sbrdf"), 0, "m")
     b._render(spec.key, "merl/x", str(tmp_path / "x.binary"), 0, "ref")
     assert seen == [(str(tmp_path / "x.sbrdf"), {"lightangle": "40"},
-                     {"sampling": "cosine", "ensemble": str(ens.resolve())}),
-                    (str(tmp_path / "x.binary"), {"lightangle": "40"}, {"sampling": "cosine"})]
+                     {"ensemble": str(ens.resolve())}),
+                    (str(tmp_path / "x.binary"), {"lightangle": "40"}, None)]
 
 
 @pytest.mark.parametrize("text, message", [

@@ -105,8 +105,16 @@ def test_render_and_snr(tmp_path, capsys):
     assert main(["snr", str(a), str(b), "--scene", "sphere"]) == 0
     line = capsys.readouterr().out
     assert "whole-image" in line and "object-only" in line and "HDR-FLIP" in line
-    assert main(["snr", str(a), str(b)]) == 2  # no way to tell the object's pixels
-    assert "--scene" in capsys.readouterr().err
+    # no way to tell the object's pixels: the whole-image form, and why the other is missing
+    assert main(["snr", str(a), str(b)]) == 0
+    line = capsys.readouterr().out
+    assert f"whole-image {by_scene['snr_whole_db']:.2f} dB" in line
+    assert "object-only not computed" in line and "--scene" in line and "--mask" in line
+    assert main(["snr", str(a), str(b), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["snr_whole_db"] == by_scene["snr_whole_db"] and out["snr_object_db"] is None
+    assert out["flip_object"] is None and 0 < out["flip_whole"] < 0.5
+    assert "--mask" in out["object_missing"]
     assert main(["render", "sphere.xml", "-o", str(a), "--material",
                  f"material={tmp_path / 'missing.sbrdf'}"]) == 2
     assert "missing.sbrdf" in capsys.readouterr().err
@@ -149,3 +157,57 @@ def test_commands_tune_malloc_unless_the_user_does():
     if sys.platform.startswith("linux"):
         mallopt = ctypes.CDLL(None).mallopt
         assert all(mallopt(ctypes.c_int(p), ctypes.c_int(v)) == 1 for p, v in every)
+
+
+def test_every_option_has_help_and_says_its_default(capsys):
+    """Each option of each command explains itself and its default (required ones have
+    none, flags are off); examples use built-in materials and shipped scenes only."""
+    import argparse
+
+    from sparse_brdf.cli import EPILOG, build_parser, parsers
+
+    missing = []
+    for p in parsers(build_parser()):
+        fmt = p._get_formatter()
+        for a in p._actions:
+            if isinstance(a, (argparse._HelpAction, argparse._SubParsersAction)):
+                continue
+            text = fmt._get_help_string(a) if a.help else ""
+            flag = a.default is False
+            if not text or (a.option_strings and not a.required and not flag
+                            and not any(w in text for w in ("(default", "default:",
+                                                            "default per"))):
+                missing.append(f"{p.prog} {'/'.join(a.option_strings) or a.dest}")
+    assert missing == []
+    with pytest.raises(SystemExit):
+        main(["render", "--help"])
+    out = capsys.readouterr().out
+    assert "(default: 64)" in out and "(default: 0)" in out and "(default: auto)" in out
+    assert "(default: lobe)" in out
+    with pytest.raises(SystemExit):
+        main(["encode", "--help"])
+    out = " ".join(capsys.readouterr().out.split())
+    assert "3 x N coefficients shared over the three coded channels" in out
+    assert "../shared" not in EPILOG and "mitsuba:" in EPILOG
+
+
+def test_a_copy_keeps_its_own_name(tmp_path, capsys):
+    """The cache is keyed by content, but a byte-identical copy is reported and encoded
+    under its own name and path."""
+    import shutil
+
+    from sparse_brdf.paths import DEMO_MATERIALS_DIR
+
+    first = tmp_path / "blue-fabric.h5"
+    copy = tmp_path / "copy.h5"
+    shutil.copy(DEMO_MATERIALS_DIR / "blue-fabric.h5", first)
+    shutil.copy(first, copy)
+    for path, name in ((first, "blue-fabric"), (copy, "copy")):
+        assert main(["info", str(path), "--json"]) == 0
+        info = json.loads(capsys.readouterr().out)
+        assert (info["name"], info["source"]) == (name, str(path))
+    from sparse_brdf.model.sbrdf import load_sbrdf
+
+    out = tmp_path / "copy.sbrdf"
+    assert main(["encode", str(copy), "-o", str(out), "--coeffs", "8"]) == 0
+    assert load_sbrdf(out).name == "copy"

@@ -173,7 +173,7 @@ def test_render_refuses_its_scene_materials_and_mask(capsys, tmp_path, merl):
     fails(capsys, "render", scene, "-o", merl, "--material", f"material={merl}",
           names=["m.binary"])
     fails(capsys, "render", scene, "-o", tmp_path / "a.exr", "--mask", tmp_path / "a.exr",
-          names=["a.exr"])
+          "--material", f"material={merl}", names=["a.exr"])
     assert digest(scene) == before
 
 
@@ -746,3 +746,128 @@ def test_a_closed_stdout_is_not_an_error():
     err = p.stderr.read()
     p.stderr.close()
     assert p.wait(timeout=60) == 128 + signal.SIGPIPE and err == b""
+
+
+# ------------------------------------------------- hostile input: one line, exit 2, nothing
+
+
+def _samples_csv(path: Path, rgb) -> Path:
+    """A samples CSV of 40 uniform direction pairs, every row the value ``rgb`` except the
+    first, which holds ``rgb`` times the first row's factor given by ``rgb`` itself."""
+    from sparse_brdf.samples import Samples
+    from sparse_brdf.sources.samples import plan, write_samples
+
+    wi, wo = plan(40, "uniform", 0)
+    values = np.broadcast_to(np.asarray(rgb, np.float64), (40, 3)).copy()
+    return write_samples(path, Samples(wi, wo, values))
+
+
+def test_an_unbounded_size_is_a_usage_error_not_a_bug(tmp_path, capsys, monkeypatch):
+    fails(capsys, "plan-samples", 10**15, "-o", tmp_path / "p.csv",
+          names=["n", "1000000000000000"])
+    import sparse_brdf.cli as cli
+
+    def too_big(*args, **kwargs):
+        raise MemoryError
+
+    monkeypatch.setattr(cli, "plan_samples_file", too_big)
+    line = fails(capsys, "plan-samples", 4000000, "-o", tmp_path / "p.csv",
+                 names=["not enough memory"])
+    assert "internal error" not in line
+    assert leftovers(tmp_path) == []
+
+
+def test_absurd_sample_values_never_make_a_file_of_infinities(tmp_path, capsys, ens_file):
+    big = _samples_csv(tmp_path / "big.csv", (0.1, 0.1, 0.1))
+    text = big.read_text().splitlines()
+    row = text[1].split(",")
+    row[6] = "1e300"
+    big.write_text("\n".join([text[0], ",".join(row), *text[2:]]) + "\n")
+    fails(capsys, "encode-samples", big, "-o", tmp_path / "m.sbrdf", "--prior", "none",
+          "--ensemble", ens_file, names=["big.csv", "row 1", "out of range"])
+    assert leftovers(tmp_path) == ["big.csv"]
+
+
+def test_zero_samples_are_refused_and_constant_ones_warned_of(tmp_path, capsys, ens_file):
+    zero = _samples_csv(tmp_path / "zero.csv", 0.0)
+    fails(capsys, "encode-samples", zero, "-o", tmp_path / "z.sbrdf", "--prior", "none",
+          "--ensemble", ens_file, names=["zero.csv", "every sample value is 0"])
+    grey = _samples_csv(tmp_path / "grey.csv", 0.2)
+    code, out, err = run(capsys, "encode-samples", grey, "-o", tmp_path / "g.sbrdf",
+                         "--prior", "none", "--ensemble", ens_file, "--coeffs", 4)
+    assert code == 0 and "warning" in err and "same value" in err, err
+    assert (tmp_path / "g.sbrdf").is_file() and not (tmp_path / "z.sbrdf").exists()
+
+
+def test_no_command_overwrites_a_file_of_another_kind(tmp_path, capsys, sbrdf, merl):
+    target = tmp_path / "keep.sbrdf"
+    target.write_bytes(sbrdf.read_bytes())
+    before = digest(target)
+    for argv in (["plan-samples", 10, "-o", target],
+                 ["convert", merl, target],
+                 ["decode", sbrdf, "-o", target],
+                 ["render", "sphere", "-o", target],
+                 ["train", "-o", target]):
+        fails(capsys, *argv, names=["keep.sbrdf", "."])
+    assert digest(target) == before and leftovers(tmp_path) == ["keep.sbrdf"]
+
+
+def test_bench_check_refuses_budgets_and_model_lists_that_cannot_run(tmp_path, capsys):
+    tiny = tmp_path / "tiny.toml"
+    tiny.write_text('corpora = ["mitsuba"]\nmodels = ["sparse:b20"]\nrender = false\n')
+    fails(capsys, "bench", tiny, "--check", names=["tiny.toml", "sparse-b20", "20 bytes"])
+    empty = tmp_path / "empty.toml"
+    empty.write_text('corpora = ["mitsuba"]\nmodels = []\nrender = false\n')
+    fails(capsys, "bench", empty, "--check", names=["empty.toml", "no model"])
+    fine = tmp_path / "fine.toml"
+    fine.write_text('corpora = ["mitsuba"]\nmodels = ["sparse:b400"]\nrender = false\n')
+    code, out, err = run(capsys, "bench", fine, "--check")
+    assert code == 0 and "ok" in out, err
+
+
+def test_fit_images_refuses_an_unwritable_output_before_the_fit(tmp_path, capsys, sbrdf,
+                                                                 monkeypatch):
+    import sparse_brdf.cli as cli
+
+    def never(*args, **kwargs):
+        raise AssertionError("the fit ran before its output was checked")
+
+    monkeypatch.setattr(cli, "load_views", never)
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    fails(capsys, "fit-images", "sphere", "--view", tmp_path / "ref.exr", "--start", sbrdf,
+          "-o", blocker / "fit.sbrdf", names=["fit.sbrdf", "not a folder"])
+    assert leftovers(tmp_path) == ["file"]
+
+
+def test_a_blend_across_ensembles_says_how_to_re_encode(tmp_path, capsys, sbrdf, merl,
+                                                        ens_file):
+    rng = np.random.default_rng(8)
+    u = [np.stack([random_orthonormal(n, rng) for _ in range(2)]) for n in SMALL]
+    other = Ensemble(*u, taus=np.array([16, 16])).save(tmp_path / "other.npz")
+    b = tmp_path / "b.sbrdf"
+    assert main(["encode", str(merl), "-o", str(b), "--coeffs", "8",
+                 "--ensemble", str(other)]) == 0
+    capsys.readouterr()
+    fails(capsys, "blend", sbrdf, b, "--alpha", 0.5, "-o", tmp_path / "ab.sbrdf",
+          "--ensemble", ens_file, names=["b.sbrdf", "re-encode", "sparse-brdf encode",
+                                         "--ensemble"])
+    assert not (tmp_path / "ab.sbrdf").exists()
+
+
+def test_encode_samples_checks_its_output_before_reading_or_fitting(tmp_path, capsys,
+                                                                    monkeypatch):
+    from sparse_brdf.evaluation import acquisition
+
+    def never(*args, **kwargs):
+        raise AssertionError("the prior was built before the output was checked")
+
+    monkeypatch.setattr(acquisition, "default_prior", never)
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    samples = _samples_csv(tmp_path / "s.csv", 0.1)
+    fails(capsys, "encode-samples", samples, "-o", blocker / "x.sbrdf",
+          names=["x.sbrdf", "not a folder"])
+    fails(capsys, "encode-samples", samples, "-o", tmp_path / "x.binary",
+          names=["x.binary", ".sbrdf"])
+    assert leftovers(tmp_path) == ["file", "s.csv"]

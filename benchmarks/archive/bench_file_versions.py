@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sparse_brdf.evaluation.render import find_scene, render_scene
+from sparse_brdf.evaluation.render import SHARED_PATHS, find_scene, render_scene
 from sparse_brdf.evaluation.speed import eval_rate
 from sparse_brdf.model.encode import encode
 from sparse_brdf.model.ensemble import Ensemble
@@ -61,7 +61,8 @@ def main() -> None:
         del bsdf
 
     def render(v, d):
-        return render_scene(find_scene("sphere.xml"), {"material": files[v]}, spp=args.spp, seed=0,
+        return render_scene(find_scene("sphere.xml"), {"material": files[v]}, sampling=SHARED_PATHS,
+                            spp=args.spp, seed=0,
                             res=args.res, sparse_options={"decoder": d})
 
     for case in cases:  # warm-up: compile every kernel once

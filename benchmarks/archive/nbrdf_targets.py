@@ -23,7 +23,7 @@ import numpy as np
 
 from sparse_brdf.brdf import BRDF
 from sparse_brdf.coords import angles_to_bins
-from sparse_brdf.evaluation.render import find_scene, object_mask, render_scene
+from sparse_brdf.evaluation.render import SHARED_PATHS, find_scene, object_mask, render_scene
 from sparse_brdf.metrics import snr_forms
 from sparse_brdf.mlp import tabulate
 from sparse_brdf.model import neural
@@ -58,8 +58,10 @@ def one_run(name: str, targets: str, seed: int, epochs: int, scenes: dict, masks
     row = {"material": name, "targets": targets, "seed": seed, "loss": fit.loss[-1],
            "train_s": fit.seconds}
     for scene, path in scenes.items():
-        ref = render_scene(path, {"material": original}, spp=16, seed=0, res=128)
-        img = render_scene(path, {"material": refit}, spp=16, seed=0, res=128)
+        ref = render_scene(path, {"material": original}, sampling=SHARED_PATHS,
+                           spp=16, seed=0, res=128)
+        img = render_scene(path, {"material": refit}, sampling=SHARED_PATHS,
+                           spp=16, seed=0, res=128)
         snr = snr_forms(ref, img, masks[scene])
         row[scene] = {"snr_whole": snr.whole, "snr_object": snr.object}
     return row

@@ -46,6 +46,7 @@ from .acquisition_report import write_acquisition_report
 from .bench import check_setting, read_config
 from .render import (
     RENDER_PARAMETERS,
+    SHARED_PATHS,
     check_scene_data,
     find_scene,
     object_mask,
@@ -295,7 +296,8 @@ class AcquisitionBench:
                 write_exr(exr, self._render(path, str(ref_file)))
             if not mask_file.is_file():
                 with atomic_write(mask_file, "wb") as f:
-                    np.save(f, object_mask(path, res=self.cfg.res))
+                    np.save(f, object_mask(path, res=self.cfg.res,
+                                           materials=["material"]))
             out[scene] = (read_exr(exr), np.load(mask_file))
         return out
 
@@ -304,7 +306,8 @@ class AcquisitionBench:
                if self.cfg.ensemble and material.endswith(".sbrdf")
                and Path(self.cfg.ensemble).exists() else None)
         return render_scene(path, {"material": material}, spp=self.cfg.spp,
-                            seed=self.cfg.seed, res=self.cfg.res, sparse_options=ens)
+                            seed=self.cfg.seed, res=self.cfg.res, sparse_options=ens,
+                            sampling=SHARED_PATHS)
 
     def _score(self, brdf: BRDF, rec: np.ndarray, file: str, refs: dict) -> dict:
         row = {"cos_snr": cosine_weighted_snr(brdf.values, rec, brdf.valid), "renders": {}}

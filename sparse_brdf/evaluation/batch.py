@@ -50,7 +50,7 @@ from ..model.ensemble import Ensemble, resolve_ensemble
 from ..model.sbrdf import load_sbrdf, save_sbrdf
 from ..model.sparse import SparseBRDF
 from ..parallel import Executor, InProcess
-from ..params import check_choice
+from ..params import Interval, check, check_choice
 from ..samples import Samples
 from ..sources.load import SUFFIXES, load_brdf
 from ..sources.samples import plan, read_samples, write_samples
@@ -267,7 +267,17 @@ def encode_batch(pattern: str | os.PathLike, out_dir: str | os.PathLike,
     return json.loads((out / SUMMARY_JSON).read_text())
 
 
-def encode_samples_file(source: str | os.PathLike, output: str | os.PathLike,
+#: Direction pairs a plan may hold (a CSV of 2^22 rows is about 0.7 GB).
+PLAN_PAIRS = Interval(int, 1, 1 << 22)
+
+
+def samples_constant(samples: Samples) -> bool:
+    """Whether every sample has the same RGB value (all zeros, a plan not filled in, or a
+    value copied into every row; also a perfectly Lambertian material)."""
+    return bool(np.all(samples.rgb == samples.rgb[:1]))
+
+
+def encode_samples_file(source: str | os.PathLike | Samples, output: str | os.PathLike,
                         ensemble: Ensemble | str | os.PathLike | None = None,
                         n_coeffs: int = DEFAULT_N_COEFFS, n_bytes: int | None = None,
                         seed: int = 0, prior: str = "default") -> tuple[Path, SparseBRDF]:
@@ -277,8 +287,8 @@ def encode_samples_file(source: str | os.PathLike, output: str | os.PathLike,
 
     Parameters
     ----------
-    source : path
-        The samples file.
+    source : path or Samples
+        The samples file, or samples it was read into (``read_samples``).
     output : path
         The ``.sbrdf`` file; refused if it is a folder or one of the inputs.
     ensemble : Ensemble, path or id, optional
@@ -298,9 +308,14 @@ def encode_samples_file(source: str | os.PathLike, output: str | os.PathLike,
     (Path, SparseBRDF)
         The file written and the model it holds (with its ``stats``).
     """
-    out = check_output(output, [source, None if isinstance(ensemble, Ensemble) else ensemble])
+    given = isinstance(source, Samples)
+    out = check_output(output, [source.source if given else source,
+                                None if isinstance(ensemble, Ensemble) else ensemble])
     ens = resolve_ensemble(ensemble)
-    samples = read_samples(source)
+    samples = source if given else read_samples(source)
+    if not np.any(samples.rgb):
+        raise UsageError(f"{samples.source or samples.name}: every sample value is 0: nothing "
+                         "to encode (fill in the measured r,g,b of the plan)")
     model = encode_samples(samples, ens, check_n_coeffs(n_coeffs, ens), n_bytes, seed=seed,
                            prior=check_choice("prior", prior, PRIORS))
     return save_sbrdf(out, model), model
@@ -328,6 +343,7 @@ def plan_samples_file(output: str | os.PathLike, n: int, placement: str = "strat
         The file written.
     """
     out = check_output(output, [])
+    n = check("n", n, PLAN_PAIRS)
     wi, wo = plan(n, placement, seed)
     return write_samples(out, Samples(wi, wo, np.zeros((n if placement != "bins" else
                                                           wi.shape[0], 3)), name=out.stem))

@@ -12,7 +12,7 @@ noise cancels in the difference; each rendering SNR is recorded in both forms
 reference renders with different seeds), and HDR-FLIP over the object's pixels with its
 error map kept for the reports. Scenes are scene specs (``sphere_light.xml:lightangle=40``,
 :func:`~sparse_brdf.evaluation.render.parse_scene_spec`); both plugins sample
-cosine-weighted (:data:`BENCH_SAMPLING`). Models are specs
+cosine-weighted (:data:`~sparse_brdf.evaluation.render.SHARED_PATHS`). Models are specs
 (:mod:`~sparse_brdf.model.specs`), built-in or ``module:Class`` from outside the package,
 all following :mod:`~sparse_brdf.model.protocol`. A scene whose data is absent (the paper's scene
 without the Grace Cathedral map) is skipped with a one-line reason. Each model's speed
@@ -55,7 +55,7 @@ from ..model.compact import Compact
 from ..model.encode import ENCODE_OPTIONS, error_curve
 from ..model.ensemble import resolve_ensemble
 from ..model.protocol import ComparedModel, check_compressed, table_of
-from ..model.sbrdf import VERSION, save_sbrdf
+from ..model.sbrdf import VERSION, min_file_size, save_sbrdf
 from ..model.specs import make_model, parse_spec
 from ..parallel import Executor, InProcess
 from ..params import Interval, check
@@ -65,6 +65,7 @@ from ..sources.merl import write_merl
 from .html_report import write_html_report
 from .render import (
     RENDER_PARAMETERS,
+    SHARED_PATHS,
     SceneSpec,
     check_scene_data,
     noise_floor_snr,
@@ -84,9 +85,6 @@ __all__ = ["Bench", "BenchConfig", "check_config"]
 #: The one-light scene set (``docs/method.md``, "The bench's protocol"): the studio sphere
 #: under one distant light at 0, 40 and 70 degrees from the camera.
 ONE_LIGHT_SCENES = tuple(f"sphere_light.xml:lightangle={a}" for a in (0, 40, 70))
-#: The plugins' importance sampling in every bench render: fixed here, not left to the
-#: plugins' default, so that a bench's numbers do not move when that default does.
-BENCH_SAMPLING = "cosine"
 
 
 def shipped_configs() -> list[str]:
@@ -337,10 +335,13 @@ def check_config(cfg: BenchConfig) -> dict:
         ens = resolve_ensemble(cfg.ensemble)
     with _naming(cfg, "models"):
         models = make_models(cfg.models, ens)
+    if not models:
+        raise ConfigError(f"{cfg.label}: models = [] lists no model: nothing to bench")
     with _naming(cfg, "stability_models"):
         smodels = make_models(cfg.stability_models, ens) if cfg.stability else []
     with _naming(cfg, "corpora"):
         mats = evaluated_materials(cfg)
+    _check_byte_budgets(cfg, models + smodels, mats)
     learners = [m for m in models + smodels if m.learns]
     with _naming(cfg, "corpora"):
         train = training_materials(cfg, mats) if learners else []
@@ -357,6 +358,19 @@ def check_config(cfg: BenchConfig) -> dict:
         scenes.append(spec.key)
     return {"materials": len(mats), "training": len(train),
             "models": [m.name for m in models], "scenes": scenes, "skipped_scenes": skipped}
+
+
+def _check_byte_budgets(cfg: BenchConfig, models: list, mats: list) -> None:
+    """:class:`ConfigError` for a model whose byte budget (``sparse-bN``) cannot hold one
+    coefficient in the file of some material (its header, name and checksum come first)."""
+    for m in models:
+        if getattr(m, "n_bytes", None) is None or not mats:
+            continue
+        floor = max(min_file_size(len(x.name.encode("utf-8")[:255]), m.version) for x in mats)
+        if m.n_bytes <= floor:
+            raise ConfigError(f"{cfg.label}: model {m.name}: {m.n_bytes} bytes hold no "
+                              f"coefficient: a file of these materials takes up to {floor} "
+                              "bytes before its first (header, name, checksum)")
 
 
 def _key(m) -> str:
@@ -540,7 +554,8 @@ class Bench:
                 mask = np.load(path)
             else:
                 spec = self.scenes[scene]
-                mask = object_mask(spec.path, res=self.cfg.res, params=spec.params)
+                mask = object_mask(spec.path, res=self.cfg.res, params=spec.params,
+                                   materials=["material"])
                 path.parent.mkdir(parents=True, exist_ok=True)
                 with atomic_write(path, "wb") as f:
                     np.save(f, mask)
@@ -558,12 +573,11 @@ class Bench:
         # id is found from the file itself)
         ens = ({"ensemble": str(Path(self.cfg.ensemble).resolve())}
                if self.cfg.ensemble and filename.endswith(".sbrdf")
-               and Path(self.cfg.ensemble).exists() else {})
+               and Path(self.cfg.ensemble).exists() else None)
         spec = self.scenes[scene]
         img = render_scene(spec.path, {"material": filename}, spp=self.cfg.spp,
                            seed=seed, res=self.cfg.res, params=spec.params,
-                           sparse_options={"sampling": BENCH_SAMPLING, **ens},
-                           tabulated_options={"sampling": BENCH_SAMPLING})
+                           sparse_options=ens, sampling=SHARED_PATHS)
         seconds = time.perf_counter() - t0
         write_exr(exr, img)
         with atomic_write(exr.with_suffix(".json"), "w") as f:

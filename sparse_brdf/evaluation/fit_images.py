@@ -46,7 +46,7 @@ from ..model.ensemble import Ensemble, resolve_ensemble
 from ..model.sbrdf import load_sbrdf, save_sbrdf
 from ..model.sparse import SparseBRDF
 from ..params import Interval, check
-from .render import load_scene, parse_defaults, parse_scene
+from .render import SHARED_PATHS, load_scene, parse_defaults, parse_scene
 
 #: Keys under which the plugin exposes the coded channels' values (``mi.traverse``).
 VALUE_KEYS = ("values_0", "values_1", "values_2")
@@ -175,12 +175,13 @@ def _load_views(scene, views, material, start_path, spp, seed, variant, options)
         if img.ndim != 3 or img.shape[2] != 3 or not np.isfinite(img).all():
             raise ImageFileError(f"{v.name}: a reference must be a finite RGB image, got "
                                  f"shape {img.shape}")
-        res = img.shape[0] if img.shape[0] == img.shape[1] else None
+        res = (img.shape[1], img.shape[0])  # the film takes the reference's size
         check_view_params(scene, v.params, v.name)
         try:
             vseed = seed if v.seed is None else int(v.seed)
             sc = load_scene(scene, {material: str(start_path)}, spp=spp, seed=vseed, res=res,
-                            variant=variant, params=v.params, sparse_options=options)
+                            variant=variant, params=v.params, sparse_options=options,
+                            sampling=SHARED_PATHS)
         except SparseBRDFError as exc:  # e.g. a view's envmap that is not on this machine
             raise type(exc)(f"{v.name}: {exc}") from exc
         size = tuple(int(x) for x in sc.sensors()[0].film().crop_size())
@@ -503,9 +504,9 @@ def fit_images(  # long: the fit loop with its checkpointing and progress bar
     Parameters
     ----------
     scene : path
-        Scene XML whose BSDF ``material`` is replaced by the model (e.g. a shipped
-        ``sphere.xml``); its first sensor must render the references' size (square
-        references set the scene's ``res``).
+        Any Mitsuba 3 scene XML whose BSDF ``material`` is replaced by the model (e.g. a
+        shipped ``sphere.xml``); each reference's size sets the film of its view's render
+        (any aspect ratio). The renders use cosine sampling (shared sample paths).
     views : sequence of View
         Reference images (float32 (H, W, 3), linear RGB) and the scene defaults of each.
     start : path or SparseBRDF

@@ -44,7 +44,7 @@ from ..model.sbrdf import save_sbrdf, to_bytes
 from ..model.sparse import SparseBRDF
 from ..paths import CALIBRATION_PATH
 from ..sources.load import load_brdf
-from .render import object_mask, parse_scene, render_scene
+from .render import SHARED_PATHS, object_mask, parse_scene, render_scene
 
 LADDER: tuple[int, ...] = (16, 32, 64, 128, 262, 512, 1024, 2048, 4096)
 
@@ -155,7 +155,7 @@ class _Scene:
 
     def render(self, materials: Mapping[str, str]) -> np.ndarray:
         return render_scene(self.path, materials, spp=self.spp, seed=self.seed, res=self.res,
-                            sparse_options=self.sparse_options)
+                            sparse_options=self.sparse_options, sampling=SHARED_PATHS)
 
     def snr(self, overrides: Mapping[str, str]) -> SNRForms:
         """SNRs of the scene with ``overrides`` (id -> file) against the reference."""
@@ -190,7 +190,7 @@ def fit_scene(
     t0 = time.perf_counter()
     scn = _Scene(scene, mats, spp, res, seed, opts)
     scn.reference = scn.render(mats)
-    scn.mask = object_mask(scene, res=res)
+    scn.mask = object_mask(scene, res=res, materials=list(mats))
     fits = {}
     for mid, src in mats.items():
         brdf = load_brdf(src)
@@ -209,7 +209,8 @@ def fit_scene(
             for mid, fit in fits.items()]
     report = {
         "scene": str(scene), "target_snr": target_snr, "offset_db": offset, "spp": spp,
-        "res": res, "seed": seed, "materials": rows,
+        "res": res, "size": [int(scn.reference.shape[1]), int(scn.reference.shape[0])],
+        "seed": seed, "materials": rows,
         "scene_snr_all_sparse": rounds[-1]["scene_snr"],
         "scene_snr_all_sparse_whole": rounds[-1]["scene_snr_whole"], "rounds": rounds,
         "bytes_total": sum(r["bytes"] for r in rows), "bytes_cap": max_bytes,
@@ -313,9 +314,10 @@ def _write(rep: dict, out: Path) -> None:
         json.dump(rep, f, indent=1)
     lines = [
         f"# fit-scene: {rep['scene']} at {rep['target_snr']:.1f} dB", "",
-        f"Verification renders: {rep['res']}x{rep['res']}, {rep['spp']} spp, seed "
+        f"Verification renders: {rep['size'][0]}x{rep['size'][1]}, {rep['spp']} spp, seed "
         f"{rep['seed']}; proxy offset {rep['offset_db']:+.1f} dB. SNRs target the "
-        f"{OBJECT_ONLY} form (pixels whose camera rays hit geometry); the {WHOLE_IMAGE} form "
+        f"{OBJECT_ONLY} form (pixels whose camera rays first hit a shape of the fitted "
+        f"materials); the {WHOLE_IMAGE} form "
         "(every pixel) is given beside it.", "",
         "| material | coefficients/channel | transform | bytes | predicted SNR | verified SNR "
         f"{OBJECT_ONLY} (this material sparse) | {WHOLE_IMAGE} | "

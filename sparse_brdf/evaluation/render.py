@@ -1,12 +1,17 @@
-"""Rendering helpers: scenes with overridable materials, EXR files, the noise floor.
+"""Rendering helpers: scenes with overridable materials, images, masks, the noise floor.
 
-A scene (e.g. ``scenes/sphere.xml``) names its materials by id; :func:`render_scene`
-replaces each overridden id by ``sparse_brdf`` (for a ``.sbrdf`` file) or
-``tabulated_brdf`` (any other source :func:`sparse_brdf.sources.load.load_brdf` reads),
-fills the scene's ``<default>`` parameters (``spp``, ``res``, ``seed``, ...) and renders
-with Mitsuba 3. Errors raised inside a render surface as "drjit.custom ... (see above)";
-:class:`RenderError` carries the real message from the ``__cause__`` chain
-(``docs/method.md``, "Rendering with Mitsuba").
+Any Mitsuba 3 scene file names its materials by id; :func:`render_scene` replaces each
+overridden id by ``sparse_brdf`` (for a ``.sbrdf`` file) or ``tabulated_brdf`` (any other
+source :func:`sparse_brdf.sources.load.load_brdf` reads) and renders with Mitsuba 3. The
+scene's ``$``-parameters get values only where it declares them (``<default>``, as the
+shipped ``scenes/`` declare ``spp``, ``res`` and ``seed``); otherwise spp and seed are set
+on its first sensor's sampler and the resolution on its film (aspect ratio kept).
+:func:`object_mask` gives the pixels of the object-only SNR: those whose camera rays first
+hit a shape carrying one of the replaced materials. Images are written by suffix
+(:func:`write_image`: ``.exr`` linear, ``.png``/``.jpg`` an sRGB preview). Errors raised
+inside a render surface as "drjit.custom ... (see above)"; :class:`RenderError` carries
+the real message from the ``__cause__`` chain (``docs/method.md``, "Rendering with
+Mitsuba").
 
 Mitsuba, Dr.Jit and :mod:`mitsuba_plugin` are imported inside the functions that render,
 so that ``import sparse_brdf`` and ``sparse-brdf --help`` never load them.
@@ -40,7 +45,8 @@ from ..errors import (
 from ..fileio import atomic_path, atomic_write, require_file
 from ..metrics import SNRForms, snr_forms
 from ..mitsuba_env import DEFAULT_VARIANT, set_variant
-from ..params import SEED, Interval, check
+from ..model.layouts import SAMPLING
+from ..params import SEED, Interval, check, check_choice
 from ..paths import SCENES_DIR, shared_envmaps_dir
 
 SPARSE_SUFFIX = ".sbrdf"
@@ -224,9 +230,14 @@ def scene_xml(
     ``{"decoder": "strict", "ensemble": path}``), written as strings (booleans as
     ``<boolean>``). Relative material paths are taken from the current directory.
     """
+    root = _replaced(scene_path, materials, sparse_options, tabulated_options)
+    return ET.tostring(root, encoding="unicode")
+
+
+def _replaced(scene_path, materials, sparse_options, tabulated_options) -> ET.Element:
+    """The scene's XML root with the BSDFs of ``materials`` replaced (:func:`scene_xml`)."""
     scene_path = Path(scene_path)
-    tree = parse_scene(scene_path)
-    root = tree.getroot()
+    root = parse_scene(scene_path).getroot()
     for mid, source in (materials or {}).items():
         parent, elem = _find_by_id(root, mid)
         if elem is None:
@@ -247,7 +258,7 @@ def scene_xml(
         idx = list(parent).index(elem)
         parent.remove(elem)
         parent.insert(idx, new)
-    return ET.tostring(root, encoding="unicode")
+    return root
 
 
 def _ids(root: ET.Element) -> set[str]:
@@ -322,16 +333,157 @@ def _scene_dir_resolver(scene_path: Path) -> Iterator[None]:
         mi.set_file_resolver(saved)
 
 
+#: The film of a scene without one: Mitsuba's ``hdrfilm`` default size (width, height).
+DEFAULT_FILM = (768, 576)
+#: The settings a render takes (:data:`RENDER_PARAMETERS`) and where Mitsuba keeps them in
+#: a scene that does not declare them as ``<default>`` parameters.
+_SAMPLER_KEYS = {"spp": "sample_count", "seed": "seed"}
+#: The sampling of every comparison of renders: cosine BSDF sampling gives the same
+#: sample paths whatever the material, so two renders of one seed and spp share their
+#: Monte Carlo noise (the plugins' default, lobe sampling, adapts paths to each material).
+SHARED_PATHS = "cosine"
+
+Size = int | tuple[int, int]
+
+
+def declared_parameters(scene_path: str | os.PathLike) -> dict[str, str]:
+    """The ``$``-parameters a scene declares (its ``<default>`` elements): name -> value."""
+    return _defaults(parse_scene(find_scene(scene_path)).getroot(), None)
+
+
+def _sensor(root: ET.Element) -> ET.Element | None:
+    """The scene's first sensor (the one Mitsuba renders), or None."""
+    return next(root.iter("sensor"), None)
+
+
+def _child(parent: ET.Element, tag: str, name: str) -> ET.Element | None:
+    return next((e for e in parent if e.tag == tag and e.get("name") == name), None)
+
+
+def _set_integer(parent: ET.Element, name: str, value: int) -> None:
+    """Set (or add) ``<integer name=NAME>`` of ``parent``."""
+    el = _child(parent, "integer", name)
+    if el is None:
+        el = ET.SubElement(parent, "integer", {"name": name})
+    el.set("value", str(int(value)))
+
+
+def _integer(parent: ET.Element | None, name: str, values: Mapping[str, str],
+             default: int) -> int:
+    """An ``<integer>`` of ``parent`` (a ``$`` reference resolved from ``values``)."""
+    el = None if parent is None else _child(parent, "integer", name)
+    if el is None:
+        return default
+    text = el.get("value", "")
+    if text.startswith("$"):
+        text = values.get(text[1:], text)
+    try:
+        return int(float(text))
+    except ValueError:
+        return default
+
+
+def _film_size(root: ET.Element, values: Mapping[str, str]) -> tuple[int, int]:
+    """(width, height) of the first sensor's film, ``$`` references resolved."""
+    sensor = _sensor(root)
+    film = None if sensor is None else sensor.find("film")
+    return (_integer(film, "width", values, DEFAULT_FILM[0]),
+            _integer(film, "height", values, DEFAULT_FILM[1]))
+
+
+def film_size(scene_path: str | os.PathLike, res: Size | None = None,
+              params: Mapping[str, object] | None = None) -> tuple[int, int]:
+    """The (width, height) in pixels that :func:`render_scene` renders ``scene_path`` at
+    for ``res`` (see there) and the scene defaults ``params``."""
+    root = parse_scene(find_scene(scene_path)).getroot()
+    values = _defaults(root, params)
+    if res is None:
+        return _film_size(root, values)
+    if isinstance(res, tuple):
+        return int(res[0]), int(res[1])
+    if "res" in values:
+        return _film_size(root, {**values, "res": str(int(res))})
+    return _scaled(_film_size(root, values), int(res))
+
+
+def _check_size(res: Size) -> Size:
+    """``res`` checked: an int, or (width, height), each within RENDER_PARAMETERS['res']."""
+    if isinstance(res, tuple):
+        if len(res) != 2:
+            raise UsageError(f"res: expected N or (width, height), got {res!r}")
+        return tuple(int(check("res", int(v), RENDER_PARAMETERS["res"])) for v in res)
+    return int(check("res", res, RENDER_PARAMETERS["res"]))
+
+
+def _settings(root: ET.Element, scene_path: Path, spp, seed, res,
+              params: Mapping[str, object] | None) -> dict[str, str]:
+    """Apply spp, seed, res and ``params`` to a scene: the ``$``-parameters it declares
+    are returned (for ``mi.load_string``), the rest is set on ``root`` itself (the first
+    sensor's sampler and film). A ``params`` key the scene does not declare is refused."""
+    declared = _defaults(root, None)
+    given = {k: str(v) for k, v in (params or {}).items()}
+    unknown = sorted(set(given) - set(declared))
+    if unknown:
+        raise UsageError(f"{scene_path}: {', '.join(unknown)} is not a parameter of the "
+                         f"scene (it declares {', '.join(sorted(declared)) or 'none'})")
+    kwargs = dict(given)
+    sensor = _sensor(root)
+    for key, val in (("spp", spp), ("seed", seed)):
+        if val is None:
+            continue
+        val = check(key, val, RENDER_PARAMETERS[key])  # 0 spp is a SIGFPE inside Mitsuba
+        if key in declared:
+            kwargs[key] = str(val)
+        elif sensor is not None:
+            sampler = sensor.find("sampler")
+            if sampler is None:
+                sampler = ET.SubElement(sensor, "sampler", {"type": "independent"})
+            _set_integer(sampler, _SAMPLER_KEYS[key], val)
+    if res is not None:
+        res = _check_size(res)
+        square = not isinstance(res, tuple) or res[0] == res[1]
+        if "res" in declared and square:
+            kwargs["res"] = str(res if not isinstance(res, tuple) else res[0])
+        elif sensor is not None:
+            w, h = res if isinstance(res, tuple) else _scaled(
+                _film_size(root, {**declared, **kwargs}), res)
+            film = sensor.find("film")
+            if film is None:
+                film = ET.SubElement(sensor, "film", {"type": "hdrfilm"})
+            for name in ("crop_offset_x", "crop_offset_y", "crop_width", "crop_height"):
+                el = _child(film, "integer", name)
+                if el is not None:
+                    film.remove(el)
+            _set_integer(film, "width", w)
+            _set_integer(film, "height", h)
+    return kwargs
+
+
+def _scaled(size: tuple[int, int], res: int) -> tuple[int, int]:
+    """``size`` scaled so that its longer side is ``res`` pixels."""
+    scale = res / max(size)
+    return max(1, round(size[0] * scale)), max(1, round(size[1] * scale))
+
+
+def _with_sampling(options: Mapping[str, object] | None,
+                   sampling: str | None) -> dict[str, object] | None:
+    if sampling is None:
+        return None if options is None else dict(options)
+    return {**(options or {}), "sampling": check_choice("sampling", sampling, SAMPLING)}
+
+
 def load_scene(
     scene_path: str | os.PathLike,
     materials: Mapping[str, str] | None = None,
     spp: int | None = None,
     seed: int | None = None,
-    res: int | None = None,
+    res: Size | None = None,
     variant: str = DEFAULT_VARIANT,
     params: Mapping[str, object] | None = None,
     sparse_options: Mapping[str, object] | None = None,
     tabulated_options: Mapping[str, object] | None = None,
+    sampling: str | None = None,
+    _edit=None,
 ):
     """Load a scene with material overrides (see :func:`render_scene`); returns mi.Scene.
     ``scene_path`` is a path, or the name of a shipped scene (:func:`find_scene`)."""
@@ -340,14 +492,15 @@ def load_scene(
     import mitsuba_plugin  # lazy: imports Mitsuba and Dr.Jit
 
     scene_path = require_file(find_scene(scene_path), "scene file")
-    kwargs = {k: str(v) for k, v in (params or {}).items()}
-    for key, val in (("spp", spp), ("seed", seed), ("res", res)):
-        if val is not None:  # checked: 0 spp is a SIGFPE inside Mitsuba
-            kwargs[key] = str(check(key, val, RENDER_PARAMETERS[key]))
+    root = _replaced(scene_path, materials, _with_sampling(sparse_options, sampling),
+                     _with_sampling(tabulated_options, sampling))
+    kwargs = _settings(root, scene_path, spp, seed, res, params)
+    if _edit is not None:
+        _edit(root)
     check_scene_data(scene_path, kwargs)
     set_variant(variant)
     mitsuba_plugin.register()
-    xml = scene_xml(scene_path, materials, sparse_options, tabulated_options)
+    xml = ET.tostring(root, encoding="unicode")
     try:
         with _scene_dir_resolver(scene_path):
             return mi.load_string(xml, **kwargs)
@@ -360,27 +513,34 @@ def render_scene(
     materials: Mapping[str, str] | None = None,
     spp: int = 64,
     seed: int = 0,
-    res: int | None = None,
+    res: Size | None = None,
     variant: str = DEFAULT_VARIANT,
     params: Mapping[str, object] | None = None,
     sparse_options: Mapping[str, object] | None = None,
     tabulated_options: Mapping[str, object] | None = None,
+    sampling: str | None = None,
 ) -> np.ndarray:
-    """Render ``scene_path`` and return a linear float32 image of shape (H, W, 3).
+    """Render ``scene_path`` (any Mitsuba 3 scene file) and return a linear float32 image
+    of shape (H, W, 3).
 
     ``materials`` maps BSDF ids to BRDF sources: a ``.sbrdf`` file becomes
     ``sparse_brdf``, anything else ``tabulated_brdf`` (MERL ``.binary``, ``.h5``,
-    ``mitsuba:<name>``). ``spp``, ``seed`` and ``res`` fill the scene's defaults of
-    those names (``res=None`` keeps the scene's); ``params`` sets other defaults
-    (e.g. ``{"envmap": "envmaps/studio.exr"}``); ``sparse_options``/
-    ``tabulated_options`` add plugin parameters (e.g. ``{"decoder": "strict"}``).
-    The same ``seed`` and ``spp`` give the same sample paths for every material under
-    cosine BSDF sampling.
+    ``mitsuba:<name>``). ``spp`` and ``seed`` fill the scene's ``$spp``/``$seed``
+    parameters where it declares them, else they are set on its sampler. ``res``: None
+    keeps the scene's film; an int N fills ``$res`` where the scene declares it, else
+    scales the film so that its longer side is N pixels (its aspect ratio kept); a
+    (width, height) pair sets the film's size. ``params`` sets other declared parameters
+    (e.g. ``{"envmap": "envmaps/studio.exr"}``; one the scene does not declare is a
+    :class:`~sparse_brdf.errors.UsageError`); ``sparse_options``/``tabulated_options``
+    add plugin parameters (e.g. ``{"decoder": "strict"}``); ``sampling`` sets the
+    replaced materials' BSDF sampling (None: the plugins' default, ``"lobe"``).
+    With ``sampling="cosine"`` (:data:`SHARED_PATHS`) the same ``seed`` and ``spp`` give
+    the same sample paths for every material, as comparisons of renders need.
     """
     import mitsuba as mi  # lazy: Mitsuba is slow to import (see the module doc)
 
     scene = load_scene(scene_path, materials, spp, seed, res, variant, params,
-                       sparse_options, tabulated_options)
+                       sparse_options, tabulated_options, sampling)
     try:
         img = mi.render(scene, spp=int(spp), seed=int(seed))
         out = np.array(img, dtype=np.float32)
@@ -397,19 +557,44 @@ def render_scene(
     return out
 
 
+#: Prefix of the ids given to shapes without one, to find them in the loaded scene.
+_SHAPE_ID = "__object_"
+
+
+def _carrying_shapes(root: ET.Element, materials: Iterable[str]) -> list[ET.Element]:
+    """The ``<shape>`` elements that carry one of the BSDFs ``materials`` (ids): directly,
+    by reference, or inside a BSDF that wraps it (``twosided``, ``blendbsdf``)."""
+    carrying = set(materials)
+    grown = True
+    while grown:  # a wrapper with an id carries what it wraps
+        grown = False
+        for el in root.iter("bsdf"):
+            eid = el.get("id")
+            if eid and eid not in carrying and any(
+                    d is not el and d.tag in ("bsdf", "ref") and d.get("id") in carrying
+                    for d in el.iter()):
+                carrying.add(eid)
+                grown = True
+    return [s for s in root.iter("shape")
+            if any(d.tag in ("bsdf", "ref") and d.get("id") in carrying for d in s.iter())]
+
+
 def object_mask(
     scene_path: str | os.PathLike,
-    res: int | None = None,
+    res: Size | None = None,
     params: Mapping[str, object] | None = None,
     subsamples: int = 4,
     variant: str = DEFAULT_VARIANT,
+    materials: Iterable[str] | None = None,
 ) -> np.ndarray:
-    """Pixels whose camera rays hit the scene's geometry: bool (H, W).
+    """The object's pixels: bool (H, W).
 
     Traces ``subsamples`` x ``subsamples`` stratified camera rays through every pixel of the
-    scene's first sensor (at resolution ``res``, or the scene's own); a pixel is an object
-    pixel when any of them hits a shape. The mask comes from the scene itself, never from
-    image values; it selects the pixels of the *object-only* SNR.
+    scene's first sensor (``res`` as in :func:`render_scene`); a pixel is an object pixel
+    when any of them first hits a shape carrying one of the BSDFs ``materials`` (ids,
+    e.g. the replaced ones; a ground plane or other geometry of other materials is not
+    the object). ``materials=None`` counts every shape. The mask comes from the scene
+    itself, never from image values; it selects the pixels of the *object-only* SNR.
     """
     import drjit as dr  # lazy: Dr.Jit and Mitsuba are slow to import (see the module doc)
     import mitsuba as mi
@@ -417,7 +602,22 @@ def object_mask(
     n = int(subsamples)
     if n < 1:
         raise ValueError(f"object_mask: subsamples must be >= 1, got {n}")
-    scene = load_scene(scene_path, None, spp=1, res=res, variant=variant, params=params)
+    wanted = None if materials is None else list(materials)
+    ids: set[str] = set()
+
+    def tag(root: ET.Element) -> None:
+        known = _ids(root)
+        missing = sorted(set(wanted) - known)
+        if missing:
+            raise UnknownNameError(f"{scene_path}: no BSDF with id {', '.join(missing)} (ids: "
+                                   f"{', '.join(sorted(known)) or 'none'})")
+        for i, shape in enumerate(_carrying_shapes(root, wanted)):
+            if not shape.get("id"):
+                shape.set("id", f"{_SHAPE_ID}{i}")
+            ids.add(shape.get("id"))
+
+    scene = load_scene(scene_path, None, spp=1, res=res, variant=variant, params=params,
+                       _edit=None if wanted is None else tag)
     sensor = scene.sensors()[0]
     width, height = (int(v) for v in sensor.film().crop_size())
     ys, xs, sy, sx = np.meshgrid(np.arange(height), np.arange(width), np.arange(n),
@@ -426,7 +626,14 @@ def object_mask(
     v = ((ys + (sy + 0.5) / n) / height).ravel().astype(np.float32)
     ray, _ = sensor.sample_ray(mi.Float(0.0), mi.Float(0.5), mi.Point2f(u, v),
                                mi.Point2f(0.5, 0.5))
-    hit = scene.ray_intersect_preliminary(ray).is_valid()
+    pi = scene.ray_intersect_preliminary(ray)
+    hit = pi.is_valid()
+    if wanted is not None:
+        on = dr.zeros(mi.Bool, dr.width(hit))
+        for shape in scene.shapes():
+            if shape.id() in ids:
+                on |= pi.shape == mi.ShapePtr(shape)
+        hit = hit & on
     dr.eval(hit)
     return np.asarray(hit, dtype=bool).reshape(height, width, n * n).any(-1)
 
@@ -445,10 +652,12 @@ def noise_floor(
     :func:`object_mask`); None computes it from the scene."""
     if seeds[0] == seeds[1]:
         raise ValueError("noise_floor needs two different seeds")
+    kwargs.setdefault("sampling", SHARED_PATHS)
     a = render_scene(scene_path, materials, spp=spp, seed=seeds[0], **kwargs)
     b = render_scene(scene_path, materials, spp=spp, seed=seeds[1], **kwargs)
     if mask is None:
-        mask = object_mask(scene_path, res=kwargs.get("res"), params=kwargs.get("params"))
+        mask = object_mask(scene_path, res=kwargs.get("res"), params=kwargs.get("params"),
+                           materials=list(materials) if materials else None)
     return noise_floor_snr(a, b, mask)
 
 
@@ -480,6 +689,46 @@ def write_exr(path: str | os.PathLike, img: np.ndarray) -> Path:
             f.write(str(tmp))
         except RuntimeError as exc:  # OpenEXR's I/O errors (ENOSPC, EFBIG, ...)
             raise OutputError(f"{path}: cannot write the EXR image: {exc}") from exc
+    return path
+
+
+#: The images a render writes, by suffix: ``.exr`` linear HDR (float32), the others an
+#: 8-bit tone-mapped sRGB preview (:func:`preview`).
+IMAGE_SUFFIXES = (".exr", ".png", ".jpg", ".jpeg")
+#: The object masks :func:`write_mask` writes, by suffix.
+MASK_SUFFIXES = (".exr", ".npy")
+
+
+def preview(img: np.ndarray, exposure: float = 0.0) -> np.ndarray:
+    """An 8-bit sRGB preview of a linear image (H, W, 3): scaled by ``2 ** exposure``
+    (stops), clipped to [0, 1] and encoded with the sRGB transfer function; uint8
+    (H, W, 3). NaN and negative values show as black."""
+    x = np.nan_to_num(np.asarray(img, np.float64) * 2.0 ** float(exposure), nan=0.0)
+    x = np.clip(x, 0.0, 1.0)
+    x = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+    return np.round(x * 255.0).astype(np.uint8)
+
+
+def write_image(path: str | os.PathLike, img: np.ndarray, exposure: float = 0.0) -> Path:
+    """Write a linear RGB image (H, W, 3) by its suffix, atomically: ``.exr`` as linear
+    float32 (``exposure`` unused), ``.png``/``.jpg``/``.jpeg`` as an 8-bit sRGB preview
+    (:func:`preview`, ``exposure`` in stops); another suffix is an
+    :class:`~sparse_brdf.errors.OutputError`."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".exr":
+        return write_exr(path, img)
+    if suffix not in IMAGE_SUFFIXES:
+        raise OutputError(f"{path}: an image is written as {', '.join(IMAGE_SUFFIXES)}")
+    arr = np.asarray(img)
+    if arr.ndim != 3 or arr.shape[2] != 3:
+        raise ImageFileError(f"{path}: expected an image of shape (H, W, 3), got "
+                             f"{arr.shape}")
+    from PIL import Image  # lazy: only previews need it (Pillow comes with matplotlib)
+
+    fmt = "PNG" if suffix == ".png" else "JPEG"
+    with atomic_write(path, "wb") as f:
+        Image.fromarray(preview(arr, exposure), "RGB").save(f, format=fmt, quality=95)
     return path
 
 

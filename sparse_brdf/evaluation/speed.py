@@ -38,6 +38,7 @@ from ..model.sbrdf import save_sbrdf
 from ..model.sparse import SparseBRDF
 from ..params import check_choice
 from ..sources.merl import write_merl
+from .render import SHARED_PATHS
 
 #: Model kinds :func:`evals_per_second` times (the part of ``Compact.model`` before ``-``).
 KINDS = ("tabulated", "sparse", "naive", "cpd", "tucker", "pca", "nbrdf")
@@ -201,13 +202,13 @@ def _plugin_dict(model, kind: str, ensemble, decoder: str, tmp: Path) -> dict:
                 raise ValueError(f"{model.model}: a tabulated Compact needs params['table']")
             table = model.params["table"]
             model = BRDF(table, geometric_valid(tuple(table.shape[:3])), name=model.model)
-        return {"type": "tabulated_brdf",
+        return {"type": "tabulated_brdf", "sampling": SHARED_PATHS,
                 "filename": str(write_merl(tmp / "table.binary", model))}
     if isinstance(model, Compact):
         if not model.info or "model" not in model.info:
             raise ValueError(f"{model.model}: a sparse Compact needs info['model']")
         model = model.info["model"]
-    out = {"type": "sparse_brdf", "decoder": decoder,
+    out = {"type": "sparse_brdf", "decoder": decoder, "sampling": SHARED_PATHS,
            "filename": str(save_sbrdf(tmp / "model.sbrdf", model))}
     if ensemble is not None:
         out["ensemble"] = str(ensemble.save(tmp / "ensemble.npz"))

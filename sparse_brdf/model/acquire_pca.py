@@ -14,11 +14,13 @@ error of the linear values (as :func:`~sparse_brdf.model.acquire.encode_samples`
 
 from __future__ import annotations
 
+import functools
 import time
 
 import numpy as np
 
 from ..errors import UsageError
+from ..parallel import blas_single_thread
 from ..params import SEED, Interval, check
 from ..samples import Samples
 from ..transforms import COS_CLIP, cosine_weight
@@ -125,30 +127,35 @@ def pca_from_samples(samples: Samples, pca: PCAModel, max_components: int | None
     scale = float(np.mean(np.sum(basis ** 2 * w[:, None], 0))) / max(1, len(samples))
     ks = list(range(1, kmax + 1))
     pred = np.zeros((len(RIDGES), len(ks), m.size))
-    for f in range(folds):
-        tr, ho = fold != f, fold == f
-        g, rhs = _normal(basis[tr], m[tr], w[tr])
-        for i, r in enumerate(RIDGES):
-            lam = r * scale * tr.sum() / 3
-            for j, k in enumerate(ks):
-                pred[i, j, ho] = basis[ho, :k] @ _solve(g, rhs, k, lam)
+    # small products (K x 3N): one BLAS thread, which a busy machine never has to wait for
+    # (two threads stalled for up to 0.7 s a product on the shared 2-core machine)
+    with blas_single_thread():
+        for f in range(folds):
+            tr, ho = fold != f, fold == f
+            g, rhs = _normal(basis[tr], m[tr], w[tr])
+            for i, r in enumerate(RIDGES):
+                lam = r * scale * tr.sum() / 3
+                for j, k in enumerate(ks):
+                    pred[i, j, ho] = basis[ho, :k] @ _solve(g, rhs, k, lam)
+        normal = _normal(basis, m, w)
     rows = np.arange(len(samples))
     err = np.array([[cosine_error(samples, rows, _to_linear(
         (p + mean).reshape(-1, 3), med.reshape(-1, 3), c[:, None])) for p in pr]
         for pr in pred])
     i, j = np.unravel_index(int(np.argmin(err)), err.shape)
     k, lam = ks[j], RIDGES[i] * scale * len(samples)
-    coef = _solve(*_normal(basis, m, w), k, lam)
+    coef = _solve(*normal, k, lam)
     model = PCAModel(k)
     model.basis_, model.mean_, model.median_, model.mask_ = (pca.basis_, pca.mean_,
                                                              pca.median_, pca.mask_)
     y = (m + mean).reshape(-1, 3)[ok[::3]]
     lo, hi = y.min(0), y.max(0)
-    out = _reconstruct(model, coef, (lo - MARGIN * (hi - lo), hi + MARGIN * (hi - lo)))
+    bounds = (lo - MARGIN * (hi - lo), hi + MARGIN * (hi - lo))
+    out = functools.cache(lambda: _reconstruct(model, coef, bounds))  # the full table on use
     info = {"n_coeffs": k, "ridge": RIDGES[i], "components": ks,
             "cv_cosine_error": err.tolist(), "samples": len(samples),
             "seconds": time.perf_counter() - t0}
-    return Compact(f"pca-samples-{k}", k * 4, lambda: out, info,
+    return Compact(f"pca-samples-{k}", k * 4, out, info,
                    {"coef": coef.astype(np.float32)})
 
 

@@ -268,7 +268,9 @@ def _load_shipped(ensemble_id: str) -> Ensemble:
                                    "broken install: reinstall sparse-brdf)")
         raise EnsembleMismatchError(
             f"ensemble {ensemble_id} is not shipped with this version (shipped: "
-            f"{', '.join(shipped_ids()) or 'none'}); pass its file with --ensemble")
+            f"{', '.join(shipped_ids()) or 'none'}); pass its file with --ensemble, or "
+            "re-encode the material with a shipped one (sparse-brdf encode SOURCE -o "
+            "NEW.sbrdf)")
     ens = Ensemble.load(path)
     if ens.id != ensemble_id:
         raise BRDFFileError(f"{path}: holds ensemble {ens.id}, not the {ensemble_id} its "

@@ -72,8 +72,11 @@ LAYOUTS = ("auto", "union", "slots")
 #: glossy lobe of :func:`fit_lobe`.
 SAMPLING = ("cosine", "lobe")
 
-#: The plugins' defaults of those choices (``sparse-brdf render`` takes them too).
-PLUGIN_DEFAULTS = {"decoder": "auto", "layout": "auto", "sampling": "cosine"}
+#: The plugins' defaults of those choices (``sparse-brdf render`` takes them too). Lobe
+#: sampling is the lower-noise choice for a user's image; comparisons of renders set
+#: ``cosine`` (:data:`sparse_brdf.evaluation.render.SHARED_PATHS`), which gives every
+#: material the same sample paths for one seed and spp.
+PLUGIN_DEFAULTS = {"decoder": "auto", "layout": "auto", "sampling": "lobe"}
 
 #: ``decoder="auto"`` uses "grouped" unless its tables would take more than this many
 #: bytes (all three channels), then "strict". The grouped decoder is many times faster

@@ -133,9 +133,10 @@ class SparseBRDF:
         """
         if ensemble.id != self.ensemble_id:
             raise EnsembleMismatchError(
-                f"{self.name}: encoded with ensemble {self.ensemble_id}, "
-                f"but ensemble {ensemble.id} was given"
-            )
+                f"{self.name}: encoded with ensemble {self.ensemble_id}, but ensemble "
+                f"{ensemble.id} was given: give the file's own ensemble (--ensemble "
+                "FILE.npz), or re-encode the material with this one (sparse-brdf encode "
+                f"SOURCE -o NEW.sbrdf --ensemble {ensemble.id})")
         if int(self.dict_index.max()) >= ensemble.n_dicts or int(self.dict_index.min()) < 0:
             raise EnsembleMismatchError(f"{self.name}: dictionary index out of range")
         if tuple(ensemble.shape) != tuple(self.shape):

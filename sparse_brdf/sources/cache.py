@@ -1,5 +1,9 @@
 """On-disk cache of tabulated BRDFs, keyed by a content hash of their source.
 
+The key is the content only: a caller that reads a file sets the name and path of the
+BRDF it returns to those of the file it was asked for (a byte-identical copy is the same
+entry, but keeps its own name).
+
 Folder: ``$SPARSE_BRDF_CACHE`` if set, else ``$XDG_CACHE_HOME/sparse-brdf``, else
 ``~/.cache/sparse-brdf``. Entries are ``<sha256>.npz`` files written atomically (temporary
 name, then rename), so concurrent runs that compute the same entry never see a partial

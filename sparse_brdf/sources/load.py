@@ -109,6 +109,10 @@ def _load(source, shape: tuple[int, int, int], cache: bool, symmetric_network: b
         brdf = cached_brdf(key, lambda: tabulate_nbrdf(path, shape, symmetric_network),
                            cache)
         brdf.meta["symmetric"] = symmetric_network
+        # the key is the content; the name and path are those of the file asked for (a
+        # byte-identical copy elsewhere must not take the cached file's name)
+        brdf.name = path.name.removesuffix(path.suffix)
+        brdf.source = os.fspath(path)
         return brdf
     if suffix == ".sbrdf":
         try:
