@@ -6,7 +6,7 @@ by ``tabulated_brdf`` with the same bin lookup, cosine sampling, seed and spp, s
 images differ only by the model's error. Scores: HDR-FLIP over the sphere's pixels
 (``sparse_brdf.hdr_flip``) and the rendering SNR in both forms.
 
-Variants are ``NAME=SPEC`` with SPEC a comma-separated list of ``KEY=VALUE`` options of
+Variants are ``NAME=OPTIONS`` with OPTIONS a comma-separated list of ``KEY=VALUE`` options of
 ``sparse_brdf.encode`` (``transform``, ``basis``, ...), ``n_coeffs``, ``paper=1`` (the
 paper's encoder) and ``ensemble=PATH``. ``scale=S`` encodes the BRDF multiplied by S and
 divides the decoded table by S (a probe of the transform's precision at low values).

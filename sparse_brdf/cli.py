@@ -1084,7 +1084,7 @@ def _add_blend_and_bench(sub) -> None:
                         "several): a built-in spec (sparse:262, naive, pca:40, tabulated, "
                         "...) or module:Class[:KEY=VALUE,...], a class of your own imported "
                         "from the Python path or the current directory "
-                        "(docs/bench-guide.md)")
+                        "(docs/bench-guide.md; default: the config's models)")
     b.add_argument("--check", action="store_true",
                    help="check the config (settings, models, corpora, training materials, "
                         "scenes) and exit without running it")
