@@ -192,7 +192,7 @@ def cmd_corpus_list(args: argparse.Namespace) -> int:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
-    info = load_brdf(args.source).summary()
+    info = load_brdf(args.source, symmetrize=args.symmetrize).summary()
     if args.json:
         print(json.dumps(info, indent=2))
         return 0
@@ -208,7 +208,7 @@ def cmd_info(args: argparse.Namespace) -> int:
 def cmd_convert(args: argparse.Namespace) -> int:
     out = Path(args.output)
     _check_outputs([(out, MERL, "output")], [args.source])
-    write_merl(out, load_brdf(args.source))
+    write_merl(out, load_brdf(args.source, symmetrize=args.symmetrize))
     print(f"wrote {out}")
     return 0
 
@@ -258,6 +258,8 @@ def cmd_encode(args: argparse.Namespace) -> int:
                "selector": args.selector, "fill": args.fill, "basis": args.basis}
     if args.paper:
         options.update(PAPER_OPTIONS)
+    if args.symmetrize is not None:
+        options["symmetrize"] = args.symmetrize
     if is_batch(args.source):
         if Path(args.output).is_file():
             raise OutputError(f"-o {args.output}: a batch writes a folder (one .sbrdf per "
@@ -668,14 +670,24 @@ def _add_data_commands(sub) -> None:
     i = sub.add_parser("info", help="shape, valid bins, value range and albedo of a BRDF")
     i.add_argument("source", help="BRDF source (see below)")
     i.add_argument("--json", action="store_true", help="print JSON")
+    _add_symmetrize(i)
     _add_source_help(i)
     i.set_defaults(func=cmd_info)
 
     v = sub.add_parser("convert", help="tabulate any BRDF source into a MERL .binary file")
     v.add_argument("source", help="BRDF source (see below)")
     v.add_argument("output", help="output .binary path (written atomically)")
+    _add_symmetrize(v)
     _add_source_help(v)
     v.set_defaults(func=cmd_convert)
+
+
+def _add_symmetrize(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--no-symmetrize", dest="symmetrize", action="store_const", const=False,
+                   default=None,
+                   help="keep a Neural-BRDF network as it is (default: averaged over the "
+                        "mirror phi_d -> -phi_d and reciprocity phi_d -> phi_d + pi, as an "
+                        "isotropic BRDF is; docs/method.md, \"Symmetric references\")")
 
 
 def _add_train(sub) -> None:
@@ -780,7 +792,10 @@ def _add_codec_commands(sub) -> None:
                    help="colour basis of the coded channels (opponent: luminance and two "
                         "colour differences)")
     e.add_argument("--paper", action="store_true",
-                   help="the paper's encoder: --selector gamma-mse --fill missing --basis rgb")
+                   help="the paper's model: --selector gamma-mse --fill missing --basis rgb, "
+                        "over the shipped ensemble trained for the paper's transforms unless "
+                        "--ensemble names another")
+    _add_symmetrize(e)
     e.add_argument("--budget", default=_default(encode, "budget"), choices=ENCODE["budget"],
                    help="--coeffs per channel, or 3 x --coeffs over the channels "
                         "(default: joint for --basis opponent, else channel)")

@@ -98,3 +98,16 @@ def test_a_symmetrised_source_renders_mirror_symmetric(tmp_path):
     # so phi_d and pi - phi_d can fall one bin apart); measured 0.019 against 1.15
     assert sym < 0.04
     assert lop > 10 * sym
+
+
+def test_the_command_line_symmetrizes_unless_told_not_to(tmp_path):
+    from sparse_brdf.cli import main
+
+    net = save_keras(tmp_path / "lopsided.h5", _lopsided_network())
+    a, b = tmp_path / "sym.binary", tmp_path / "raw.binary"
+    assert main(["convert", str(net), str(a)]) == 0
+    assert main(["convert", str(net), str(b), "--no-symmetrize"]) == 0
+    sym, raw = sb.read_merl(a).values, sb.read_merl(b).values
+    assert np.allclose(sym, sym[:, :, _mirror(180)], rtol=1e-5, atol=1e-7)
+    assert np.array_equal(raw, sb.load_brdf(net, symmetrize=False).values)
+    assert not np.allclose(raw, sym, rtol=1e-2)

@@ -45,7 +45,7 @@ from ..errors import BRDFFileError, EnsembleMismatchError, MissingFileError, Out
 from ..fileio import atomic_write, check_output
 from ..metrics import cosine_weighted_snr
 from ..model.budget import encode_to_bytes
-from ..model.encode import DEFAULT_N_COEFFS, check_n_coeffs, encode
+from ..model.encode import DEFAULT_N_COEFFS, check_n_coeffs, encode, encoder_ensemble
 from ..model.ensemble import Ensemble, resolve_ensemble
 from ..model.sbrdf import load_sbrdf, save_sbrdf
 from ..model.sparse import SparseBRDF
@@ -69,7 +69,7 @@ SUMMARY_JSON, SUMMARY_CSV = "summary.json", "summary.csv"
 def encode_file(source: str | os.PathLike, output: str | os.PathLike,
                 ensemble: Ensemble | str | os.PathLike | None = None,
                 n_coeffs: int = DEFAULT_N_COEFFS, n_bytes: int | None = None,
-                **options) -> tuple[Path, SparseBRDF]:
+                symmetrize: bool | None = None, **options) -> tuple[Path, SparseBRDF]:
     """Encode one material ``source`` (any BRDF source, ``sources.load``) into the
     ``.sbrdf`` file ``output`` (written atomically).
 
@@ -86,6 +86,8 @@ def encode_file(source: str | os.PathLike, output: str | os.PathLike,
     n_bytes : int, optional
         A byte budget for the whole file (``model.budget.encode_to_bytes``) instead of
         ``n_coeffs``.
+    symmetrize : bool, optional
+        As :func:`~sparse_brdf.sources.load.load_brdf` (None: a network is symmetrised).
     **options
         The other keyword arguments of :func:`~sparse_brdf.model.encode.encode`
         (``max_error``, ``transform``, ``selector``, ...).
@@ -96,9 +98,9 @@ def encode_file(source: str | os.PathLike, output: str | os.PathLike,
         The file written and the model it holds (with the encoder's ``stats``).
     """
     out = check_output(output, [source, None if isinstance(ensemble, Ensemble) else ensemble])
-    ens = resolve_ensemble(ensemble)
+    ens = encoder_ensemble(ensemble, options)
     n_coeffs = check_n_coeffs(n_coeffs, ens)
-    brdf = load_brdf(source)
+    brdf = load_brdf(source, symmetrize=symmetrize)
     model = (encode_to_bytes(brdf, ens, n_bytes, **options) if n_bytes is not None
              else encode(brdf, ens, n_coeffs, **options))
     return save_sbrdf(out, model), model
@@ -138,9 +140,11 @@ def encode_material(source: str, ensemble: Ensemble, options: dict) -> dict:
     """Load and encode one material; its summary row, with the model under ``"model"``
     (runs on a worker: every error is caught and reported, never raised)."""
     row: dict = {"source": source}
+    options = dict(options)
+    symmetrize = options.pop("symmetrize", None)
     try:
         t0 = time.perf_counter()
-        brdf = load_brdf(source)
+        brdf = load_brdf(source, symmetrize=symmetrize)
         t1 = time.perf_counter()
         model = encode(brdf, ensemble, **options)
         t2 = time.perf_counter()
@@ -213,7 +217,8 @@ def encode_batch(pattern: str | os.PathLike, out_dir: str | os.PathLike,
     """Encode every material of ``pattern`` (a folder or a glob) into ``out_dir``.
 
     ``options``: keyword arguments of :func:`~sparse_brdf.model.encode.encode`
-    (``n_coeffs``, ``transform``, ``selector``, ...). ``ex``: where the work runs
+    (``n_coeffs``, ``transform``, ``selector``, ...), and ``symmetrize`` as
+    :func:`~sparse_brdf.sources.load.load_brdf` takes it. ``ex``: where the work runs
     (default in-process). Returns the summary (``summary.json``'s content): ``rows`` in
     input order, and the counts ``encoded``, ``skipped``, ``failed``. The ensemble is
     resolved once, and the options checked before any material is read.
@@ -223,8 +228,8 @@ def encode_batch(pattern: str | os.PathLike, out_dir: str | os.PathLike,
     t0 = time.perf_counter()
     ex = ex or InProcess()
     files = batch_sources(pattern)
-    ens = resolve_ensemble(ensemble)
     options = dict(options or {})
+    ens = encoder_ensemble(ensemble, options)
     if options.get("n_coeffs") is not None:
         options["n_coeffs"] = check_n_coeffs(options["n_coeffs"], ens)
     out = Path(out_dir)
