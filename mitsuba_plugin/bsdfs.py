@@ -893,7 +893,9 @@ class NeuralBRDF(GlossyBSDF):
         self.widths = tuple(k.shape[1] for k, _ in layers)
         self._weights = mlp_weights(self._ops, layers)
         self.memory_bytes = 4 * sum(k.size + b.size for k, b in layers)
-        profile = table_profile(tabulate(layers)[0]) if self.sampling == "lobe" else None
+        # the lobe of the table tabulated_brdf reads from the same file (symmetrised)
+        profile = (table_profile(tabulate(layers, symmetric=True)[0])
+                   if self.sampling == "lobe" else None)
         self._setup_sampling(self.sampling, profile, MERL_SHAPE)
 
     def _rho(self, wi, wo, active):

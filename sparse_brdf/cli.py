@@ -223,7 +223,8 @@ def cmd_train(args: argparse.Namespace) -> int:
                          f"{math.prod(shape)} coefficients")
     _check_outputs([(args.output, ENSEMBLE_NPZ, "-o")], [args.extend])
     t0 = time.perf_counter()
-    data = training_data(materials, args.transform, shape, basis=args.basis)
+    data = training_data(materials, args.transform, shape, basis=args.basis,
+                         symmetrize=args.symmetrize)
     x = data.x
     if args.dicts > len(x):
         raise UsageError(f"--dicts {args.dicts}: more dictionaries than the {len(x)} "
@@ -233,7 +234,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         "data": [f"{m.corpus}/{m.name}" for m in materials],
         "corpora": args.corpus, "split": args.split, "transforms": list(args.transform),
         "basis": args.basis, "grid": list(shape), "load_seconds": load_s,
-        "data_sha256": data.digest(),
+        "data_sha256": data.digest(), "symmetrize": args.symmetrize is not False,
         "command": "sparse-brdf " + " ".join(sys.argv[1:]),
         "created": time.strftime("%Y-%m-%d %H:%M:%S %Z"),
     }
@@ -700,6 +701,7 @@ def _add_train(sub) -> None:
                    choices=TRANSFORMS,
                    help="value transforms the dictionaries are trained in, one set each (the "
                         "paper's ensembles: log-plus log-plus-cosine)")
+    _add_symmetrize(t)
     t.add_argument("--basis", default=_default(training_data, "basis"), choices=COLOUR_BASES,
                    help="colour basis of the training channels (the encoder's coded channels)")
     t.add_argument("--taus", nargs="+", type=_typed(TRAIN["tau"].capped(GRID_BINS.hi)),

@@ -16,7 +16,7 @@ DATA_DIR = PACKAGE_DIR / "data"
 #: writes files of this format), so that coefficient files find the ensemble they name.
 ENSEMBLES_DIR = DATA_DIR / "ensembles"
 #: The content hash of the ensemble used when none is given (docs/ensemble.md).
-DEFAULT_ENSEMBLE_ID = "5fea9b89b97e561857b3380fdef7d438"
+DEFAULT_ENSEMBLE_ID = "86741890fc36254718acbe579f21e55d"
 DEFAULT_ENSEMBLE_PATH = ENSEMBLES_DIR / f"{DEFAULT_ENSEMBLE_ID}.npz"
 #: The shipped ensemble trained for the paper's transforms (log-plus, log-plus-cosine):
 #: the paper's encoder (``PAPER_OPTIONS``, ``--paper``) encodes over it when no other

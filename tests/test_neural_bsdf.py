@@ -92,10 +92,13 @@ def test_saved_network_reads_back_bit_for_bit(tmp_path):
         assert k.dtype == b.dtype == np.float32
         np.testing.assert_array_equal(k, k0)
         np.testing.assert_array_equal(b, b0)
-    table = load_brdf(str(path))
+    table = load_brdf(str(path), symmetrize=False)
     values, valid = tabulate(fit.layers)
     np.testing.assert_array_equal(table.values, values)
     np.testing.assert_array_equal(table.valid, valid)
+    # by default a network is tabulated symmetrised (mirror and reciprocity)
+    np.testing.assert_array_equal(load_brdf(str(path)).values,
+                                  tabulate(fit.layers, symmetric=True)[0])
     # the same layout as the shipped (Keras-written) files: names and attributes
     import h5py  # lazy: as in the library
 

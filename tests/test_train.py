@@ -144,7 +144,8 @@ def test_training_data_in_opponent_basis():
     rgb = training_data(mats, shape=SMALL, progress=False)
     opp = training_data(mats, shape=SMALL, progress=False, basis="opponent")
     assert rgb.missing == {} and opp.basis == "opponent"
-    assert opp.labels[:3] == [f"mitsuba/{mats[0].name}:log-plus:{c}" for c in ("L", "RG", "YB")]
+    assert opp.labels[:3] == [f"mitsuba/{mats[0].name}:log-relative:{c}"
+                              for c in ("L", "RG", "YB")]
     np.testing.assert_allclose(opp.x[:3], to_basis(rgb.x[:3], "opponent"), atol=1e-6)
     # an orthonormal mix: the three channels' energy is unchanged
     assert np.isclose(np.sum(opp.x[:3].astype(np.float64) ** 2),
@@ -159,8 +160,8 @@ def test_training_data_records_unmeasured_bins(monkeypatch):
     mats = get_corpus("mitsuba").split("train")[:2]
     real_load = type(mats[0]).load
 
-    def load_with_holes(self, shape):
-        b = real_load(self, shape)
+    def load_with_holes(self, shape, symmetrize=None):
+        b = real_load(self, shape, symmetrize)
         if self.name == mats[1].name:
             b.valid[4:6, 2:4, :] = False
             b.values[~b.valid] = 0.0

@@ -111,8 +111,8 @@ class BenchConfig:
     split: str = "test"
     max_materials: int | None = None  # per corpus
     models: list[str] = field(default_factory=lambda: [
-        "sparse:32", "sparse:128", "sparse:262", "sparse:1024", "sparse:262:log-plus",
-        "sparse:262:log-plus-cosine", "naive", "cpd:1", "tucker:1x1x1", "pca:40", "pca:300",
+        "sparse:32", "sparse:128", "sparse:262", "sparse:1024", "sparse:262:log-relative",
+        "sparse:262:log-relative-cosine", "naive", "cpd:1", "tucker:1x1x1", "pca:40", "pca:300",
         "tabulated"])
     curve_coeffs: list[int] = field(default_factory=lambda: [16, 32, 64, 128, 262, 512, 1024])
     scenes: list[str] = field(default_factory=lambda: [
@@ -333,12 +333,13 @@ def check_config(cfg: BenchConfig) -> dict:
     """
     with _naming(cfg, "ensemble"):
         ens = resolve_ensemble(cfg.ensemble)
+    named = ens if cfg.ensemble else None  # none named: each model's own default
     with _naming(cfg, "models"):
-        models = make_models(cfg.models, ens)
+        models = make_models(cfg.models, named)
     if not models:
         raise ConfigError(f"{cfg.label}: models = [] lists no model: nothing to bench")
     with _naming(cfg, "stability_models"):
-        smodels = make_models(cfg.stability_models, ens) if cfg.stability else []
+        smodels = make_models(cfg.stability_models, named) if cfg.stability else []
     with _naming(cfg, "corpora"):
         mats = evaluated_materials(cfg)
     _check_byte_budgets(cfg, models + smodels, mats)
@@ -453,7 +454,7 @@ class Bench:
         if self.cfg.render:
             self._resolve_scenes()
         ens = self.ensemble
-        models = make_models(self.cfg.models, ens)
+        models = make_models(self.cfg.models, ens if self.cfg.ensemble else None)
         mats = self.materials()
         self._train(models, mats)
         self._run_cells(ex or InProcess(), ens, models, mats)
@@ -469,7 +470,8 @@ class Bench:
                     continue
                 self._save()
         if self.cfg.stability and "stability" not in self.results and mats:
-            smodels = make_models(self.cfg.stability_models, ens)
+            smodels = make_models(self.cfg.stability_models,
+                                  ens if self.cfg.ensemble else None)
             self._train(smodels, mats)
             self.results["stability"] = {
                 "material": _key(mats[0]),

@@ -532,16 +532,15 @@ def encoder_ensemble(ensemble: Ensemble | str | os.PathLike | None,
                      options: Mapping[str, object]) -> Ensemble:
     """The ensemble an encoding with ``options`` runs on.
 
-    ``ensemble`` resolved (:func:`~sparse_brdf.model.ensemble.resolve_ensemble`: the
-    shipped default when None), except for the paper's encoder (``options`` holding
-    ``PAPER_OPTIONS``) over the default: it encodes over the shipped ensemble trained for
-    the paper's transforms (``paths.PAPER_ENSEMBLE_ID``), so that ``--paper`` keeps the
-    paper's model. An ensemble named otherwise is used as it is."""
-    ens = resolve_ensemble(ensemble)
-    if (ens.id == DEFAULT_ENSEMBLE_ID != PAPER_ENSEMBLE_ID
+    ``ensemble`` resolved (:func:`~sparse_brdf.model.ensemble.resolve_ensemble`); when
+    none is named (None or ""), the shipped default, except for the paper's encoder
+    (``options`` holding ``PAPER_OPTIONS``): it encodes over the shipped ensemble trained
+    for the paper's transforms (``paths.PAPER_ENSEMBLE_ID``), so that ``--paper`` keeps
+    the paper's model. A named ensemble is always the one used."""
+    if (not ensemble and DEFAULT_ENSEMBLE_ID != PAPER_ENSEMBLE_ID
             and all(options.get(k) == v for k, v in PAPER_OPTIONS.items())):
         return Ensemble.shipped(PAPER_ENSEMBLE_ID)
-    return ens
+    return resolve_ensemble(ensemble)
 
 
 def check_n_coeffs(n_coeffs: int, ensemble: Ensemble) -> int:

@@ -58,20 +58,23 @@ class Material:
     corpus: str
     source: str  # a file path or "mitsuba:<name>"
 
-    def load(self, shape: tuple[int, int, int] = MERL_SHAPE) -> BRDF:
+    def load(self, shape: tuple[int, int, int] = MERL_SHAPE,
+             symmetrize: bool | None = None) -> BRDF:
         """Tabulate the material (cached on disk, see :func:`~sparse_brdf.load_brdf`).
 
         Parameters
         ----------
         shape : tuple of int
             The grid (n_h, n_d, n_p); default the MERL grid (90, 90, 180).
+        symmetrize : bool, optional
+            As :func:`~sparse_brdf.load_brdf` (None: networks symmetrised).
 
         Returns
         -------
         BRDF
             Its values on that grid, named :attr:`name`.
         """
-        brdf = load_brdf(self.source, shape=shape)
+        brdf = load_brdf(self.source, shape=shape, symmetrize=symmetrize)
         brdf.name = self.name
         return brdf
 

@@ -74,13 +74,16 @@ def training_data(
     shape: tuple[int, int, int] = MERL_SHAPE,
     progress: bool = True,
     basis: str = "rgb",
+    symmetrize: bool | None = None,
 ) -> TrainingData:
     """Stack transformed channels of ``materials`` into an (N, n1, n2, n3) float32 array.
 
     N = len(materials) * len(transforms) * 3. Each material's three transformed channels
     are taken to the colour ``basis`` (``transforms.to_basis``: ``rgb`` keeps R, G, B,
     ``opponent`` codes luminance / red-green / yellow-blue), the channels the encoder codes
-    in that basis. Invalid bins hold 0 (``transforms.forward``).
+    in that basis. Invalid bins hold 0 (``transforms.forward``). ``symmetrize``: as
+    :func:`~sparse_brdf.sources.load.load_brdf` (None: networks symmetrised; False: raw,
+    as the ensembles trained before 2026-12-05 read them).
     """
     check_basis(basis)
     for t in transforms:
@@ -90,7 +93,8 @@ def training_data(
     labels = [f"{m.corpus}/{m.name}:{t}:{c}" for m in materials for t in transforms
               for c in CHANNEL_NAMES[basis]]
     missing: dict[int, np.ndarray] = {}
-    for i, block, holes in _channel_blocks(materials, transforms, shape, progress, basis):
+    blocks = _channel_blocks(materials, transforms, shape, progress, basis, symmetrize)
+    for i, block, holes in blocks:
         x[i : i + 3] = block
         if holes.any():
             missing.update({j: holes for j in range(i, i + 3)})
@@ -103,6 +107,7 @@ def training_digest(
     shape: tuple[int, int, int] = MERL_SHAPE,
     progress: bool = True,
     basis: str = "rgb",
+    symmetrize: bool | None = None,
 ) -> str:
     """:meth:`TrainingData.digest` of :func:`training_data` with the same arguments,
     computed one material at a time (the tensors are never stacked: 36 MB at a time
@@ -113,7 +118,8 @@ def training_digest(
     missing: dict[int, np.ndarray] = {}
 
     def blocks():  # fills ``missing`` as it goes; _digest reads it after the blocks
-        for i, x, holes in _channel_blocks(materials, transforms, shape, progress, basis):
+        for i, x, holes in _channel_blocks(materials, transforms, shape, progress, basis,
+                                           symmetrize):
             if holes.any():
                 missing.update({j: holes for j in range(i, i + 3)})
             yield x
@@ -121,7 +127,7 @@ def training_digest(
     return _digest((n, *shape), labels, basis, transforms, blocks(), missing)
 
 
-def _channel_blocks(materials, transforms, shape, progress, basis):
+def _channel_blocks(materials, transforms, shape, progress, basis, symmetrize):
     """(index of the first tensor, its three coded channels (3, *shape), the material's
     unmeasured bins above the horizon) per material and transform, in training order."""
     from tqdm.auto import tqdm  # lazy: tqdm.auto adds ~40 ms to `import sparse_brdf`
@@ -129,7 +135,7 @@ def _channel_blocks(materials, transforms, shape, progress, basis):
     above = geometric_valid(shape)
     i = 0
     for m in tqdm(materials, desc="load", unit="brdf", disable=not progress):
-        brdf = m.load(shape)
+        brdf = m.load(shape, symmetrize)
         rho = brdf.channel_first()
         holes = above & ~brdf.valid
         for t in transforms:
