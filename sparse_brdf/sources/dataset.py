@@ -85,19 +85,13 @@ def training_data(
     :func:`~sparse_brdf.sources.load.load_brdf` (None: networks symmetrised; False: raw,
     as the ensembles trained before 2026-12-05 read them).
     """
-    check_basis(basis)
-    for t in transforms:
-        check_transform(t)
     n = len(materials) * len(transforms) * 3
+    labels = _labels(materials, transforms, basis)
     x = np.empty((n, *shape), np.float32)
-    labels = [f"{m.corpus}/{m.name}:{t}:{c}" for m in materials for t in transforms
-              for c in CHANNEL_NAMES[basis]]
     missing: dict[int, np.ndarray] = {}
-    blocks = _channel_blocks(materials, transforms, shape, progress, basis, symmetrize)
-    for i, block, holes in blocks:
+    for i, block in _channel_blocks(materials, transforms, shape, progress, basis,
+                                    symmetrize, missing):
         x[i : i + 3] = block
-        if holes.any():
-            missing.update({j: holes for j in range(i, i + 3)})
     return TrainingData(x, labels, missing, basis, tuple(transforms))
 
 
@@ -113,23 +107,27 @@ def training_digest(
     computed one material at a time (the tensors are never stacked: 36 MB at a time
     instead of 5.5 GB for the shipped ensemble's data)."""
     n = len(materials) * len(transforms) * 3
-    labels = [f"{m.corpus}/{m.name}:{t}:{c}" for m in materials for t in transforms
-              for c in CHANNEL_NAMES[check_basis(basis)]]
-    missing: dict[int, np.ndarray] = {}
-
-    def blocks():  # fills ``missing`` as it goes; _digest reads it after the blocks
-        for i, x, holes in _channel_blocks(materials, transforms, shape, progress, basis,
-                                           symmetrize):
-            if holes.any():
-                missing.update({j: holes for j in range(i, i + 3)})
-            yield x
-
-    return _digest((n, *shape), labels, basis, transforms, blocks(), missing)
+    labels = _labels(materials, transforms, basis)
+    missing: dict[int, np.ndarray] = {}  # filled as the blocks go; _digest reads it last
+    blocks = (b for _, b in _channel_blocks(materials, transforms, shape, progress, basis,
+                                            symmetrize, missing))
+    return _digest((n, *shape), labels, basis, transforms, blocks, missing)
 
 
-def _channel_blocks(materials, transforms, shape, progress, basis, symmetrize):
-    """(index of the first tensor, its three coded channels (3, *shape), the material's
-    unmeasured bins above the horizon) per material and transform, in training order."""
+def _labels(materials, transforms, basis) -> list[str]:
+    """One ``"<corpus>/<name>:<transform>:<channel>"`` per tensor, in training order,
+    after checking the basis and the transforms."""
+    check_basis(basis)
+    for t in transforms:
+        check_transform(t)
+    return [f"{m.corpus}/{m.name}:{t}:{c}" for m in materials for t in transforms
+            for c in CHANNEL_NAMES[basis]]
+
+
+def _channel_blocks(materials, transforms, shape, progress, basis, symmetrize, missing):
+    """(index of the first tensor, its three coded channels (3, *shape)) per material and
+    transform, in training order; a material's unmeasured bins above the horizon go to
+    ``missing`` under each of its tensors' indices (one shared array)."""
     from tqdm.auto import tqdm  # lazy: tqdm.auto adds ~40 ms to `import sparse_brdf`
 
     above = geometric_valid(shape)
@@ -139,7 +137,9 @@ def _channel_blocks(materials, transforms, shape, progress, basis, symmetrize):
         rho = brdf.channel_first()
         holes = above & ~brdf.valid
         for t in transforms:
-            yield i, to_basis(forward(rho, t, brdf.valid), basis), holes
+            if holes.any():
+                missing.update({j: holes for j in range(i, i + 3)})
+            yield i, to_basis(forward(rho, t, brdf.valid), basis)
             i += 3
 
 
