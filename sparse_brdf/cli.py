@@ -428,6 +428,9 @@ def cmd_render(args: argparse.Namespace) -> int:
 
 def _read_image(path: str, like: tuple[str, object] | None = None):
     """An EXR image that is finite, and (``like``: (path, image)) of that image's size."""
+    if Path(path).suffix.lower() in (".png", ".jpg", ".jpeg"):
+        raise ImageFileError(f"{path}: a tone-mapped preview; the SNR and HDR-FLIP compare "
+                             "linear images: give the .exr that `render -o NAME.exr` writes")
     img = read_exr(path)
     bad = int(np.size(img) - np.count_nonzero(np.isfinite(img)))
     if bad:

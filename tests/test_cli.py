@@ -211,3 +211,13 @@ def test_a_copy_keeps_its_own_name(tmp_path, capsys):
     out = tmp_path / "copy.sbrdf"
     assert main(["encode", str(copy), "-o", str(out), "--coeffs", "8"]) == 0
     assert load_sbrdf(out).name == "copy"
+
+
+def test_snr_refuses_a_tone_mapped_preview(tmp_path, capsys):
+    """A .png preview is not the linear image the SNR and HDR-FLIP compare: one line
+    naming the file and the .exr to give instead, exit 2."""
+    png = tmp_path / "look.png"
+    png.write_bytes(b"\x89PNG\r\n\x1a\n")
+    assert main(["snr", str(png), str(png)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "look.png" in err and ".exr" in err
