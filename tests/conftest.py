@@ -51,3 +51,27 @@ def random_orthonormal(n: int, rng: np.random.Generator) -> np.ndarray:
     m[:, 0] = 1.0
     q, r = np.linalg.qr(m)
     return (q * np.sign(np.diag(r))).astype(np.float32)
+
+
+def run_cli(capsys, *argv) -> tuple[int, str, str]:
+    """``sparse-brdf ARGV`` in this process: (exit status, stdout, stderr)."""
+    from sparse_brdf.cli import main
+
+    try:
+        code = main([str(a) for a in argv])
+    except SystemExit as exc:  # argparse
+        code = exc.code
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def cli_fails(capsys, *argv, names=()) -> str:
+    """Run ARGV, assert status 2 and one stderr line naming each of ``names``; the line."""
+    code, _, err = run_cli(capsys, *argv)
+    lines = err.splitlines()
+    assert code == 2, err
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    for name in names:
+        assert str(name) in lines[0], (name, lines[0])
+    return lines[0]

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from conftest import cli_fails, run_cli
 from sparse_brdf.cli import main
 from sparse_brdf.evaluation.render import (
     film_size,
@@ -27,21 +28,8 @@ SCENE = Path(__file__).resolve().parent / "data" / "still_life.xml"
 PAINT = "mitsuba:plastic-red-ggx-0.3"
 
 
-def run(capsys, *argv) -> tuple[int, str, str]:
-    try:
-        code = main([str(a) for a in argv])
-    except SystemExit as exc:  # argparse
-        code = exc.code
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def fails(capsys, *argv, names=()) -> str:
-    code, _, err = run(capsys, *argv)
-    assert code == 2 and len(err.splitlines()) == 1, err
-    for name in names:
-        assert str(name) in err, (name, err)
-    return err
+run = run_cli
+fails = cli_fails
 
 
 def test_render_scene_keeps_the_film_and_sets_what_the_scene_does_not_declare():

@@ -17,7 +17,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from conftest import SMALL
+from conftest import SMALL, run_cli
 from sparse_brdf.brdf import BRDF
 from sparse_brdf.cli import main
 from sparse_brdf.coords import geometric_valid
@@ -440,12 +440,7 @@ def _write_config(path: Path, cfg: dict) -> Path:
 
 
 def _bench(capsys, argv) -> tuple[int, str, str]:
-    try:
-        code = main([str(a) for a in argv])
-    except SystemExit as exc:  # argparse
-        code = exc.code
-    out, err = capsys.readouterr()
-    return code, out, err
+    return run_cli(capsys, *argv)
 
 
 @settings(max_examples=120, deadline=None, database=None, derandomize=True,

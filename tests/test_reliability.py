@@ -23,7 +23,7 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from conftest import SMALL, random_orthonormal
+from conftest import SMALL, cli_fails, random_orthonormal, run_cli
 from sparse_brdf.brdf import BRDF
 from sparse_brdf.cli import EXIT_BUG, main
 from sparse_brdf.coords import MERL_SHAPE, geometric_valid
@@ -51,26 +51,8 @@ H5 = ROOT / "sparse_brdf" / "data" / "materials" / "blue-fabric.h5"
 # ------------------------------------------------------------------------------ helpers
 
 
-def run(capsys, *argv) -> tuple[int, str, str]:
-    """``sparse-brdf ARGV`` in this process: (exit status, stdout, stderr)."""
-    try:
-        code = main([str(a) for a in argv])
-    except SystemExit as exc:  # argparse
-        code = exc.code
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def fails(capsys, *argv, names=()) -> str:
-    """Run ARGV, assert status 2 and one stderr line naming each of ``names``; the line."""
-    code, _, err = run(capsys, *argv)
-    lines = err.splitlines()
-    assert code == 2, err
-    assert len(lines) == 1, err
-    assert "Traceback" not in err
-    for name in names:
-        assert str(name) in lines[0], (name, lines[0])
-    return lines[0]
+run = run_cli
+fails = cli_fails
 
 
 def digest(path: Path) -> str:
