@@ -25,7 +25,7 @@ what it misses is what the views do not determine). Reported:
   rendered as a table and rated (``attribution``; a region that drops a view's SNR is
   one the fit got wrong and that view sees).
 
-docs/fit-images.md, "What the views determine".
+docs/records/fit-images-runs.md, "What the views determine".
 """
 
 from __future__ import annotations

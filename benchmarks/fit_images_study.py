@@ -23,8 +23,8 @@ used by the fit, only reported); ``--validation`` views are rendered like the fi
 views but only pick the returned iterate (early stopping); ``--prior-weight`` is
 ``fit_images``'s penalty keeping the values near the (perturbed) start.
 ``--held-out-spp 8 256`` rates the held-out views at 8 spp (the table's) and also at 256:
-at a few spp a held-out SNR is set by a handful of samples per pixel (docs/fit-images.md,
-"How many samples a held-out view needs").
+at a few spp a held-out SNR is set by a handful of samples per pixel
+(docs/records/fit-images-runs.md, "Runs 8 and 9").
 """
 
 from __future__ import annotations

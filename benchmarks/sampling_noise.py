@@ -1,5 +1,5 @@
 """The noise of the plugins' two BSDF sampling modes at equal spp, in scenes lit by a light
-source (README, "Which sampling when"; ``docs/benchmarks.md``).
+source (``docs/rendering.md``, "Which sampling when"; ``docs/benchmarks.md``).
 
     .venv/bin/python benchmarks/sampling_noise.py --json docs/figures/sampling_noise.json
 

@@ -7,7 +7,7 @@ Renders a shipped demo material from its full table and from its encoding (262 p
 channel) with the same seed and spp, and prints the pixels of largest squared error:
 their position (row, column, and distance from the sphere's centre as a fraction of its
 radius), both renders' values and each pixel's share of the view's squared error.
-docs/fit-images.md, "Where it stands".
+docs/records/fit-images-runs.md, "Where it stands".
 """
 
 from __future__ import annotations
