@@ -11,16 +11,21 @@ Usage::
     mitsuba_plugin.register()          # once per variant, before loading a scene
     bsdf = mi.load_dict({"type": "sparse_brdf", "filename": "gold.sbrdf"})
 
-One job per module, data flowing down the list: :mod:`~mitsuba_plugin.kernels` (lookup,
-sampling and colour building blocks), :mod:`~mitsuba_plugin.loading` (properties, files,
-the ensemble cache), :mod:`~mitsuba_plugin.decoders` (the sparse decoders' kernels),
-:mod:`~mitsuba_plugin.glossy` (the BSDFs' shared base), one module per BSDF
-(:mod:`~mitsuba_plugin.tabulated`, :mod:`~mitsuba_plugin.sparse`,
-:mod:`~mitsuba_plugin.neural`, each class's docstring lists its parameters),
-:mod:`~mitsuba_plugin.registration` (the variants' classes and :func:`register`), and
-:mod:`~mitsuba_plugin.evaluators` (the baseline models' evaluators, for the speed axis).
+One job per module, each building on those before it:
+
+- :mod:`~mitsuba_plugin.kernels`: lookup, sampling and colour building blocks;
+- :mod:`~mitsuba_plugin.loading`: properties, files, the ensemble cache;
+- :mod:`~mitsuba_plugin.decoders`: the sparse model's decoder kernels;
+- :mod:`~mitsuba_plugin.glossy`: the BSDFs' shared base (sampling, pdf, colours);
+- :mod:`~mitsuba_plugin.tabulated`, :mod:`~mitsuba_plugin.sparse`,
+  :mod:`~mitsuba_plugin.neural`: one BSDF each, its parameters in its class docstring
+  (the choices: :data:`DECODERS`, :data:`LAYOUTS`, :data:`SAMPLING`);
+- :mod:`~mitsuba_plugin.registration`: the variants' classes, and :func:`register`;
+- :mod:`~mitsuba_plugin.evaluators`: the baseline models' evaluators (the speed axis).
+
 A missing or corrupt file fails at scene load with a :class:`PluginError` naming the
-plugin and the file.
+plugin and the file. Every loaded BSDF exposes ``memory_bytes`` (bytes of the arrays it
+holds).
 """
 
 from __future__ import annotations

@@ -1,8 +1,10 @@
 """The ``sparse_brdf`` BSDF: the sparse model evaluated from its coefficients at render
 time, by the grouped or the strict decoder (:mod:`~mitsuba_plugin.decoders`), in the
 scalar variants by the numpy lookups of :mod:`sparse_brdf.model.lookups`; its
-coefficient values are differentiable. Registered for a variant by
-:func:`~mitsuba_plugin.registration.register`.
+coefficient values are differentiable. A loaded one exposes ``decoder``, ``layout``,
+``n_terms``, ``distinct_atoms`` and ``basis`` (the file's colour basis: "rgb", or
+"opponent", whose coded channels the kernel mixes back to R, G, B). Registered for a
+variant by :func:`~mitsuba_plugin.registration.register`.
 """
 
 from __future__ import annotations
