@@ -1,5 +1,6 @@
-"""Mitsuba 3 plugins for sparse-brdf: ``sparse_brdf`` (the model), ``tabulated_brdf`` and
-``neural_brdf`` (a Neural-BRDF network).
+"""Mitsuba 3 plugins for sparse-brdf: the BSDFs ``sparse_brdf`` (the sparse model),
+``tabulated_brdf`` (a measured table, the reference) and ``neural_brdf`` (a Neural-BRDF
+network), single-sided glossy reflectors for every variant's colours.
 
 Usage::
 
@@ -10,49 +11,30 @@ Usage::
     mitsuba_plugin.register()          # once per variant, before loading a scene
     bsdf = mi.load_dict({"type": "sparse_brdf", "filename": "gold.sbrdf"})
 
-The BSDFs are single-sided glossy reflectors (``GlossyReflection | FrontSide``), share
-the same sampling code and every variant's colours (rgb, mono, spectral, polarized),
-the two tabulated ones the bin lookup of docs/method.md ("Grid, lookup convention,
-validity"), and return ``BSDF * cos(theta_o)`` from ``eval``. Parameters:
+One job per module, each building on those before it:
 
-``sparse_brdf``
-    ``filename`` (.sbrdf), ``ensemble`` (optional .npz, default the shipped one),
-    ``decoder`` ("grouped" | "strict" | "auto"), ``layout`` ("auto" | "union" |
-    "slots", for the grouped decoder), ``sampling`` ("cosine" | "lobe"), ``interpolate``
-    (bool). The name lists are :data:`DECODERS`, :data:`LAYOUTS` and :data:`SAMPLING`,
-    defined in :mod:`sparse_brdf.model.layouts`.
-``tabulated_brdf``
-    ``filename`` (anything :func:`sparse_brdf.sources.load.load_brdf` reads), ``sampling``,
-    ``interpolate``, ``ensemble`` (for decoding a .sbrdf file).
-``neural_brdf``
-    ``filename`` (a Neural-BRDF Keras ``.h5`` network), ``sampling``; evaluated at the
-    direction pair itself by the same kernel as the ``nbrdf`` evaluator.
+- :mod:`~mitsuba_plugin.kernels`: lookup, sampling and colour building blocks;
+- :mod:`~mitsuba_plugin.loading`: properties, files, the ensemble cache;
+- :mod:`~mitsuba_plugin.decoders`: the sparse model's decoder kernels;
+- :mod:`~mitsuba_plugin.glossy`: the BSDFs' shared base (sampling, pdf, colours);
+- :mod:`~mitsuba_plugin.tabulated`, :mod:`~mitsuba_plugin.sparse`,
+  :mod:`~mitsuba_plugin.neural`: one BSDF each, its parameters in its class docstring
+  (the choices: :data:`DECODERS`, :data:`LAYOUTS`, :data:`SAMPLING`);
+- :mod:`~mitsuba_plugin.registration`: the variants' classes, and :func:`register`;
+- :mod:`~mitsuba_plugin.evaluators`: the baseline models' evaluators (the speed axis).
 
 A missing or corrupt file fails at scene load with a :class:`PluginError` naming the
-plugin and the file. The loaded objects expose ``memory_bytes`` (bytes of the arrays
-they hold) and, for ``sparse_brdf``, ``decoder``, ``n_terms``, ``distinct_atoms`` and
-``basis`` (the file's colour basis: "rgb", or "opponent", whose coded channels the kernel
-mixes back to R, G, B).
-
-The package holds only Dr.Jit/Mitsuba code: :mod:`~mitsuba_plugin.bsdfs` (the BSDFs,
-their decoder kernels and registration), :mod:`~mitsuba_plugin.kernels` (the shared
-lookup and sampling building blocks) and :mod:`~mitsuba_plugin.evaluators` (Dr.Jit
-evaluators of the baseline models). The per-material numpy data comes from
-:mod:`sparse_brdf.model.layouts`.
+plugin and the file. Every loaded BSDF exposes ``memory_bytes`` (bytes of the arrays it
+holds).
 """
 
 from __future__ import annotations
 
-from .bsdfs import (
-    DECODERS,
-    LAYOUTS,
-    SAMPLING,
-    PluginError,
-    classes,
-    load_ensemble,
-    make_classes,
-    register,
-)
+from sparse_brdf.errors import PluginError
+from sparse_brdf.model.layouts import DECODERS, LAYOUTS, SAMPLING
+
+from .loading import load_ensemble
+from .registration import classes, make_classes, register
 
 __all__ = ["register", "classes", "make_classes", "PluginError", "DECODERS", "LAYOUTS",
            "SAMPLING", "load_ensemble"]

@@ -22,7 +22,7 @@ dr = pytest.importorskip("drjit")
 from test_variants import CPU_VARIANTS, render, wrapped_scene  # noqa: E402
 
 import mitsuba_plugin  # noqa: E402
-from mitsuba_plugin.bsdfs import variant_kind  # noqa: E402
+from mitsuba_plugin.registration import variant_kind  # noqa: E402
 
 #: A glossy shipped network (a specular peak, so lobe sampling has a lobe to fit).
 GLOSSY = str(DEMO_MATERIALS_DIR / "red-specular-plastic.h5")

@@ -18,7 +18,7 @@ dr = pytest.importorskip("drjit")
 from test_plugin import make_exact_material  # noqa: E402
 
 import mitsuba_plugin  # noqa: E402
-from mitsuba_plugin.bsdfs import variant_kind  # noqa: E402
+from mitsuba_plugin.registration import variant_kind  # noqa: E402
 
 #: Every variant of Mitsuba 3.9 that runs on the CPU.
 CPU_VARIANTS = ("scalar_rgb", "scalar_spectral", "scalar_spectral_polarized", "llvm_ad_rgb",

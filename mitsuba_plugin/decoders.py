@@ -1,0 +1,226 @@
+"""The sparse model's two decoders as Dr.Jit kernels: X of a coded channel at a direction
+pair's bin (or interpolated), read from per-material buffers without building the
+tensor (docs/method.md).
+
+- grouped (:func:`grouped_x`): terms grouped by the atom of one mode, the other two
+  modes contracted at load time into a table of bin pairs; one loop per layout
+  ("slots" or "union"), in one kernel.
+- strict (:func:`strict_x`): one loop over the nonzero terms, closing partial sums at
+  the ends of their groups; also the derivative carrier of differentiable renders.
+
+The buffers (:class:`GroupedBuffers`, :class:`StrictBuffers`) are uploaded from the
+numpy layouts of :mod:`sparse_brdf.model.layouts`, as opaque Dr.Jit scalars, so every
+material shares one compiled kernel; :mod:`sparse_brdf.model.lookups` holds the numpy
+twins of both kernels.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import drjit as dr
+
+from sparse_brdf.model.layouts import END_B, END_C, PACK_BITS, PACKET, SLOT, UNION_ATOMS
+
+from .kernels import Ops, Shape
+
+# ---------------------------------------------------------------- grouped decoder kernel
+
+
+@dataclass
+class GroupedBuffers:
+    """The grouped decoder's per-material data as the kernel reads it (from a
+    :class:`sparse_brdf.model.layouts.GroupedLayout`); numbers are opaque Dr.Jit scalars."""
+
+    tables: object  # Float: per bin pair (ip, iq), ``chunks`` chunks of table floats
+    values: object  # Float: per bin of mode g, ``chunks`` chunks of atom values
+    chunks: dict  # {"slots": n, "union": n}: the material's layout has n > 0, the other 0
+    sel: list  # for modes (p, q, g): three 0/1 UInt32 that pick that mode's bin index
+    fsel: list  # the same as Floats, to pick that mode's interpolation weight
+    n_q: object  # UInt32: the size of mode q (the table's row stride in bin pairs)
+
+
+def upload_grouped(ops: Ops, lay, ch) -> GroupedBuffers:
+    """:class:`GroupedBuffers` of layout ``lay``, whose channels' modes are those of
+    ``ch`` (a :class:`~sparse_brdf.model.layouts.GroupedChannel`)."""
+    tables = ops.floats(lay.tables)
+    values = ops.floats(lay.values)
+    # one kernel for both layouts: a loop for each, the other runs 0 times
+    chunks = {k: ops.u(lay.chunks if k == lay.kind else 0) for k in ("slots", "union")}
+    modes = (ch.mode_p, ch.mode_q, ch.mode_g)
+    sel = [[ops.u(int(mode == s)) for mode in range(3)] for s in modes]
+    fsel = [[ops.f(float(mode == s)) for mode in range(3)] for s in modes]
+    return GroupedBuffers(tables, values, chunks, sel, fsel, ops.u(ch.n_q))
+
+
+def _pick(idx, sel):
+    """``idx[mode]`` for the mode whose entry of ``sel`` (three 0/1 values) is 1: no
+    Python branch on per-material data, so one kernel serves every grouped mode."""
+    return idx[0] * sel[0] + idx[1] * sel[1] + idx[2] * sel[2]
+
+
+def _grouped_rows(buf: GroupedBuffers, bins, lin):
+    """([(bin pair, weight)], [(bin of mode g, weight)]) a lookup reads: one of each with
+    weight None at the nearest bin (``bins``), or the 4 bin pairs and 2 bins of mode g
+    around the point with their interpolation weights (``lin``, bins is None)."""
+    nq = buf.n_q
+    sel_p, sel_q, sel_g = buf.sel
+    if lin is None:
+        return ([(_pick(bins, sel_p) * nq + _pick(bins, sel_q), None)],
+                [(_pick(bins, sel_g), None)])
+    i0s = tuple(x[0] for x in lin)
+    i1s = tuple(x[1] for x in lin)
+    ts = tuple(x[2] for x in lin)
+    fp, fq, fg = buf.fsel
+    tp, tq, tg = _pick(ts, fp), _pick(ts, fq), _pick(ts, fg)
+    pairs = [(ep * nq + eq, wp * wq)
+             for ep, wp in ((_pick(i0s, sel_p), 1.0 - tp), (_pick(i1s, sel_p), tp))
+             for eq, wq in ((_pick(i0s, sel_q), 1.0 - tq), (_pick(i1s, sel_q), tq))]
+    gs = [(_pick(i0s, sel_g), 1.0 - tg), (_pick(i1s, sel_g), tg)]
+    return pairs, gs
+
+
+def _blend(ops: Ops, buf, rows, stride, h, active):
+    """Packet h of each of ``rows`` [(row index, weight)] of ``buf`` (a row is
+    ``stride`` packets), summed with the weights; a weight of None: that row alone."""
+    out = None
+    for row, wt in rows:
+        pk = ops.gather_packet(buf, row * stride + h, PACKET, active)
+        if wt is None:
+            return list(pk)
+        pk = [wt * x for x in pk]
+        out = pk if out is None else [a + b for a, b in zip(out, pk, strict=True)]
+    return out
+
+
+def _fma(ops: Ops, a, b, c):
+    return dr.fma(a, b, c) if ops.jit else a * b + c
+
+
+def _union_chunk(ops: Ops, tv, vv, acc):
+    """Add one union chunk: table floats ``tv`` (3 a + c: channel c at atom a < 5; 15:
+    the weight) times atom values ``vv`` (a: atom a; 5: the weight) to the four sums."""
+    out = list(acc)
+    for a in range(UNION_ATOMS):
+        for c in range(3):
+            out[c] = _fma(ops, tv[3 * a + c], vv[a], out[c])
+    out[3] = _fma(ops, tv[3 * UNION_ATOMS], vv[UNION_ATOMS], out[3])
+    return tuple(out)
+
+
+def grouped_x(ops: Ops, buf: GroupedBuffers, bins, lin, active):
+    """X of the three channels and the bins' cos_i cos_o from the shared rows (see
+    :func:`sparse_brdf.model.layouts.grouped_layout`; its numpy twin is
+    :func:`~sparse_brdf.model.lookups.layout_eval`). Two loops, one per layout; a
+    material's data has one of them, and the other's count is 0.
+
+    slots: a chunk is one packet of table row and one of atom values, float 4 s + c of
+    both belonging to channel c (c = 3: the weight): one multiply-add sum per float.
+    union: a chunk is two packets of table row and one of atom values
+    (:func:`_union_chunk`)."""
+    n_s, n_u = buf.chunks["slots"], buf.chunks["union"]
+    pairs, gs = _grouped_rows(buf, bins, lin)
+    t_buf, v_buf = buf.tables, buf.values
+
+    def body_slots(h, acc):
+        tv = _blend(ops, t_buf, pairs, n_s, h, active)
+        vv = _blend(ops, v_buf, gs, n_s, h, active)
+        return tuple(_fma(ops, a, b, c) for a, b, c in zip(tv, vv, acc, strict=True))
+
+    def body_union(h, acc):
+        tv = (_blend(ops, t_buf, pairs, 2 * n_u, 2 * h, active)
+              + _blend(ops, t_buf, pairs, 2 * n_u, 2 * h + 1, active))
+        return _union_chunk(ops, tv, _blend(ops, v_buf, gs, n_u, h, active), acc)
+
+    zero = ops.m.Float(0.0) if ops.jit else 0.0
+    acc_s = ops.loop(n_s, body_slots, (zero,) * PACKET)
+    acc_u = ops.loop(n_u, body_union, (zero,) * SLOT)
+    sums = [sum(acc_s[c::SLOT], acc_u[c]) for c in range(SLOT)]
+    return sums[:3], sums[3]
+
+
+# ----------------------------------------------------------------- strict decoder kernel
+
+
+@dataclass
+class StrictBuffers:
+    """The strict decoder's per-material data as the kernel reads it (from a
+    :class:`sparse_brdf.model.layouts.StrictLayout`); numbers are opaque Dr.Jit scalars."""
+
+    values: object  # Float: the coefficients s of every channel's terms
+    packed: object  # UInt32: their packed atom indices and group-end flags
+    rows: object  # Float: the distinct atom rows, per channel and mode
+    channels: list  # per channel {"t": terms, "soff": first term, "roff": [row offset]}
+
+
+def upload_strict(ops: Ops, lay) -> StrictBuffers:
+    """:class:`StrictBuffers` of layout ``lay``."""
+    # a buffer is never empty (a material without coefficients): Dr.Jit refuses to trace
+    # a gather from an empty array, even one a zero-trip loop never runs
+    values = ops.floats(lay.values if len(lay.values) else [0.0])
+    packed = ops.uints(lay.packed if len(lay.packed) else [0])
+    rows = ops.floats(lay.rows if len(lay.rows) else [0.0])
+    per = [{"t": ops.u(t), "soff": ops.u(soff), "roff": [ops.u(r) for r in roff]}
+           for t, soff, roff in zip(lay.n_terms, lay.term_offsets, lay.row_offsets,
+                                    strict=True)]
+    return StrictBuffers(values, packed, rows, per)
+
+
+def strict_x(ops: Ops, buf: StrictBuffers, shape: Shape, c: int, bins, lin, active,
+             grad=None):
+    """X of channel ``c``: one loop over its terms, sorted by (c, b, a), evaluating
+    ``sum_c U3[k, c] sum_b U2[j, b] sum_a s U1[i, a]``; the partial sums are closed at
+    the flagged ends of each b-group and c-group, so U2 and U3 are read once per group
+    (numpy twin: :func:`~sparse_brdf.model.lookups.strict_eval`). At the nearest bin
+    (``bins``) or interpolated (``lin``, bins is None).
+
+    ``grad`` = (values, order): instead, the derivative carrier
+    ``sum_t (s_t - detach(s_t)) U1[i, a_t] U2[j, b_t] U3[k, c_t]``, zero in value, with
+    ``s_t = values[order[t]]`` read from the differentiable values themselves (a
+    sum-style loop, which Dr.Jit differentiates in both modes)."""
+    sp = buf.channels[c]
+    n = shape.n
+    s_buf, p_buf, r_buf = buf.values, buf.packed, buf.rows
+    soff, roff = sp["soff"], sp["roff"]
+    mask = (1 << PACK_BITS) - 1
+    zero = ops.m.Float(0.0)
+
+    if lin is None:
+        def row(mode, a, active_):
+            return ops.gather(r_buf, roff[mode] + a * n[mode] + bins[mode], active_)
+    else:
+        def row(mode, a, active_):
+            i0, i1, w = lin[mode]
+            base = roff[mode] + a * n[mode]
+            return ((1.0 - w) * ops.gather(r_buf, base + i0, active_)
+                    + w * ops.gather(r_buf, base + i1, active_))
+
+    def body(t, state):
+        acc, acc_c, acc_b = state
+        p = ops.gather_u(p_buf, soff + t, active)
+        s = ops.gather(s_buf, soff + t, active)
+        end_b = (p & END_B) != 0
+        end_c = (p & END_C) != 0
+        acc_b = acc_b + s * row(0, p & mask, active)
+        # close the (c, b) group: multiply by U2[j, b] (read only at group ends)
+        u2 = row(1, (p >> PACK_BITS) & mask, active & end_b)
+        acc_c = dr.select(end_b, acc_c + acc_b * u2, acc_c)
+        acc_b = dr.select(end_b, zero, acc_b)
+        # close the c group: multiply by U3[k, c]
+        u3 = row(2, (p >> (2 * PACK_BITS)) & mask, active & end_c)
+        acc = dr.select(end_c, acc + acc_c * u3, acc)
+        acc_c = dr.select(end_c, zero, acc_c)
+        return acc, acc_c, acc_b
+
+    def body_grad(t, state):
+        values, order = grad
+        p = ops.gather_u(p_buf, soff + t, active)
+        s = ops.gather(values, ops.gather_u(order, t, active), active)
+        term = ((s - dr.detach(s)) * row(0, p & mask, active)
+                * row(1, (p >> PACK_BITS) & mask, active)
+                * row(2, (p >> (2 * PACK_BITS)) & mask, active))
+        return (state[0] + term,)
+
+    if grad is not None:
+        return ops.loop(sp["t"], body_grad, (zero,), sum_style=True)[0]
+    return ops.loop(sp["t"], body, (zero, zero, zero))[0]

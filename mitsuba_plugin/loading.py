@@ -1,0 +1,125 @@
+"""What the plugins read: their scene properties, their files, and the ensemble cache.
+
+Every property a BSDF knows is read with its default (Mitsuba rejects a scene whose
+properties are left unread), names are checked against their declared choices, and a
+file or ensemble that cannot be loaded fails at scene load with one
+:class:`~sparse_brdf.errors.PluginError` naming the plugin and the file. Ensembles are
+cached (one in memory at a time), so the scenes of a render or a fit share one.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from pathlib import Path
+
+from sparse_brdf.errors import PluginError
+from sparse_brdf.model.ensemble import resolve_ensemble
+from sparse_brdf.model.sbrdf import decode_file, load_sbrdf
+from sparse_brdf.sources.load import load_brdf
+
+_ENSEMBLES: dict = {}
+_ENSEMBLE_LOCK = threading.Lock()
+
+
+def load_ensemble(path: str | None, for_id: str | None = None):
+    """The ensemble at ``path`` (None: the shipped one with id ``for_id``, or the shipped
+    default), cached by path, size and mtime."""
+    if path is None:
+        key = ("<shipped>", for_id)
+    else:
+        st = os.stat(path)
+        key = (os.path.realpath(path), st.st_size, st.st_mtime_ns)
+    with _ENSEMBLE_LOCK:
+        ens = _ENSEMBLES.get(key)
+        if ens is None:
+            ens = resolve_ensemble(path, for_id=for_id)
+            _ENSEMBLES.clear()  # keep one ensemble in memory
+            _ENSEMBLES[key] = ens
+    return ens
+
+
+def resolve_file(filename: str) -> str:
+    """Resolve a scene-relative file name with Mitsuba's file resolver."""
+    if filename.startswith("mitsuba:"):
+        return filename
+    import mitsuba as mi  # lazy: `import mitsuba_plugin` does not load Mitsuba
+
+    try:
+        return str(mi.file_resolver().resolve(filename))
+    except Exception:  # noqa: BLE001 - fall back to the name as given
+        return filename
+
+
+#: The default of a property a scene must set (:func:`read_props`).
+REQUIRED = object()
+
+
+def read_props(props, plugin: str, spec: dict) -> dict:
+    """Read every known property (Mitsuba rejects unread ones) with its default."""
+    out = {}
+    for name, default in spec.items():
+        if name in props:
+            out[name] = props.get(name)
+        elif default is REQUIRED:
+            raise PluginError(f"{plugin}: the parameter {name!r} is required")
+        else:
+            out[name] = default
+    return out
+
+
+
+def bool_prop(v, plugin: str, name: str) -> bool:
+    """Property ``name`` of ``plugin`` as a boolean (a bool, or true/false, 1/0, yes/no,
+    on/off in any case); anything else: a :class:`PluginError` naming it."""
+    if isinstance(v, bool):
+        return v
+    s = str(v).strip().lower()
+    if s in ("true", "1", "yes", "on"):
+        return True
+    if s in ("false", "0", "no", "off"):
+        return False
+    raise PluginError(f"{plugin}: {name}={v!r} is not a boolean")
+
+
+def choice_prop(v, allowed, plugin: str, name: str) -> str:
+    """Property ``name`` of ``plugin`` as one of ``allowed``; anything else: a
+    :class:`PluginError` naming it and the choices."""
+    s = str(v)
+    if s not in allowed:
+        raise PluginError(f"{plugin}: {name}={s!r}: expected one of {', '.join(allowed)}")
+    return s
+
+
+def load_table(filename: str, ensemble, plugin: str):
+    """The :class:`~sparse_brdf.brdf.BRDF` in ``filename`` (a ``.sbrdf`` file decoded with
+    the ``ensemble`` path if given); a :class:`PluginError` naming the plugin and file."""
+    try:
+        if ensemble is not None and Path(filename).suffix.lower() == ".sbrdf":
+            return decode_file(filename, load_ensemble(resolve_file(str(ensemble))))
+        return load_brdf(filename)
+    except Exception as exc:  # noqa: BLE001 - re-raised with the plugin and file named
+        raise PluginError(f"{plugin}: cannot load {filename!r}: {exc}") from exc
+
+
+def load_model(filename: str, ens_path: str | None, plugin: str):
+    """(model, ensemble) of the ``.sbrdf`` file ``filename``, checked against each other:
+    the ensemble at ``ens_path`` or the shipped one the file names; any failure: a
+    :class:`PluginError` naming the plugin and the file."""
+    try:
+        model = load_sbrdf(filename)
+    except Exception as exc:  # noqa: BLE001
+        raise PluginError(f"{plugin}: cannot load {filename!r}: {exc}") from exc
+    try:
+        ens = load_ensemble(ens_path, model.ensemble_id)
+    except Exception as exc:  # noqa: BLE001
+        what = "the shipped ensemble" if ens_path is None else repr(ens_path)
+        raise PluginError(f"{plugin}: cannot load {what} for {filename!r}: {exc}") from exc
+    try:
+        model.check_ensemble(ens)
+    except Exception as exc:  # noqa: BLE001
+        raise PluginError(f"{plugin}: cannot load {filename!r}: {exc}") from exc
+    if tuple(model.shape) != tuple(ens.shape):
+        raise PluginError(f"{plugin}: {filename!r} has grid {model.shape}, its ensemble "
+                          f"{ens.shape}")
+    return model, ens
