@@ -20,6 +20,7 @@ from ._options import add_where, default_of
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
+    """``bench``: a config checked in full, then run (or only checked, ``--check``)."""
     if args.config is not None and config_kind(args.config) == ACQUISITION:
         return _bench_acquisition(args)
     cfg = BenchConfig.load(args.config)
@@ -51,6 +52,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def cmd_bench_merge(args: argparse.Namespace) -> int:
+    """``bench-merge``: several results files ranked in one table."""
     merged = merge_results(args.results, by=args.by)
     paths = write_ranking(merged, args.output)
     print(f"ranked {len(merged['rows'])} models of {len(args.results)} results files: wrote "
@@ -59,6 +61,7 @@ def cmd_bench_merge(args: argparse.Namespace) -> int:
 
 
 def _bench_acquisition(args: argparse.Namespace) -> int:
+    """``bench`` of an acquisition config: the options it takes, checked, then run."""
     cfg = AcquisitionConfig.load(args.config)
     if args.out:
         cfg.out = args.out

@@ -43,6 +43,7 @@ from ._options import (
 
 
 def cmd_encode(args: argparse.Namespace) -> int:
+    """``encode``: one material to a ``.sbrdf`` file, or a batch into a folder."""
     t0 = time.perf_counter()
     options = {"max_error": args.max_error, "transform": args.transform,
                "fill_iters": args.fill_iters, "budget": args.budget,
@@ -114,6 +115,7 @@ class _Given(argparse.Action):
 
 
 def cmd_decode(args: argparse.Namespace) -> int:
+    """``decode``: a ``.sbrdf`` file to a MERL ``.binary`` file."""
     check_outputs([(args.output, MERL, "-o")], [args.source, args.ensemble])
     try:
         brdf = decode_file(args.source, args.ensemble)
@@ -125,6 +127,7 @@ def cmd_decode(args: argparse.Namespace) -> int:
 
 
 def cmd_blend(args: argparse.Namespace) -> int:
+    """``blend``: two ``.sbrdf`` files of one ensemble and transform, interpolated."""
     check_outputs([(args.output, SBRDF, "-o")], [args.a, args.b, args.ensemble])
     try:  # the shipped ensemble A names, unless one is given
         ens = resolve_ensemble(args.ensemble, for_id=load_sbrdf(args.a).ensemble_id)

@@ -15,6 +15,7 @@ from ._options import MERL, add_source_help, add_symmetrize, check_outputs
 
 
 def cmd_corpus_list(args: argparse.Namespace) -> int:
+    """``corpus list``: the corpora, or one corpus's materials and split."""
     if args.corpus:
         c = get_corpus(args.corpus)
         test = {m.name for m in c.split("test")}
@@ -28,6 +29,7 @@ def cmd_corpus_list(args: argparse.Namespace) -> int:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
+    """``info``: a material's shape, valid bins, value range and albedo."""
     info = load_brdf(args.source, symmetrize=args.symmetrize).summary()
     if args.json:
         print(json.dumps(info, indent=2))
@@ -42,6 +44,7 @@ def cmd_info(args: argparse.Namespace) -> int:
 
 
 def cmd_convert(args: argparse.Namespace) -> int:
+    """``convert``: any BRDF source tabulated into a MERL ``.binary`` file."""
     out = Path(args.output)
     check_outputs([(out, MERL, "output")], [args.source])
     write_merl(out, load_brdf(args.source, symmetrize=args.symmetrize))

@@ -21,6 +21,7 @@ from ._options import RENDER, SBRDF, check_outputs, default_of, typed
 
 
 def cmd_fit_scene(args: argparse.Namespace) -> int:
+    """``fit-scene``: each material's fewest coefficients for a target SNR."""
     if Path(args.output).exists() and not Path(args.output).is_dir():
         raise OutputError(f"-o {args.output}: fit-scene writes a folder (a .sbrdf per "
                           "material and fit-scene.md), not a file")
@@ -36,6 +37,7 @@ def cmd_fit_scene(args: argparse.Namespace) -> int:
 
 
 def cmd_fit_images(args: argparse.Namespace) -> int:
+    """``fit-images``: a ``.sbrdf``'s values fitted to reference images."""
     scene = find_scene(args.scene)
     validation = args.validation_view or []
     paths = [*(fit_images_module.parse_view(v)[0] for v in args.view),
@@ -64,6 +66,7 @@ def cmd_fit_images(args: argparse.Namespace) -> int:
 
 
 def add_fit_scene(sub) -> None:
+    """``fit-scene``."""
     fs = sub.add_parser("fit-scene", help="give each material of a scene the fewest "
                                           "coefficients that reach a target rendering SNR "
                                           "in that scene")
@@ -95,6 +98,7 @@ def add_fit_scene(sub) -> None:
 
 
 def add_fit_images(sub) -> None:
+    """``fit-images``."""
     fi = sub.add_parser(
         "fit-images",
         help="fit a .sbrdf's coefficient values to reference images (inverse rendering)",

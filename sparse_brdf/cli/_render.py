@@ -33,6 +33,7 @@ from ._options import IMAGE, MASK, RENDER, check_outputs, default_of, typed
 
 
 def cmd_render(args: argparse.Namespace) -> int:
+    """``render``: a scene with materials replaced, and its object mask on request."""
     opts = {"decoder": args.decoder}
     if args.ensemble:
         opts["ensemble"] = args.ensemble
@@ -79,6 +80,7 @@ def _read_image(path: str, like: tuple[str, object] | None = None):
 
 
 def cmd_snr(args: argparse.Namespace) -> int:
+    """``snr``: the rendering SNR in both forms, HDR-FLIP and the noise floor."""
     ref = _read_image(args.reference)
     img = _read_image(args.image, (args.reference, ref))
     ref2 = _read_image(args.reference2, (args.reference, ref)) if args.reference2 else None
@@ -141,6 +143,7 @@ def _object_materials(scene: Path, given: list[str]) -> list[str]:
 
 
 def add_render(sub) -> None:
+    """``render``."""
     r = sub.add_parser(
         "render", help="render a Mitsuba scene with materials overridden",
         description="Render any Mitsuba 3 scene file with some of its BSDFs (by id) replaced "
@@ -200,6 +203,7 @@ def add_render(sub) -> None:
 
 
 def add_snr(sub) -> None:
+    """``snr``."""
     n = sub.add_parser(
         "snr", help="rendering SNR (dB) of an image against a reference, in both forms",
         description="Rendering SNR 10 log10(sum ref^2 / sum (ref - img)^2) in two forms: "

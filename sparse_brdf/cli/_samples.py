@@ -24,6 +24,7 @@ from ._options import SAMPLES_FILE, SBRDF, check_outputs, default_of, typed
 
 
 def cmd_encode_samples(args: argparse.Namespace) -> int:
+    """``encode-samples``: measured samples to a ``.sbrdf`` file."""
     t0 = time.perf_counter()
     check_outputs([(args.output, SBRDF, "-o")], [args.samples, args.ensemble])
     samples = read_samples(args.samples)
@@ -42,6 +43,7 @@ def cmd_encode_samples(args: argparse.Namespace) -> int:
 
 
 def cmd_plan_samples(args: argparse.Namespace) -> int:
+    """``plan-samples``: direction pairs to measure, as a samples file."""
     check_outputs([(args.output, SAMPLES_FILE, "-o")], [])
     path = plan_samples_file(args.output, args.n, args.placement, args.seed)
     print(f"wrote {path}: {args.n} direction pairs ({args.placement}); measure them and "

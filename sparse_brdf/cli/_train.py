@@ -26,6 +26,7 @@ from ._options import (
 
 
 def cmd_train(args: argparse.Namespace) -> int:
+    """``train``: an ensemble trained on corpora, saved as ``.npz``."""
     materials = []
     for name in args.corpus:
         materials += get_corpus(name).split(args.split)
@@ -65,6 +66,7 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def add_train(sub) -> None:
+    """``train``."""
     t = sub.add_parser("train", help="train a dictionary ensemble (docs/method.md, Training)")
     t.add_argument("--corpus", nargs="+", default=list(TRAINING_CORPORA),
                    help="corpora to train on (names or folders)")
