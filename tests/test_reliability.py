@@ -529,12 +529,12 @@ def test_errors_form_one_hierarchy():
 
 
 def test_an_internal_error_says_it_is_a_bug(capsys, monkeypatch, tmp_path):
-    import sparse_brdf.cli as cli
+    from sparse_brdf.cli import _data  # where `info` looks its reader up
 
     def broken(*args, **kwargs):
         return np.zeros(3).reshape(2, 2)  # a genuine numpy error, not a user's
 
-    monkeypatch.setattr(cli, "load_brdf", broken)
+    monkeypatch.setattr(_data, "load_brdf", broken)
     code, _, err = run(capsys, "info", tmp_path / "x.binary")
     assert code == EXIT_BUG and len(err.splitlines()) == 1
     assert "internal error" in err and "bug" in err and "--debug" in err
@@ -557,7 +557,7 @@ def test_debug_shows_the_traceback_of_a_user_error(capsys, tmp_path):
 
 def test_sigterm_while_writing_leaves_no_temporary(capsys, tmp_path, sbrdf, ens_file,
                                                    monkeypatch):
-    import sparse_brdf.cli as cli
+    from sparse_brdf.cli import _codec  # where `decode` looks its writer up
 
     def write_then_killed(path, brdf):
         with atomic_write(path) as f:
@@ -567,7 +567,7 @@ def test_sigterm_while_writing_leaves_no_temporary(capsys, tmp_path, sbrdf, ens_
                 f.write(b"y")
         raise AssertionError("not interrupted")
 
-    monkeypatch.setattr(cli, "write_merl", write_then_killed)
+    monkeypatch.setattr(_codec, "write_merl", write_then_killed)
     out = tmp_path / "out"
     out.mkdir()
     code, _, err = run(capsys, "decode", sbrdf, "-o", out / "x.binary", "--ensemble",
@@ -643,8 +643,9 @@ def test_render_to_a_full_disk_names_the_output(tmp_path):
         "import functools, resource, signal, sys\n"
         "import numpy as np\n"
         "import sparse_brdf.cli as cli\n"
+        "from sparse_brdf.cli import _render\n"  # where `render` looks the renderer up
         "signal.signal(signal.SIGXFSZ, signal.SIG_IGN)\n"
-        "cli.render_scene = functools.wraps(cli.render_scene)(lambda *a, **k: "
+        "_render.render_scene = functools.wraps(_render.render_scene)(lambda *a, **k: "
         "np.random.default_rng(0).random((64, 64, 3), np.float32))\n"  # ~40 kB, no Mitsuba
         "resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))\n"
         f"sys.exit(cli.main(['render', 'sphere.xml', '-o', {str(out)!r}]))\n")
@@ -747,12 +748,12 @@ def _samples_csv(path: Path, rgb) -> Path:
 def test_an_unbounded_size_is_a_usage_error_not_a_bug(tmp_path, capsys, monkeypatch):
     fails(capsys, "plan-samples", 10**15, "-o", tmp_path / "p.csv",
           names=["n", "1000000000000000"])
-    import sparse_brdf.cli as cli
+    from sparse_brdf.cli import _samples  # where `plan-samples` looks its writer up
 
     def too_big(*args, **kwargs):
         raise MemoryError
 
-    monkeypatch.setattr(cli, "plan_samples_file", too_big)
+    monkeypatch.setattr(_samples, "plan_samples_file", too_big)
     line = fails(capsys, "plan-samples", 4000000, "-o", tmp_path / "p.csv",
                  names=["not enough memory"])
     assert "internal error" not in line
@@ -809,12 +810,12 @@ def test_bench_check_refuses_budgets_and_model_lists_that_cannot_run(tmp_path, c
 
 def test_fit_images_refuses_an_unwritable_output_before_the_fit(tmp_path, capsys, sbrdf,
                                                                  monkeypatch):
-    import sparse_brdf.cli as cli
+    from sparse_brdf.cli import _fit  # where `fit-images` looks its reader up
 
     def never(*args, **kwargs):
         raise AssertionError("the fit ran before its output was checked")
 
-    monkeypatch.setattr(cli, "load_views", never)
+    monkeypatch.setattr(_fit, "load_views", never)
     blocker = tmp_path / "file"
     blocker.write_text("not a folder")
     fails(capsys, "fit-images", "sphere", "--view", tmp_path / "ref.exr", "--start", sbrdf,

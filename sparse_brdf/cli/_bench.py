@@ -1,0 +1,124 @@
+"""``bench`` and ``bench-merge``: compared models measured by a bench suite (or the
+acquisition bench), and several suites' results ranked in one table."""
+
+from __future__ import annotations
+
+import argparse
+
+from ..errors import UsageError
+from ..evaluation.acquisition_bench import KIND as ACQUISITION
+from ..evaluation.acquisition_bench import (
+    AcquisitionBench,
+    AcquisitionConfig,
+    check_acquisition_config,
+)
+from ..evaluation.bench import Bench, BenchConfig, check_config, config_kind, shipped_configs
+from ..evaluation.ranking import RANK_BY, merge_results, write_ranking
+from ..model.specs import parse_spec
+from ..parallel import executor
+from ._options import add_where, default_of
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    """``bench``: a config checked in full, then run (or only checked, ``--check``)."""
+    if args.config is not None and config_kind(args.config) == ACQUISITION:
+        return _bench_acquisition(args)
+    cfg = BenchConfig.load(args.config)
+    if args.out:
+        cfg.out = args.out
+    if args.no_render:
+        cfg.render = False
+    if args.model:
+        if not args.out:  # the config's folder holds its own models' results
+            raise UsageError(f"--model: give --out too, a folder of its own (the results of "
+                             f"{cfg.label}'s models in {cfg.out} would be replaced)")
+        for spec in args.model:
+            try:  # the grammar; check_config imports and checks each model
+                parse_spec(spec)
+            except UsageError as exc:
+                raise UsageError(f"--model: {exc}") from None
+        cfg.models = list(args.model)
+    plan = check_config(cfg)  # a config the run would refuse fails here, before any work
+    if args.check:
+        skipped = "".join(f"; skips {k}: {v}" for k, v in plan["skipped_scenes"].items())
+        print(f"{cfg.label}: ok: {plan['materials']} materials x {len(plan['models'])} "
+              f"models, {plan['training']} training materials, scenes "
+              f"{', '.join(plan['scenes']) or 'none'}{skipped}")
+        return 0
+    with executor(args.workers, args.scheduler) as ex:
+        Bench(cfg).run(ex)
+    print(f"wrote {cfg.out}/report.md, report.html, results.csv, results.json")
+    return 0
+
+
+def cmd_bench_merge(args: argparse.Namespace) -> int:
+    """``bench-merge``: several results files ranked in one table."""
+    merged = merge_results(args.results, by=args.by)
+    paths = write_ranking(merged, args.output)
+    print(f"ranked {len(merged['rows'])} models of {len(args.results)} results files: wrote "
+          f"{', '.join(str(p) for p in paths)}")
+    return 0
+
+
+def _bench_acquisition(args: argparse.Namespace) -> int:
+    """``bench`` of an acquisition config: the options it takes, checked, then run."""
+    cfg = AcquisitionConfig.load(args.config)
+    if args.out:
+        cfg.out = args.out
+    if args.model:
+        raise UsageError(f"--model: the acquisition bench ({cfg.label}) compares encodings "
+                         "from samples, the sparse model and PCA; it takes no --model")
+    if args.no_render or args.workers or args.scheduler:
+        given = "--no-render" if args.no_render else "--workers/--scheduler"
+        raise UsageError(f"{given}: the acquisition bench ({cfg.label}) renders every fit "
+                         "here; run it without that option")
+    plan = check_acquisition_config(cfg)
+    if args.check:
+        skipped = "".join(f"; skips {k}: {v}" for k, v in plan["skipped_scenes"].items())
+        print(f"{cfg.label}: ok: {plan['materials']} materials x {plan['cells']} fits, "
+              f"scenes {', '.join(plan['scenes'])}{skipped}")
+        return 0
+    AcquisitionBench(cfg).run()
+    print(f"wrote {cfg.out}/report.md, results.csv, results.json")
+    return 0
+
+
+def add_bench_commands(sub) -> None:
+    """``bench`` and ``bench-merge``."""
+    b = sub.add_parser("bench", help="compare models: tables, figures, speed-vs-accuracy chart",
+                       description="Run a bench suite: a built-in config by name ("
+                                   + ", ".join(shipped_configs()) + ") or a TOML file; "
+                                   "finished cells are skipped on a re-run. `acquisition` "
+                                   "(or a config with bench = \"acquisition\") benches "
+                                   "encoding from N measured samples, the sparse model against "
+                                   "PCA (docs/results.md); it renders every fit and takes "
+                                   "neither --no-render nor a Dask cluster.")
+    b.add_argument("config", nargs="?",
+                   help="a built-in config's name or a TOML file (default: the small suite)")
+    b.add_argument("--out", help="output folder (default: the config's)")
+    b.add_argument("--no-render", action="store_true", help="BRDF-space metrics only")
+    b.add_argument("--model", action="append", metavar="SPEC",
+                   help="compare this model instead of the config's models (repeat it for "
+                        "several): a built-in spec (sparse:262, naive, pca:40, tabulated, "
+                        "...) or module:Class[:KEY=VALUE,...], a class of your own imported "
+                        "from the Python path or the current directory "
+                        "(docs/bench-guide.md; default: the config's models)")
+    b.add_argument("--check", action="store_true",
+                   help="check the config (settings, models, corpora, training materials, "
+                        "scenes) and exit without running it")
+    add_where(b, "the cells (material x model)")
+    b.set_defaults(func=cmd_bench)
+
+    bm = sub.add_parser("bench-merge", help="rank the models of several bench results in "
+                                            "one table (Markdown and CSV)",
+                        description="Merge results.json files of benches that measured "
+                                    "the same protocol (corpora, split, scenes, spp, res, "
+                                    "seed), e.g. the standard suite's shipped models and "
+                                    "your own model's run, from any machines, into one "
+                                    "ranked table: ranking.md and ranking.csv.")
+    bm.add_argument("results", nargs="+", help="results.json files or bench output folders")
+    bm.add_argument("--by", choices=tuple(RANK_BY), default=default_of(merge_results, "by"),
+                    help="rank by the mean over the scenes of this figure (higher SNR, "
+                         "lower HDR-FLIP first)")
+    bm.add_argument("-o", "--output", required=True, help="output folder")
+    bm.set_defaults(func=cmd_bench_merge)

@@ -1,0 +1,238 @@
+"""``render`` and ``snr``: a Mitsuba scene rendered with measured materials, and the
+rendering SNR of an image against a reference in both forms, beside HDR-FLIP."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ImageFileError, UsageError
+from ..evaluation.render import (
+    SHARED_PATHS,
+    find_scene,
+    noise_floor_snr,
+    object_mask,
+    parse_defaults,
+    parse_overrides,
+    parse_scene,
+    read_exr,
+    read_mask,
+    render_scene,
+    write_image,
+    write_mask,
+)
+from ..fileio import staged
+from ..metrics import FLIP, OBJECT_ONLY, WHOLE_IMAGE, hdr_flip, snr_forms
+from ..model.layouts import DECODERS, PLUGIN_DEFAULTS, SAMPLING
+from ..params import Interval
+from ._options import IMAGE, MASK, RENDER, check_outputs, default_of, typed
+
+
+def cmd_render(args: argparse.Namespace) -> int:
+    """``render``: a scene with materials replaced, and its object mask on request."""
+    opts = {"decoder": args.decoder}
+    if args.ensemble:
+        opts["ensemble"] = args.ensemble
+    t0 = time.perf_counter()
+    scene, materials = find_scene(args.scene), parse_overrides(args.material)
+    if args.mask and not materials:
+        raise UsageError("--mask: the object is the shapes of the replaced materials; give "
+                         "--material ID=FILE")
+    check_outputs([(args.output, IMAGE, "-o"), (args.mask, MASK, "--mask")],
+                   [scene, *materials.values(), args.ensemble])
+    defines = parse_defaults(args.define, "-D")
+    img = render_scene(scene, materials, spp=args.spp, seed=args.seed, res=args.res,
+                       params=defines, sparse_options=opts, sampling=args.sampling)
+    mask = None
+    if args.mask:
+        mask = object_mask(scene, res=(img.shape[1], img.shape[0]), params=defines,
+                           materials=list(materials))
+    seconds = time.perf_counter() - t0
+    with staged([args.output, *([args.mask] if args.mask else [])]) as tmp:
+        write_image(tmp[0], img, args.exposure)
+        if mask is not None:
+            write_mask(tmp[1], mask)
+    print(f"wrote {args.output} ({img.shape[1]}x{img.shape[0]}, {args.spp} spp, "
+          f"{args.sampling} sampling, {seconds:.2f} s)")
+    if mask is not None:
+        print(f"wrote {args.mask} (object mask: pixels whose camera rays first hit a shape "
+              f"of {', '.join(materials)}; {int(mask.sum())} of {mask.size})")
+    return 0
+
+
+def _read_image(path: str, like: tuple[str, object] | None = None):
+    """An EXR image that is finite, and (``like``: (path, image)) of that image's size."""
+    if Path(path).suffix.lower() in (".png", ".jpg", ".jpeg"):
+        raise ImageFileError(f"{path}: a tone-mapped preview; the SNR and HDR-FLIP compare "
+                             "linear images: give the .exr that `render -o NAME.exr` writes")
+    img = read_exr(path)
+    bad = int(np.size(img) - np.count_nonzero(np.isfinite(img)))
+    if bad:
+        raise ImageFileError(f"{path}: the image holds {bad} NaN or inf pixel values")
+    if like is not None and img.shape != like[1].shape:
+        raise ImageFileError(f"{path}: {img.shape[1]}x{img.shape[0]}, but {like[0]} is "
+                             f"{like[1].shape[1]}x{like[1].shape[0]}")
+    return img
+
+
+def cmd_snr(args: argparse.Namespace) -> int:
+    """``snr``: the rendering SNR in both forms, HDR-FLIP and the noise floor."""
+    ref = _read_image(args.reference)
+    img = _read_image(args.image, (args.reference, ref))
+    ref2 = _read_image(args.reference2, (args.reference, ref)) if args.reference2 else None
+    mask, why = None, None
+    if args.mask:
+        mask = read_mask(args.mask)
+    elif args.scene:
+        scene = find_scene(args.scene)
+        mask = object_mask(scene, res=(ref.shape[1], ref.shape[0]),
+                           materials=_object_materials(scene, args.material))
+    else:
+        why = ("object-only not computed: give --scene SCENE (with --material ID) or --mask "
+               "FILE to tell which pixels are the object")
+    if mask is not None and mask.shape != ref.shape[:2]:
+        raise ImageFileError(f"{args.mask or args.scene}: mask is {mask.shape[1]}x"
+                             f"{mask.shape[0]}, the images {ref.shape[1]}x{ref.shape[0]}")
+    if mask is not None and not mask.any():
+        raise ImageFileError(f"{args.mask or args.scene}: the mask selects no pixel")
+    whole = np.ones(ref.shape[:2], bool)
+    snr = snr_forms(ref, img, whole if mask is None else mask)
+    flip = hdr_flip(ref, img, mask).mean  # over the object's pixels; without a mask, all
+    floor = None
+    if ref2 is not None:
+        floor = noise_floor_snr(ref, ref2, whole if mask is None else mask)
+    if args.json:
+        out = {"snr_whole_db": snr.whole,
+               "snr_object_db": None if mask is None else snr.object,
+               "flip_object": None if mask is None else flip,
+               "object_pixels": None if mask is None else int(mask.sum()),
+               "pixels": int(ref.shape[0] * ref.shape[1])}
+        if mask is None:
+            out["flip_whole"] = flip
+        if why:
+            out["object_missing"] = why
+        if floor is not None:
+            out.update(noise_floor_whole_db=floor.whole,
+                       noise_floor_object_db=None if mask is None else floor.object)
+        print(json.dumps(out))
+    elif mask is None:
+        print(f"{WHOLE_IMAGE} {snr.whole:.2f} dB, {FLIP} {flip:.4f} ({WHOLE_IMAGE} mean)"
+              + (f" (noise floor: {WHOLE_IMAGE} {floor.whole:.2f} dB)" if floor else "")
+              + f"; {why}")
+    else:
+        print(f"{snr}, {FLIP} {flip:.4f} ({OBJECT_ONLY} mean)"
+              + (f" (noise floor: {floor})" if floor is not None else ""))
+    return 0
+
+
+def _object_materials(scene: Path, given: list[str]) -> list[str]:
+    """The BSDF ids whose shapes are the object of ``snr --scene``: ``--material`` (IDs,
+    or ID=FILE as render takes them), else the shipped scenes' ``material``."""
+    if given:
+        return [g.partition("=")[0].strip() for g in given]
+    ids = {e.get("id") for e in parse_scene(scene).getroot().iter("bsdf") if e.get("id")}
+    if "material" in ids:
+        return ["material"]
+    raise UsageError(f"--scene {scene}: give --material ID, the id of the BSDF the images "
+                     f"replaced, whose shapes are the object (the scene's BSDF ids: "
+                     f"{', '.join(sorted(ids)) or 'none'})")
+
+
+def add_render(sub) -> None:
+    """``render``."""
+    r = sub.add_parser(
+        "render", help="render a Mitsuba scene with materials overridden",
+        description="Render any Mitsuba 3 scene file with some of its BSDFs (by id) replaced "
+                    "by measured materials. spp, seed and the resolution fill the scene's "
+                    "$spp, $seed and $res where it declares them, and are set on its "
+                    "sampler and film otherwise; a scene's other parameters are set with -D.",
+        epilog="examples:\n  sparse-brdf convert mitsuba:au-ggx-0.08 gold.binary\n"
+               "  sparse-brdf encode gold.binary -o gold.sbrdf\n"
+               "  sparse-brdf render sphere -o ref.exr --material material=gold.binary "
+               f"--sampling {SHARED_PATHS}\n"
+               "  sparse-brdf render sphere -o model.exr --material material=gold.sbrdf "
+               f"--sampling {SHARED_PATHS} --mask mask.exr\n"
+               "  sparse-brdf snr ref.exr model.exr --mask mask.exr\n"
+               "  sparse-brdf render sphere -o look.png --material material=gold.sbrdf "
+               "--exposure 1")
+    r.add_argument("scene", help="scene XML: any Mitsuba 3 scene file, or the name of a "
+                                 "shipped scene (sphere, spheres, sphere_light, paper_sphere)")
+    r.add_argument("-o", "--output", required=True,
+                   help="output image: .exr (linear HDR, float32) or .png/.jpg (an 8-bit "
+                        "sRGB preview, see --exposure)")
+    r.add_argument("--material", action="append", default=[], metavar="ID=FILE",
+                   help="replace BSDF ID: a .sbrdf selects sparse_brdf, any other BRDF "
+                        "source tabulated_brdf (repeatable; default: none, the scene as it "
+                        "is)")
+    r.add_argument("-D", "--define", action="append", default=[], metavar="KEY=VALUE",
+                   help="set a parameter the scene declares, e.g. -D envrot=90 (repeatable; "
+                        "default: the scene's values)")
+    r.add_argument("--spp", type=typed(RENDER["spp"]), default=default_of(render_scene, "spp"),
+                   help="samples per pixel")
+    r.add_argument("--seed", type=typed(RENDER["seed"]), default=default_of(render_scene, "seed"),
+                   help="the sampler's seed: the same seed and spp give the same image")
+    r.add_argument("--res", type=typed(RENDER["res"]), default=default_of(render_scene, "res"),
+                   help="the film's longer side in pixels, its aspect ratio kept (the "
+                        "scene's $res where it declares one; default: the scene's film)")
+    r.add_argument("--exposure", type=typed(Interval(float, -64.0, 64.0)), default=0.0,
+                   metavar="STOPS",
+                   help="a .png/.jpg preview's exposure: values times 2^STOPS before the "
+                        "sRGB curve (an .exr is written as rendered)")
+    r.add_argument("--sampling", default=PLUGIN_DEFAULTS["sampling"], choices=SAMPLING,
+                   help="BSDF sampling of the replaced materials: lobe (the plugins' "
+                        "default) follows each material's highlight, the lower noise for "
+                        f"looking at an image; {SHARED_PATHS} gives every material the same "
+                        "sample paths for one seed and spp, so renders to compare (snr) "
+                        "share their noise")
+    r.add_argument("--decoder", default=PLUGIN_DEFAULTS["decoder"], choices=DECODERS,
+                   help="how the sparse_brdf plugin evaluates .sbrdf materials: grouped "
+                        "tables (fastest), strict (a loop over the terms: least memory), or "
+                        "auto: grouped "
+                        "unless its tables would be too large")
+    r.add_argument("--ensemble", help="ensemble .npz for .sbrdf materials "
+                   "(default: the shipped one each file names)")
+    r.add_argument("--mask", metavar="MASK.exr",
+                   help="also write the object mask (.exr or .npy; 1 where camera rays first "
+                        "hit a shape of a replaced material), for `sparse-brdf snr --mask` "
+                        "(default: none)")
+    r.set_defaults(func=cmd_render)
+
+
+def add_snr(sub) -> None:
+    """``snr``."""
+    n = sub.add_parser(
+        "snr", help="rendering SNR (dB) of an image against a reference, in both forms",
+        description="Rendering SNR 10 log10(sum ref^2 / sum (ref - img)^2) in two forms: "
+                    "whole-image (every pixel, background included: the paper's form) and "
+                    "object-only (the pixels whose camera rays first hit a shape carrying a "
+                    "replaced material; the strict form). The object pixels come from the "
+                    "scene (--scene, traced at the images' size) or from a mask file (--mask, "
+                    "e.g. written by `sparse-brdf render --mask`); without either, only the "
+                    "whole-image form is printed. Beside them it prints HDR-FLIP, the "
+                    "perceptual difference of the two HDR images (0 = identical, 1 = most "
+                    "different; a 10 % brightness change scores about 0.1), averaged over "
+                    "the object's pixels (every pixel without a mask).",
+        epilog="example:\n  sparse-brdf snr ref.exr model.exr --scene sphere "
+               "--reference2 ref-seed1.exr",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    n.add_argument("reference", help="reference EXR")
+    n.add_argument("image", help="image EXR")
+    where = n.add_mutually_exclusive_group()
+    where.add_argument("--scene", help="the scene the images were rendered from (a path or a "
+                                       "shipped scene name): its object mask is traced at "
+                                       "the images' size (default: none)")
+    where.add_argument("--mask", help="object mask: an EXR (nonzero = object) or a .npy of "
+                                      "booleans, the images' size (default: none; without "
+                                      "--scene or --mask only the whole-image SNR is printed)")
+    n.add_argument("--material", action="append", default=[], metavar="ID",
+                   help="with --scene: the id of a BSDF the images replaced; the shapes "
+                        "carrying it are the object (repeatable; default: the shipped "
+                        "scenes' material)")
+    n.add_argument("--reference2", help="a second reference (other seed): prints the noise "
+                                        "floor beside the SNR (default: none)")
+    n.add_argument("--json", action="store_true", help="print JSON")
+    n.set_defaults(func=cmd_snr)
