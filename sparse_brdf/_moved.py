@@ -7,6 +7,11 @@ on ``sys.meta_path`` (installed by ``sparse_brdf/__init__.py``) answers an old n
 the new module object itself, so ``import sparse_brdf.model.encode`` and
 ``from sparse_brdf.model import encode`` give the same module (and the same functions) as
 ``sparse_brdf.coding.encode``. Each old name warns once, on its first import.
+
+Names that left a module that stays (the encoder's search for ``coding/projection.py``,
+the render helpers' scenes and images for ``evaluation/scenes.py`` and ``images.py``, ...)
+are answered the same way by that module's ``__getattr__`` (:data:`MOVED_NAMES`,
+:func:`moved_names`).
 """
 
 from __future__ import annotations
@@ -55,6 +60,17 @@ MOVED: dict[str, str] = {
 }
 #: Old packages that no longer exist: answered by an empty package.
 OLD_PACKAGES = ("sparse_brdf.model",)
+#: Modules that stay, some of whose names moved to modules of their own: module -> where
+#: the names went (each of these modules sets ``__getattr__ = moved_names(__name__)``).
+MOVED_NAMES: dict[str, tuple[str, ...]] = {
+    "sparse_brdf.coding.encode": ("sparse_brdf.coding.projection", "sparse_brdf.coding.fill"),
+    "sparse_brdf.training.train": ("sparse_brdf.training._codes",),
+    "sparse_brdf.decoders.layouts": ("sparse_brdf.decoders.buffers",),
+    "sparse_brdf.evaluation.render": ("sparse_brdf.evaluation.scenes",
+                                      "sparse_brdf.evaluation.images"),
+    "sparse_brdf.evaluation.bench": ("sparse_brdf.evaluation.bench_config",),
+    "sparse_brdf.fitting.fit_images": ("sparse_brdf.fitting._steps",),
+}
 
 
 def _importer() -> tuple[str, int, str, dict]:
@@ -77,6 +93,23 @@ def _warn(old: str, new: str | None) -> None:
     warnings.warn_explicit(f"{old} is deprecated and will be removed in the next release{where}",
                            DeprecationWarning, filename, lineno, module=module,
                            registry=g.setdefault("__warningregistry__", {}) if g else None)
+
+
+def moved_names(module: str):
+    """The ``__getattr__`` of ``module``, some of whose names moved (:data:`MOVED_NAMES`):
+    a name it no longer holds is looked up where its names went, in turn (the same
+    object), with a :class:`DeprecationWarning` naming where it is now."""
+
+    def __getattr__(name: str):
+        if not name.startswith("__"):
+            for home in MOVED_NAMES[module]:
+                found = vars(importlib.import_module(home))
+                if name in found:
+                    _warn(f"{module}.{name}", f"{home}.{name}")
+                    return found[name]
+        raise AttributeError(f"module {module!r} has no attribute {name!r}")
+
+    return __getattr__
 
 
 class _Alias(importlib.abc.MetaPathFinder, importlib.abc.Loader):

@@ -11,7 +11,7 @@ import warnings
 import pytest
 
 import sparse_brdf
-from sparse_brdf._moved import MOVED, OLD_PACKAGES
+from sparse_brdf._moved import MOVED, MOVED_NAMES, OLD_PACKAGES
 
 
 def _fresh(monkeypatch, *names):
@@ -74,6 +74,38 @@ def test_new_paths_and_the_package_import_without_warnings():
             "sparse_brdf.compared, sparse_brdf.decoders, sparse_brdf.fitting.fit_scene")
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert run.returncode == 0, run.stderr[-2000:]
+
+
+def _a_moved_name(module, home):
+    """A name defined in ``home`` that ``module`` does not hold itself."""
+    own = vars(module)
+    return next(n for n, v in vars(home).items() if not n.startswith("__") and n not in own
+                and getattr(v, "__module__", home.__name__) == home.__name__
+                and not isinstance(v, type(sys)))
+
+
+@pytest.mark.parametrize("name", sorted(MOVED_NAMES))
+def test_a_name_that_moved_out_of_a_module_still_imports_from_it(name):
+    module = importlib.import_module(name)
+    for home_name in MOVED_NAMES[name]:
+        home = importlib.import_module(home_name)
+        moved = _a_moved_name(module, home)
+        with pytest.warns(DeprecationWarning, match=f"{name}.{moved} is deprecated.*{home_name}"):
+            assert getattr(module, moved) is getattr(home, moved)
+    with pytest.raises(AttributeError, match="no_such_name"):
+        module.no_such_name  # noqa: B018
+
+
+def test_the_command_lines_imports_from_render_and_bench_still_work():
+    with pytest.warns(DeprecationWarning, match="sparse_brdf.evaluation.images.read_exr"):
+        from sparse_brdf.evaluation.render import read_exr
+    with pytest.warns(DeprecationWarning, match="bench_config.check_config"):
+        from sparse_brdf.evaluation.bench import BenchConfig, check_config
+    from sparse_brdf.evaluation import bench_config
+    from sparse_brdf.evaluation.images import read_exr as new_read
+
+    assert read_exr is new_read and check_config is bench_config.check_config
+    assert BenchConfig is bench_config.BenchConfig  # used by bench itself: no warning
 
 
 def test_an_unknown_old_name_is_still_an_import_error():

@@ -58,21 +58,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._moved import moved_names
 from ..coords import bin_angles
 from ..params import check_choice
-
-# angle_tables, colour_mix, float_buffer, read_rgb2spec_table and uint_buffer: the plugin
-# imported them from here before the buffers had their own module; still importable from
-# here for one release.
-from .buffers import (  # noqa: F401
-    angle_tables,
-    bin_weight,
-    colour_mix,
-    float_buffer,
-    mix_channels,
-    read_rgb2spec_table,
-    uint_buffer,
-)
+from .buffers import bin_weight, mix_channels
 
 #: The ``sparse_brdf`` plugin's decoders ("auto": :func:`choose_decoder` picks one).
 DECODERS = ("grouped", "strict", "auto")
@@ -594,3 +583,8 @@ def term_values(arrays, n_terms) -> list[np.ndarray]:
             raise ValueError(f"values_{c} holds NaN or inf values")
         out.append(a)
     return out
+
+
+# Names that moved to modules of their own (sparse_brdf._moved.MOVED_NAMES) still import
+# from here for one release, with a DeprecationWarning.
+__getattr__ = moved_names(__name__)

@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._moved import moved_names
 from ..decoders.layouts import LOBES
 from ..errors import (
     RenderError,
@@ -39,27 +40,13 @@ from ..fileio import require_file
 from ..metrics import SNRForms, snr_forms
 from ..mitsuba_env import DEFAULT_VARIANT, set_variant
 from ..params import check, check_choice
-
-# IMAGE_SUFFIXES, MASK_SUFFIXES, read_exr, read_mask, write_image, write_mask,
-# parse_defaults and parse_overrides: the command line imported them from here before
-# images and scenes had their own modules; still importable from here for one release.
-from .images import (  # noqa: F401
-    IMAGE_SUFFIXES,
-    MASK_SUFFIXES,
-    read_exr,
-    read_mask,
-    write_image,
-    write_mask,
-)
-from .scenes import (  # noqa: F401
+from .scenes import (
     RENDER_PARAMETERS,
     cause_message,
     check_scene_data,
     declared_defaults,
     element_ids,
     find_scene,
-    parse_defaults,
-    parse_overrides,
     parse_scene,
     replaced_materials,
     scene_dir_resolver,
@@ -399,3 +386,8 @@ def noise_floor_snr(reference: np.ndarray, reference2: np.ndarray,
     in their seed: the SNR (dB, both forms) of one against the other. ``mask``: the
     object pixels (see :func:`object_mask`)."""
     return snr_forms(reference, reference2, mask)
+
+
+# Names that moved to modules of their own (sparse_brdf._moved.MOVED_NAMES) still import
+# from here for one release, with a DeprecationWarning.
+__getattr__ = moved_names(__name__)
