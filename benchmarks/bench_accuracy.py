@@ -17,11 +17,11 @@ from pathlib import Path
 import numpy as np
 from harness import header, machine, parser
 
-from sparse_brdf.model.encode import encode, error_curve
-from sparse_brdf.model.ensemble import Ensemble
-from sparse_brdf.model.train import hosvd_ensemble
+from sparse_brdf.coding.encode import encode, error_curve
+from sparse_brdf.coding.ensemble import Ensemble
 from sparse_brdf.sources.corpora import get_corpus
 from sparse_brdf.sources.dataset import training_tensors
+from sparse_brdf.training.train import hosvd_ensemble
 from sparse_brdf.transforms import TRANSFORMS
 
 

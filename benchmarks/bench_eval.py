@@ -32,11 +32,11 @@ import warnings
 import numpy as np
 from harness import header, machine, parser, write_json
 
+from sparse_brdf.coding.ensemble import Ensemble
+from sparse_brdf.compared.baselines import PCAModel, TabulatedModel
+from sparse_brdf.compared.sparse_model import SparseModel
+from sparse_brdf.compared.specs import make_model
 from sparse_brdf.evaluation.speed import evals_per_second
-from sparse_brdf.model.baselines import PCAModel, TabulatedModel
-from sparse_brdf.model.ensemble import Ensemble
-from sparse_brdf.model.sparse_model import SparseModel
-from sparse_brdf.model.specs import make_model
 from sparse_brdf.paths import shared_data_dir
 from sparse_brdf.sources.corpora import get_corpus
 from sparse_brdf.sources.load import load_brdf

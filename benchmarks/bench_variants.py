@@ -36,9 +36,9 @@ if "--plugin-root" in sys.argv:  # another checkout's plugin and library, before
 
 from render_timing import default_material, scene_args, swap_material  # noqa: E402
 
+from sparse_brdf.coding.encode import encode  # noqa: E402
+from sparse_brdf.coding.fileformat import save_sbrdf  # noqa: E402
 from sparse_brdf.mitsuba_env import set_variant  # noqa: E402
-from sparse_brdf.model.encode import encode  # noqa: E402
-from sparse_brdf.model.sbrdf import save_sbrdf  # noqa: E402
 from sparse_brdf.paths import SCENES_DIR  # noqa: E402
 from sparse_brdf.sources.load import load_brdf  # noqa: E402
 

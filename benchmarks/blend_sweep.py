@@ -16,11 +16,11 @@ from pathlib import Path
 import numpy as np
 from harness import parser
 
+from sparse_brdf.coding.encode import encode
+from sparse_brdf.coding.ensemble import Ensemble
+from sparse_brdf.coding.fileformat import save_sbrdf
+from sparse_brdf.coding.interpolate import interpolate
 from sparse_brdf.evaluation.render import render_scene
-from sparse_brdf.model.encode import encode
-from sparse_brdf.model.ensemble import Ensemble
-from sparse_brdf.model.interpolate import interpolate
-from sparse_brdf.model.sbrdf import save_sbrdf
 from sparse_brdf.paths import SCENES_DIR
 from sparse_brdf.sources.load import load_brdf
 

@@ -21,8 +21,8 @@ import numpy as np
 from harness import header, parser, write_json
 
 from sparse_brdf import Ensemble, cosine_weighted_snr, get_corpus
+from sparse_brdf.coding import budget
 from sparse_brdf.metrics import make_render_proxy, render_proxy_error
-from sparse_brdf.model import budget
 
 
 def _score(brdf, model, ens, kernel) -> dict:

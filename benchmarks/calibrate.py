@@ -6,7 +6,7 @@
 Takes the median of (object-only rendering SNR in SCENE - cosine-weighted SNR) over the
 finished sparse-model cells of a bench (or of the models named) and writes it, with its
 provenance, to sparse_brdf/data/snr_calibration.json (read by
-sparse_brdf.evaluation.fit_scene, which targets the object-only SNR).
+sparse_brdf.fitting.fit_scene, which targets the object-only SNR).
 """
 
 from __future__ import annotations

@@ -39,16 +39,11 @@ import numpy as np
 from harness import header, parser, write_json
 
 from sparse_brdf import decode_file, encode, load_brdf, load_sbrdf
-from sparse_brdf.evaluation.fit_images import fit_images, views_for
-from sparse_brdf.evaluation.render import (
-    SHARED_PATHS,
-    find_scene,
-    object_mask,
-    parse_defaults,
-    render_scene,
-)
+from sparse_brdf.coding.fileformat import save_sbrdf
+from sparse_brdf.evaluation.render import SHARED_PATHS, object_mask, render_scene
+from sparse_brdf.evaluation.scenes import find_scene, parse_defaults
+from sparse_brdf.fitting.fit_images import fit_images, views_for
 from sparse_brdf.metrics import snr_forms
-from sparse_brdf.model.sbrdf import save_sbrdf
 from sparse_brdf.paths import DEMO_MATERIALS_DIR
 from sparse_brdf.sources.merl import write_merl
 

@@ -3,7 +3,7 @@
 For the test split of each corpus, encodes every material with the shipped ensemble and
 prints, per material: the dictionary of each channel, the distinct atoms of the grouped
 mode per channel (K) and over the three channels (union), the layout ``layout="auto"``
-picks (``sparse_brdf.model.layouts.layout_kind``), the packets of 8 floats a lookup reads in
+picks (``sparse_brdf.decoders.layouts.layout_kind``), the packets of 8 floats a lookup reads in
 it and in the other layout, and the grouped decoder's bytes.
 
     .venv/bin/python benchmarks/grouped_layouts.py [--coeffs 262] [--corpora merl rgl]
@@ -16,9 +16,9 @@ import sys
 from harness import header, parser, write_json
 from tqdm import tqdm
 
-from sparse_brdf.model.encode import encode
-from sparse_brdf.model.ensemble import Ensemble
-from sparse_brdf.model.layouts import (
+from sparse_brdf.coding.encode import encode
+from sparse_brdf.coding.ensemble import Ensemble
+from sparse_brdf.decoders.layouts import (
     PACKET,
     SLOT,
     atom_keys,

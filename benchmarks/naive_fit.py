@@ -30,17 +30,12 @@ import numpy as np
 from harness import header, machine, parser, write_json
 
 from sparse_brdf.brdf import BRDF
-from sparse_brdf.evaluation.render import (
-    SHARED_PATHS,
-    find_scene,
-    object_mask,
-    read_exr,
-    render_scene,
-    write_exr,
-)
+from sparse_brdf.compared.baselines import NaiveModel
+from sparse_brdf.compared.compact import BRDFModel
+from sparse_brdf.evaluation.images import read_exr, write_exr
+from sparse_brdf.evaluation.render import SHARED_PATHS, object_mask, render_scene
+from sparse_brdf.evaluation.scenes import find_scene
 from sparse_brdf.metrics import snr_forms
-from sparse_brdf.model.baselines import NaiveModel
-from sparse_brdf.model.compact import BRDFModel
 from sparse_brdf.sources.cache import cache_dir
 from sparse_brdf.sources.corpora import Material, get_corpus
 from sparse_brdf.sources.merl import write_merl

@@ -6,7 +6,7 @@ their own tables and render the refit against the original.
 
 Each demo material (``sparse_brdf/data/materials/*.h5``, a Neural-BRDF network of
 Sztrajman et al. 2021 fitted to a measured MERL material) is tabulated on the 90 x 90 x
-180 grid; :func:`sparse_brdf.model.neural.train_nbrdf` trains a new network on that table
+180 grid; :func:`sparse_brdf.compared.neural.train_nbrdf` trains a new network on that table
 (the published recipe: 800,000 samples, batch 512, Adam 5e-4, 100 epochs, seed 0; stopped
 early if ``--time-budget`` seconds are exceeded, and the row says so). Both tables are
 rendered as the bench renders a model, through ``tabulated_brdf`` with the same sampler
@@ -29,18 +29,12 @@ import numpy as np
 from harness import header, machine, parser, write_json
 
 from sparse_brdf.brdf import BRDF
+from sparse_brdf.compared.neural import train_nbrdf
 from sparse_brdf.errors import MissingDataError
-from sparse_brdf.evaluation.render import (
-    SHARED_PATHS,
-    check_scene_data,
-    find_scene,
-    noise_floor_snr,
-    object_mask,
-    render_scene,
-)
+from sparse_brdf.evaluation.render import SHARED_PATHS, noise_floor_snr, object_mask, render_scene
+from sparse_brdf.evaluation.scenes import check_scene_data, find_scene
 from sparse_brdf.metrics import cosine_weighted_snr, snr_forms
 from sparse_brdf.mlp import tabulate
-from sparse_brdf.model.neural import train_nbrdf
 from sparse_brdf.paths import DEMO_MATERIALS_DIR
 from sparse_brdf.sources.load import load_brdf
 from sparse_brdf.sources.merl import write_merl

@@ -24,9 +24,9 @@ import numpy as np
 from harness import header, parser, write_json
 
 from sparse_brdf import get_corpus, load_brdf
+from sparse_brdf.compared.specs import make_model
 from sparse_brdf.evaluation.report import speed_accuracy_chart
 from sparse_brdf.evaluation.speed import evals_per_second
-from sparse_brdf.model.specs import make_model
 
 SCENES = ("paper_sphere", "sphere")
 FORMS = ("snr_object", "snr_whole")

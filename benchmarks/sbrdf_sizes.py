@@ -12,7 +12,7 @@ channel's largest |value|, and the cosine-weighted BRDF SNR of the in-memory mod
 the version-2 file's (their difference is what quantisation costs).
 
 With ``--bytes N``: each material encoded to at most N bytes per file
-(:func:`~sparse_brdf.model.budget.encode_to_bytes`, today's encoder) as version 1 and as
+(:func:`~sparse_brdf.coding.budget.encode_to_bytes`, today's encoder) as version 1 and as
 version 2, and the cosine-weighted BRDF SNR of each (accuracy at equal bytes, BRDF space).
 """
 
@@ -23,11 +23,11 @@ from pathlib import Path
 import numpy as np
 from harness import header, parser, write_json
 
+from sparse_brdf.coding.budget import encode_to_bytes
+from sparse_brdf.coding.encode import PAPER_OPTIONS, encode
+from sparse_brdf.coding.ensemble import resolve_ensemble
+from sparse_brdf.coding.fileformat import as_stored, to_bytes
 from sparse_brdf.metrics import cosine_weighted_snr
-from sparse_brdf.model.budget import encode_to_bytes
-from sparse_brdf.model.encode import PAPER_OPTIONS, encode
-from sparse_brdf.model.ensemble import resolve_ensemble
-from sparse_brdf.model.sbrdf import as_stored, to_bytes
 from sparse_brdf.paths import DEMO_MATERIALS_DIR
 from sparse_brdf.sources.load import load_brdf
 

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 from harness import parser
 
-from sparse_brdf.model.ensemble import resolve_ensemble
+from sparse_brdf.coding.ensemble import resolve_ensemble
 
 
 def _histories(args) -> tuple[dict, dict]:

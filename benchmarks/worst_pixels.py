@@ -19,14 +19,9 @@ import numpy as np
 from harness import header, parser
 
 from sparse_brdf import encode, load_brdf
-from sparse_brdf.evaluation.render import (
-    SHARED_PATHS,
-    find_scene,
-    object_mask,
-    parse_defaults,
-    render_scene,
-)
-from sparse_brdf.model.sbrdf import save_sbrdf
+from sparse_brdf.coding.fileformat import save_sbrdf
+from sparse_brdf.evaluation.render import SHARED_PATHS, object_mask, render_scene
+from sparse_brdf.evaluation.scenes import find_scene, parse_defaults
 from sparse_brdf.paths import DEMO_MATERIALS_DIR
 from sparse_brdf.sources.merl import write_merl
 

@@ -14,9 +14,22 @@ decode/render -> evaluate.
 >>> net = sb.train_nbrdf(brdf, time_budget=120)          # a Neural-BRDF network (675 floats)
 """
 
+from . import _moved
+from .acquisition.files import plan as plan_samples
+from .acquisition.files import read_samples, write_samples
+from .acquisition.measurements import Samples
+from .acquisition.pca import pca_from_samples
+from .acquisition.recovery import encode_samples
 from .brdf import BRDF
+from .coding.budget import encode_to_bytes
+from .coding.coefficients import SparseBRDF
+from .coding.encode import DEFAULT_N_COEFFS, ENCODE_OPTIONS, PAPER_OPTIONS, encode
+from .coding.ensemble import Ensemble
+from .coding.fileformat import decode_file, load_sbrdf, save_sbrdf
+from .coding.interpolate import interpolate
+from .compared.neural import NeuralFit, train_nbrdf
+from .compared.protocol import ComparedModel, CompressedBRDF
 from .errors import BRDFFileError, EnsembleMismatchError, InvalidBRDFError, SparseBRDFError
-from .evaluation.acquisition import encode_samples, pca_from_samples
 from .metrics import (
     FlipResult,
     SNRForms,
@@ -27,27 +40,19 @@ from .metrics import (
     render_snr,
     snr_forms,
 )
-from .model.budget import encode_to_bytes
-from .model.encode import DEFAULT_N_COEFFS, ENCODE_OPTIONS, PAPER_OPTIONS, encode
-from .model.ensemble import Ensemble
-from .model.interpolate import interpolate
-from .model.neural import NeuralFit, train_nbrdf
-from .model.protocol import ComparedModel, CompressedBRDF
-from .model.sbrdf import decode_file, load_sbrdf, save_sbrdf
-from .model.sparse import SparseBRDF
-from .model.train import train_dictionaries, train_ensemble
-from .samples import Samples
 from .sources.catalog import mitsuba_catalog
 from .sources.corpora import Corpus, Material, get_corpus, list_corpora
 from .sources.load import load_brdf
 from .sources.merl import read_merl, write_merl
-from .sources.samples import plan as plan_samples
-from .sources.samples import read_samples, write_samples
+from .training.train import train_dictionaries, train_ensemble
 from .transforms import TRANSFORMS
 from .transforms import forward as transform
 from .transforms import inverse as inverse_transform
 
 __version__ = "0.1.0"
+
+# old module paths (sparse_brdf.model.*, sparse_brdf.samples, ...) for one release
+_moved.install()
 
 __all__ = [
     "BRDF", "BRDFFileError", "ComparedModel", "CompressedBRDF", "Corpus",

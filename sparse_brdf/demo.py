@@ -30,13 +30,14 @@ from pathlib import Path
 
 import numpy as np
 
-from .evaluation.bench import Bench, BenchConfig
+from .coding.encode import DEFAULT_N_COEFFS, encode
+from .coding.ensemble import Ensemble
+from .coding.fileformat import save_sbrdf
+from .evaluation.bench import Bench
+from .evaluation.bench_config import BenchConfig
 from .evaluation.report import noise_floor_means, scenes_of, summary_table
 from .fileio import atomic_path, atomic_write
 from .metrics import OBJECT_ONLY, WHOLE_IMAGE, cosine_weighted_snr, rae
-from .model.encode import DEFAULT_N_COEFFS, encode
-from .model.ensemble import Ensemble
-from .model.sbrdf import save_sbrdf
 from .sources.corpora import get_corpus
 from .transforms import TRANSFORMS
 

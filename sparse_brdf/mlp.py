@@ -12,7 +12,7 @@ bias`` (Keras' convention).
 
 A network is stored in the published Keras HDF5 layout (:data:`KERAS_LAYERS`), written by
 :func:`save_keras` and read by :mod:`sparse_brdf.sources.nbrdf` (the shipped networks).
-The same formulas serve those networks, the trainer (:mod:`sparse_brdf.model.neural`,
+The same formulas serve those networks, the trainer (:mod:`sparse_brdf.compared.neural`,
 which backpropagates through :func:`forward`) and the networks' tables
 (:func:`tabulate`); the Mitsuba plugin's ``nbrdf`` evaluator and ``neural_brdf`` BSDF are
 their Dr.Jit twin (``mitsuba_plugin.kernels.nbrdf_rho``).

@@ -39,7 +39,7 @@ def small_training():
 
 @pytest.fixture(scope="session")
 def small_ensemble(small_training):
-    from sparse_brdf.model.train import train_ensemble
+    from sparse_brdf.training.train import train_ensemble
 
     return train_ensemble(small_training, taus=(16, 64), n_dicts=3, n_iter=3, seed=1,
                           progress=False)

@@ -8,20 +8,20 @@ import pytest
 from test_reliability import fails, run
 
 from conftest import SMALL, random_orthonormal
-from sparse_brdf.brdf import BRDF
-from sparse_brdf.coords import bin_angles, geometric_valid, linear_bins
-from sparse_brdf.model import acquire
-from sparse_brdf.model.acquire import Operator, encode_samples
-from sparse_brdf.model.ensemble import Ensemble
-from sparse_brdf.model.sbrdf import load_sbrdf
-from sparse_brdf.model.sparse import SparseBRDF
-from sparse_brdf.samples import Samples
-from sparse_brdf.sources.samples import (
+from sparse_brdf.acquisition import recovery as acquire
+from sparse_brdf.acquisition.files import (
     measure_table,
     plan,
     read_samples,
     write_samples,
 )
+from sparse_brdf.acquisition.measurements import Samples
+from sparse_brdf.acquisition.recovery import Operator, encode_samples
+from sparse_brdf.brdf import BRDF
+from sparse_brdf.coding.coefficients import SparseBRDF
+from sparse_brdf.coding.ensemble import Ensemble
+from sparse_brdf.coding.fileformat import load_sbrdf
+from sparse_brdf.coords import bin_angles, geometric_valid, linear_bins
 
 
 @pytest.fixture(scope="module")
@@ -92,7 +92,7 @@ def test_a_sparse_material_is_recovered_exactly(ens, monkeypatch):
     truth, brdf = _sparse_material(ens)
     samples = _on_bins(brdf, 3000, seed=1)
     monkeypatch.setattr(acquire, "RIDGE", 1e-9)
-    model = encode_samples(samples, ens, n_coeffs=20, transform="log-plus")
+    model = encode_samples(samples, ens, n_coeffs=20, transform="log-plus", prior=None)
     assert model.ensemble_id == ens.id and list(model.dict_index) == [0, 0, 0]
     assert _coded_error(model, truth, ens) < 1e-6
     for c in range(3):  # the support itself
@@ -104,7 +104,7 @@ def test_default_ridge_stays_close_and_degrades_with_fewer_samples(ens):
     errs = []
     for n in (4000, 1500, 400, 60):
         model = encode_samples(_on_bins(brdf, n, seed=n), ens, n_coeffs=20,
-                               transform="log-plus")
+                               transform="log-plus", prior=None)
         errs.append(_coded_error(model, truth, ens))
     assert errs[0] < 1e-2, errs
     for more, fewer in zip(errs, errs[1:], strict=False):
@@ -115,8 +115,8 @@ def test_default_ridge_stays_close_and_degrades_with_fewer_samples(ens):
 def test_same_seed_same_model(ens):
     _, brdf = _sparse_material(ens, seed=4)
     s = _on_bins(brdf, 800, seed=5)
-    a = encode_samples(s, ens, n_coeffs=10, seed=3)
-    b = encode_samples(s, ens, n_coeffs=10, seed=3)
+    a = encode_samples(s, ens, n_coeffs=10, seed=3, prior=None)
+    b = encode_samples(s, ens, n_coeffs=10, seed=3, prior=None)
     assert all(np.array_equal(x, y) for x, y in zip(a.values, b.values, strict=True))
     assert a.transform in ("log-plus", "log-plus-cosine")
     assert int(a.n_coeffs.sum()) <= 30
@@ -204,7 +204,7 @@ def test_commands_plan_and_encode(capsys, tmp_path, ens):
 def prior_and_truth(ens):
     """An atom prior of training materials that share one support in dictionary 0 with
     different values, and an unseen material on that support."""
-    from sparse_brdf.model.prior import compute_prior
+    from sparse_brdf.acquisition.prior import compute_prior
 
     truth, _ = _sparse_material(ens, seed=6)
     rng = np.random.default_rng(0)
@@ -224,7 +224,7 @@ def test_with_a_prior_a_material_on_its_atoms_is_recovered(ens, prior_and_truth)
         assert set(truth.locations[c]) <= set(prior.loc[0, c, 0])
     brdf = truth.decode(ens)
     model = encode_samples(_on_bins(brdf, 1500, seed=2), ens, n_coeffs=20,
-                           transform="log-plus", prior=prior)
+                           transform="log-plus", prior=prior, pca_fallback=False)
     assert list(model.dict_index) == [0, 0, 0]
     assert _coded_error(model, truth, ens) < 1e-3
     assert model.stats["transforms"]["log-plus"]["channels"][0]["order"] in ("prior",
@@ -235,8 +235,9 @@ def test_the_prior_helps_most_with_few_samples(ens, prior_and_truth):
     prior, truth = prior_and_truth
     brdf = truth.decode(ens)
     s = _on_bins(brdf, 40, seed=3)
-    with_prior = encode_samples(s, ens, n_coeffs=20, transform="log-plus", prior=prior)
-    without = encode_samples(s, ens, n_coeffs=20, transform="log-plus")
+    with_prior = encode_samples(s, ens, n_coeffs=20, transform="log-plus", prior=prior,
+                                pca_fallback=False)
+    without = encode_samples(s, ens, n_coeffs=20, transform="log-plus", prior=None)
     assert _coded_error(with_prior, truth, ens) < 0.5 * _coded_error(without, truth, ens)
 
 
@@ -253,21 +254,19 @@ def test_a_prior_of_another_ensemble_is_refused(ens, prior_and_truth):
 
 
 def test_the_pca_fallback_is_taken_when_pca_predicts_better(ens, prior_and_truth):
-    from sparse_brdf.evaluation.acquisition import encode_samples as encode_with_defaults
-
     prior, truth = prior_and_truth
     brdf = truth.decode(ens)
     # PCA trained on the material itself (and a scaled copy) predicts it best
     twin = BRDF(brdf.values * 1.5, brdf.valid, "twin")
     s = _on_bins(brdf, 40, seed=3)
-    model = encode_with_defaults(s, ens, n_coeffs=20, transform="log-plus", prior=prior,
-                                 training=[brdf, twin])
+    model = encode_samples(s, ens, n_coeffs=20, transform="log-plus", prior=prior,
+                           training=[brdf, twin])
     assert model.stats["fallback"]["model"] == "pca"
     assert model.stats["pca_cv_cosine_error"] < model.stats["fallback"][
         "sparse_cv_cosine_error"]
     assert model.ensemble_id == ens.id and int(model.n_coeffs.sum()) <= 60  # joint budget
-    plain = encode_with_defaults(s, ens, n_coeffs=20, transform="log-plus", prior=prior,
-                                 pca_fallback=False)
+    plain = encode_samples(s, ens, n_coeffs=20, transform="log-plus", prior=prior,
+                           pca_fallback=False)
     assert "fallback" not in plain.stats
     assert _coded_error(model, truth, ens) < _coded_error(plain, truth, ens)
 
@@ -275,7 +274,7 @@ def test_the_pca_fallback_is_taken_when_pca_predicts_better(ens, prior_and_truth
 def test_the_pca_fallback_basis_is_cached_like_the_prior(tmp_path, monkeypatch, capsys):
     """The first use fits the basis and says so; the next process reads it back from the
     cache (memory-mapped), the same arrays, without fitting again."""
-    from sparse_brdf.evaluation import acquisition
+    from sparse_brdf.acquisition import defaults as acquisition
 
     rng = np.random.default_rng(4)
 
@@ -311,8 +310,8 @@ def test_the_pca_fallback_basis_is_cached_like_the_prior(tmp_path, monkeypatch, 
 def test_missing_training_data_names_the_way_without_it(monkeypatch):
     """Without the measured training corpus the default prior cannot be built: the error
     says so and names ``--prior none``."""
+    from sparse_brdf.acquisition import defaults as acquisition
     from sparse_brdf.errors import MissingDataError
-    from sparse_brdf.evaluation import acquisition
 
     class Empty:
         def split(self, name):

@@ -10,9 +10,9 @@ import math
 import numpy as np
 import pytest
 
+from sparse_brdf.acquisition import defaults as acquisition
 from sparse_brdf.cli import main
 from sparse_brdf.errors import ConfigError
-from sparse_brdf.evaluation import acquisition
 from sparse_brdf.evaluation import acquisition_bench as ab
 from sparse_brdf.evaluation.acquisition_report import curve, goals
 

@@ -14,15 +14,9 @@ from PIL import Image
 
 from conftest import cli_fails, run_cli
 from sparse_brdf.cli import main
-from sparse_brdf.evaluation.render import (
-    film_size,
-    object_mask,
-    preview,
-    read_exr,
-    read_mask,
-    render_scene,
-)
-from sparse_brdf.model.sbrdf import load_sbrdf
+from sparse_brdf.coding.fileformat import load_sbrdf
+from sparse_brdf.evaluation.images import preview, read_exr, read_mask
+from sparse_brdf.evaluation.render import film_size, object_mask, render_scene
 
 SCENE = Path(__file__).resolve().parent / "data" / "still_life.xml"
 PAINT = "mitsuba:plastic-red-ggx-0.3"

@@ -5,10 +5,8 @@ import pytest
 
 from conftest import SMALL
 from sparse_brdf.brdf import BRDF
-from sparse_brdf.coords import bin_angles, geometric_valid
-from sparse_brdf.errors import UsageError
-from sparse_brdf.metrics import rae
-from sparse_brdf.model.baselines import (
+from sparse_brdf.coding.fileformat import file_size, to_bytes
+from sparse_brdf.compared.baselines import (
     CPDModel,
     NaiveModel,
     PCAModel,
@@ -16,8 +14,10 @@ from sparse_brdf.model.baselines import (
     TuckerModel,
     bin_solid_angle,
 )
-from sparse_brdf.model.sbrdf import file_size, to_bytes
-from sparse_brdf.model.sparse_model import SparseModel
+from sparse_brdf.compared.sparse_model import SparseModel
+from sparse_brdf.coords import bin_angles, geometric_valid
+from sparse_brdf.errors import UsageError
+from sparse_brdf.metrics import rae
 from sparse_brdf.sources.corpora import get_corpus
 from sparse_brdf.sources.load import load_brdf
 

@@ -6,14 +6,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from sparse_brdf.coding.encode import ENCODE_OPTIONS
+from sparse_brdf.compared.specs import make_model
 from sparse_brdf.errors import MissingDataError
 from sparse_brdf.evaluation.acquisition_bench import KIND as ACQUISITION
 from sparse_brdf.evaluation.acquisition_bench import (
     AcquisitionConfig,
     check_acquisition_config,
 )
-from sparse_brdf.evaluation.bench import (
-    Bench,
+from sparse_brdf.evaluation.bench import Bench
+from sparse_brdf.evaluation.bench_config import (
     BenchConfig,
     check_config,
     config_kind,
@@ -21,10 +23,8 @@ from sparse_brdf.evaluation.bench import (
     find_config,
     training_materials,
 )
-from sparse_brdf.evaluation.render import parse_scene_spec
 from sparse_brdf.evaluation.report import pareto
-from sparse_brdf.model.encode import ENCODE_OPTIONS
-from sparse_brdf.model.specs import make_model
+from sparse_brdf.evaluation.scenes import parse_scene_spec
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -206,7 +206,7 @@ def test_a_copy_keeps_its_own_name(tmp_path, capsys):
         assert main(["info", str(path), "--json"]) == 0
         info = json.loads(capsys.readouterr().out)
         assert (info["name"], info["source"]) == (name, str(path))
-    from sparse_brdf.model.sbrdf import load_sbrdf
+    from sparse_brdf.coding.fileformat import load_sbrdf
 
     out = tmp_path / "copy.sbrdf"
     assert main(["encode", str(copy), "-o", str(out), "--coeffs", "8"]) == 0

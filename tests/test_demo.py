@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
+from sparse_brdf.coding.ensemble import Ensemble
 from sparse_brdf.demo import per_material, render_table
-from sparse_brdf.model.ensemble import Ensemble
 from sparse_brdf.paths import DEMO_MATERIALS_DIR
 from sparse_brdf.sources.corpora import get_corpus, list_corpora
 

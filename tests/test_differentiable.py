@@ -8,10 +8,10 @@ import dataclasses
 import numpy as np
 import pytest
 
+from sparse_brdf.coding.ensemble import Ensemble
+from sparse_brdf.coding.fileformat import load_sbrdf, save_sbrdf
 from sparse_brdf.errors import PluginError
 from sparse_brdf.mitsuba_env import set_variant
-from sparse_brdf.model.ensemble import Ensemble
-from sparse_brdf.model.sbrdf import load_sbrdf, save_sbrdf
 from sparse_brdf.paths import SCENES_DIR
 
 mi = pytest.importorskip("mitsuba")

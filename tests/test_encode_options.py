@@ -11,13 +11,13 @@ import pytest
 
 from conftest import SMALL
 from sparse_brdf.cli import main
+from sparse_brdf.coding.encode import ENCODE_OPTIONS, PAPER_OPTIONS, check_options
+from sparse_brdf.coding.encode import encode as _encode
+from sparse_brdf.coding.fileformat import load_sbrdf, save_sbrdf
+from sparse_brdf.compared import baselines
+from sparse_brdf.compared.specs import make_model
 from sparse_brdf.coords import bin_solid_angle, geometric_valid
 from sparse_brdf.metrics import cosine_weighted_snr, make_render_proxy, render_proxy_error
-from sparse_brdf.model import baselines
-from sparse_brdf.model.encode import ENCODE_OPTIONS, PAPER_OPTIONS, check_options
-from sparse_brdf.model.encode import encode as _encode
-from sparse_brdf.model.sbrdf import load_sbrdf, save_sbrdf
-from sparse_brdf.model.specs import make_model
 from sparse_brdf.sources.load import load_brdf
 from sparse_brdf.sources.merl import write_merl
 from sparse_brdf.transforms import forward, inverse, to_basis

@@ -4,10 +4,10 @@ resolving and sharing the default ensemble."""
 import numpy as np
 import pytest
 
+from sparse_brdf.coding.ensemble import Ensemble, resolve_ensemble, shipped_ids
 from sparse_brdf.errors import BRDFFileError
-from sparse_brdf.model import shards as shards_mod
-from sparse_brdf.model.ensemble import Ensemble, resolve_ensemble, shipped_ids
-from sparse_brdf.model.train import train_dictionaries, train_ensemble
+from sparse_brdf.training import _shards as shards_mod
+from sparse_brdf.training.train import train_dictionaries, train_ensemble
 
 
 def test_objective_never_increases(small_training):
@@ -140,8 +140,8 @@ def test_resolve_ensemble_passes_ensembles_and_loads_paths(small_ensemble, tmp_p
 
 
 def _tiny_model(ensemble_id: str):
+    from sparse_brdf.coding.coefficients import SparseBRDF
     from sparse_brdf.coords import MERL_SHAPE
-    from sparse_brdf.model.sparse import SparseBRDF
 
     locs = [np.array([0, 5, 700]), np.array([0, 9]), np.array([0])]
     vals = [np.array([2.0, -0.3, 0.1]), np.array([1.5, 0.2]), np.array([1.0])]
@@ -153,7 +153,7 @@ def _tiny_model(ensemble_id: str):
 def test_files_find_the_shipped_ensemble_they_name(ensemble_id, tmp_path):
     """A file encoded with any shipped ensemble (older defaults included) decodes without
     ``--ensemble``, with exactly that ensemble."""
-    from sparse_brdf.model.sbrdf import decode_file, load_sbrdf, save_sbrdf
+    from sparse_brdf.coding.fileformat import decode_file, load_sbrdf, save_sbrdf
 
     model = _tiny_model(ensemble_id)
     path = save_sbrdf(tmp_path / "m.sbrdf", model)
@@ -164,8 +164,8 @@ def test_files_find_the_shipped_ensemble_they_name(ensemble_id, tmp_path):
 
 
 def test_a_file_naming_an_unknown_ensemble_says_which_it_needs(tmp_path):
+    from sparse_brdf.coding.fileformat import decode_file, save_sbrdf
     from sparse_brdf.errors import EnsembleMismatchError
-    from sparse_brdf.model.sbrdf import decode_file, save_sbrdf
 
     path = save_sbrdf(tmp_path / "m.sbrdf", _tiny_model("ab" * 16))
     with pytest.raises(EnsembleMismatchError, match=f"m.sbrdf: ensemble {'ab' * 16} is not "

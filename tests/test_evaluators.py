@@ -9,24 +9,24 @@ import numpy as np
 import pytest
 
 from conftest import SMALL
-from sparse_brdf.coords import (
-    angles_to_bins,
-    dirs_to_angles,
-    geometric_valid,
-    grid_coords,
-)
-from sparse_brdf.model.baselines import (
+from sparse_brdf.compared.baselines import (
     CPDModel,
     NaiveModel,
     PCAModel,
     TabulatedModel,
     TuckerModel,
 )
-from sparse_brdf.model.sparse_model import SparseModel
-from sparse_brdf.model.train import hosvd_ensemble
+from sparse_brdf.compared.sparse_model import SparseModel
+from sparse_brdf.coords import (
+    angles_to_bins,
+    dirs_to_angles,
+    geometric_valid,
+    grid_coords,
+)
 from sparse_brdf.sources.corpora import get_corpus
 from sparse_brdf.sources.dataset import training_tensors
 from sparse_brdf.sources.load import load_brdf
+from sparse_brdf.training.train import hosvd_ensemble
 
 mi = pytest.importorskip("mitsuba")
 dr = pytest.importorskip("drjit")

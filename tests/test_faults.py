@@ -21,10 +21,11 @@ import pytest
 
 from conftest import SMALL
 from sparse_brdf.cli import main
+from sparse_brdf.coding.ensemble import Ensemble
+from sparse_brdf.coding.fileformat import load_sbrdf
 from sparse_brdf.evaluation.batch import encode_batch
-from sparse_brdf.evaluation.bench import Bench, BenchConfig
-from sparse_brdf.model.ensemble import Ensemble
-from sparse_brdf.model.sbrdf import load_sbrdf
+from sparse_brdf.evaluation.bench import Bench
+from sparse_brdf.evaluation.bench_config import BenchConfig
 from sparse_brdf.parallel import start_executor
 from sparse_brdf.sources.load import load_brdf
 from sparse_brdf.sources.merl import write_merl

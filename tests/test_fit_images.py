@@ -11,12 +11,14 @@ import pytest
 from test_reliability import run
 
 from sparse_brdf import encode, load_brdf
+from sparse_brdf.coding.fileformat import load_sbrdf, save_sbrdf
 from sparse_brdf.errors import UsageError
-from sparse_brdf.evaluation.fit_images import fit_images, views_for
-from sparse_brdf.evaluation.render import SHARED_PATHS, find_scene, write_exr
+from sparse_brdf.evaluation.images import write_exr
+from sparse_brdf.evaluation.render import SHARED_PATHS
 from sparse_brdf.evaluation.render import render_scene as _render_scene
+from sparse_brdf.evaluation.scenes import find_scene
+from sparse_brdf.fitting.fit_images import fit_images, views_for
 from sparse_brdf.metrics import render_snr
-from sparse_brdf.model.sbrdf import load_sbrdf, save_sbrdf
 from sparse_brdf.paths import DEMO_MATERIALS_DIR, PAPER_ENSEMBLE_ID
 
 RES, SPP, ROTS = 16, 4, (0, 180)
@@ -79,7 +81,7 @@ def test_fit_resumes_from_its_checkpoint(case, monkeypatch):
     """A fit interrupted after its checkpoint at iteration 4 and run again ends where an
     uninterrupted fit of the same settings ends (to rounding: the gradients' atomic sums
     over threads run in no fixed order)."""
-    from sparse_brdf.evaluation import fit_images as module
+    from sparse_brdf.fitting import fit_images as module
 
     views = views_for([{"envrot": r} for r in ROTS], [case["refs"][r] for r in ROTS])
     kw = dict(iterations=6, lr=0.05, spp=SPP, seed=0, progress=False, checkpoint_every=2)
@@ -180,7 +182,7 @@ def test_readme_inverse_rendering_example_runs(case, tmp_path):
 def test_render_sets_scene_defaults(capsys, tmp_path):
     """``render -D KEY=VALUE`` sets a scene default (the views of a fit are rendered so);
     a malformed one, or one that has its own option, is one line and exit 2."""
-    from sparse_brdf.evaluation.render import read_exr
+    from sparse_brdf.evaluation.images import read_exr
 
     imgs = {}
     for rot in (0, 90):
@@ -208,7 +210,7 @@ def test_views_carry_their_own_envmap(capsys, case, tmp_path):
     """A view's ``envmap`` is rendered with that map: the start's own render under a red
     map is matched exactly (shared sample paths) by a view that names the map, and not by
     one that keeps the scene's studio map; both parse from ``--view`` specs."""
-    from sparse_brdf.evaluation.fit_images import parse_view
+    from sparse_brdf.fitting.fit_images import parse_view
 
     red = _uniform_map(tmp_path / "red.exr", (1.0, 0.1, 0.1))
     path, params = parse_view(f"ref.exr:envmap={red},envrot=90,envtilt=30")
@@ -326,7 +328,7 @@ def test_prior_weight_keeps_the_values_near_the_start(case):
     its starting scale: the L-BFGS fit returns its best objective, so the penalty of its
     values is at most the start's loss (which costs no penalty), a bound the fit without
     it breaks; Adam follows the penalty's gradient too; a negative weight is refused."""
-    from sparse_brdf.evaluation.fit_images import SCALE_FLOOR
+    from sparse_brdf.fitting.fit_images import SCALE_FLOOR
 
     views = views_for([{"envrot": r} for r in ROTS], [case["refs"][r] for r in ROTS])
     kw = dict(iterations=6, spp=SPP, seed=0, progress=False, optimizer="lbfgs")

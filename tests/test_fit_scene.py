@@ -6,8 +6,8 @@ import pytest
 
 from conftest import SMALL
 from sparse_brdf.cli import main
-from sparse_brdf.evaluation.fit_scene import scene_materials
-from sparse_brdf.model.sbrdf import load_sbrdf
+from sparse_brdf.coding.fileformat import load_sbrdf
+from sparse_brdf.fitting.fit_scene import scene_materials
 from sparse_brdf.sources.load import load_brdf
 from sparse_brdf.sources.merl import write_merl
 

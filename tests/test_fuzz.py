@@ -22,8 +22,8 @@ from sparse_brdf.brdf import BRDF
 from sparse_brdf.cli import main
 from sparse_brdf.coords import geometric_valid
 from sparse_brdf.errors import BRDFFileError, ConfigError, ImageFileError, InputFileError
-from sparse_brdf.evaluation.bench import BenchConfig
-from sparse_brdf.evaluation.render import read_exr, write_exr
+from sparse_brdf.evaluation.bench_config import BenchConfig
+from sparse_brdf.evaluation.images import read_exr, write_exr
 from sparse_brdf.sources.merl import read_merl, write_merl
 from sparse_brdf.sources.nbrdf import read_nbrdf_weights, tabulate_nbrdf
 
@@ -363,7 +363,7 @@ def bench_world(work) -> dict[str, str]:
     materials, an empty folder, a folder of a corrupt file, a small ensemble, a corrupt
     one, a scene with a syntax error."""
     from conftest import random_orthonormal
-    from sparse_brdf.model.ensemble import Ensemble
+    from sparse_brdf.coding.ensemble import Ensemble
 
     d = work / "bench_world"
     (d / "mats").mkdir(parents=True)

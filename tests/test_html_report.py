@@ -13,7 +13,8 @@ import subprocess
 import numpy as np
 import pytest
 
-from sparse_brdf.evaluation.bench import Bench, BenchConfig
+from sparse_brdf.evaluation.bench import Bench
+from sparse_brdf.evaluation.bench_config import BenchConfig
 
 
 def _chromium() -> str | None:

@@ -1,4 +1,4 @@
-"""The numpy lookups of the uploaded decoder data (sparse_brdf.model.lookups): one point
+"""The numpy lookups of the uploaded decoder data (sparse_brdf.decoders.lookups): one point
 at a time as vectorised, interpolated as the trilinear blend of the bins' values, and the
 scalar variants' sparse_brdf (which evaluates with them) equal to the LLVM one."""
 
@@ -8,16 +8,16 @@ import numpy as np
 import pytest
 
 from conftest import SMALL
-from sparse_brdf.model.ensemble import Ensemble
-from sparse_brdf.model.layouts import (
+from sparse_brdf.coding.ensemble import Ensemble
+from sparse_brdf.coding.fileformat import load_sbrdf, save_sbrdf
+from sparse_brdf.decoders.buffers import colour_mix
+from sparse_brdf.decoders.layouts import (
     channel_terms,
-    colour_mix,
     grouped_channels,
     grouped_layout,
     strict_channel,
 )
-from sparse_brdf.model.lookups import GroupedLookup, StrictLookup
-from sparse_brdf.model.sbrdf import load_sbrdf, save_sbrdf
+from sparse_brdf.decoders.lookups import GroupedLookup, StrictLookup
 
 mi = pytest.importorskip("mitsuba")
 pytest.importorskip("drjit")

@@ -1,4 +1,4 @@
-"""The Neural-BRDF trainer (sparse_brdf.model.neural), its shared forward pass
+"""The Neural-BRDF trainer (sparse_brdf.compared.neural), its shared forward pass
 (sparse_brdf.mlp), the bench's ``nbrdf`` model and its Dr.Jit evaluator."""
 
 from __future__ import annotations
@@ -8,6 +8,9 @@ import pytest
 
 from conftest import SMALL
 from sparse_brdf.brdf import BRDF
+from sparse_brdf.compared import neural
+from sparse_brdf.compared.neural import NBRDFModel, train_nbrdf
+from sparse_brdf.compared.specs import make_model
 from sparse_brdf.coords import bin_angles, dirs_to_angles
 from sparse_brdf.errors import UsageError
 from sparse_brdf.metrics import cosine_weighted_snr
@@ -20,9 +23,6 @@ from sparse_brdf.mlp import (
     params_from_layers,
     tabulate,
 )
-from sparse_brdf.model import neural
-from sparse_brdf.model.neural import NBRDFModel, train_nbrdf
-from sparse_brdf.model.specs import make_model
 from sparse_brdf.paths import DEMO_MATERIALS_DIR
 from sparse_brdf.sources.nbrdf import read_nbrdf_weights
 

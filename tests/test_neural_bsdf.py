@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 from conftest import SMALL
+from sparse_brdf.compared.neural import NeuralFit, train_nbrdf
 from sparse_brdf.coords import dirs_to_angles
 from sparse_brdf.errors import PluginError
 from sparse_brdf.mitsuba_env import set_variant
 from sparse_brdf.mlp import evaluate, network_inputs, tabulate
-from sparse_brdf.model.neural import NeuralFit, train_nbrdf
 from sparse_brdf.paths import DEMO_MATERIALS_DIR
 from sparse_brdf.sources.load import load_brdf
 from sparse_brdf.sources.nbrdf import read_nbrdf_weights

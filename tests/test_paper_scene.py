@@ -11,7 +11,9 @@ import numpy as np
 import pytest
 
 from sparse_brdf.errors import MissingDataError
-from sparse_brdf.evaluation.render import check_scene_data, object_mask, read_exr, render_scene
+from sparse_brdf.evaluation.images import read_exr
+from sparse_brdf.evaluation.render import object_mask, render_scene
+from sparse_brdf.evaluation.scenes import check_scene_data
 from sparse_brdf.metrics import render_snr, snr_forms
 from sparse_brdf.paths import shared_envmaps_dir
 
@@ -109,7 +111,7 @@ def test_object_mask_is_the_sphere(grace):
 
 
 def test_missing_map_is_one_line(tmp_path, monkeypatch):
-    monkeypatch.setattr("sparse_brdf.evaluation.render.shared_envmaps_dir", lambda: None)
+    monkeypatch.setattr("sparse_brdf.evaluation.scenes.shared_envmaps_dir", lambda: None)
     copy = tmp_path / "paper_sphere.xml"
     copy.write_text(SCENE.read_text())
     with pytest.raises(MissingDataError) as err:

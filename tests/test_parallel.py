@@ -14,14 +14,15 @@ import pytest
 
 from conftest import SMALL
 from sparse_brdf.cli import main
+from sparse_brdf.coding.fileformat import load_sbrdf
 from sparse_brdf.evaluation.batch import batch_sources, encode_batch, is_batch
-from sparse_brdf.evaluation.bench import Bench, BenchConfig
-from sparse_brdf.model import shards as shards_mod
-from sparse_brdf.model.sbrdf import load_sbrdf
-from sparse_brdf.model.train import train_dictionaries
+from sparse_brdf.evaluation.bench import Bench
+from sparse_brdf.evaluation.bench_config import BenchConfig
 from sparse_brdf.parallel import InProcess, executor, start_executor
 from sparse_brdf.sources.load import load_brdf
 from sparse_brdf.sources.merl import write_merl
+from sparse_brdf.training import _shards as shards_mod
+from sparse_brdf.training.train import train_dictionaries
 
 ROOT = Path(__file__).resolve().parents[1]
 STATE = ("u1", "u2", "u3", "labels", "codes_idx", "codes_val", "errors")
@@ -203,7 +204,7 @@ def test_train_command_on_a_cluster(cluster, tmp_path):
     assert main(["train", "--corpus", "mitsuba", "--grid", *map(str, SMALL), "--taus", "8",
                  "--dicts", "2", "--iterations", "1", "--scheduler",
                  cluster.client.scheduler.address, "-o", str(out)]) == 0
-    from sparse_brdf.model.ensemble import Ensemble
+    from sparse_brdf.coding.ensemble import Ensemble
 
     assert "Dask workers" in Ensemble.load(out).meta["where"]
 

@@ -13,27 +13,28 @@ import numpy as np
 import pytest
 
 from sparse_brdf import cli
+from sparse_brdf.acquisition.files import plan
+from sparse_brdf.acquisition.recovery import encode_samples
+from sparse_brdf.coding import encode as encode_module
+from sparse_brdf.coding.budget import check_budget, encode_to_bytes
+from sparse_brdf.coding.encode import encode
+from sparse_brdf.coding.fileformat import check_version
+from sparse_brdf.coding.interpolate import interpolate
+from sparse_brdf.compared.sparse_model import SparseModel
 from sparse_brdf.coords import GRID_SIDE, MERL_SHAPE, check_grid
+from sparse_brdf.decoders.layouts import DECODERS, LOBES, PLUGIN_DEFAULTS
 from sparse_brdf.errors import ConfigError, UsageError
 from sparse_brdf.evaluation.batch import encode_samples_file
-from sparse_brdf.evaluation.fit_images import fit_images
-from sparse_brdf.evaluation.fit_scene import fit_scene
 from sparse_brdf.evaluation.ranking import merge_results
-from sparse_brdf.evaluation.render import RENDER_PARAMETERS, render_scene
-from sparse_brdf.model import encode as encode_module
-from sparse_brdf.model import train as train_module
-from sparse_brdf.model.acquire import encode_samples
-from sparse_brdf.model.budget import check_budget, encode_to_bytes
-from sparse_brdf.model.encode import encode
-from sparse_brdf.model.interpolate import interpolate
-from sparse_brdf.model.layouts import DECODERS, PLUGIN_DEFAULTS, SAMPLING
-from sparse_brdf.model.sbrdf import check_version
-from sparse_brdf.model.sparse_model import SparseModel
-from sparse_brdf.model.train import train_dictionaries, train_ensemble
+from sparse_brdf.evaluation.render import render_scene
+from sparse_brdf.evaluation.scenes import RENDER_PARAMETERS
+from sparse_brdf.fitting.fit_images import fit_images
+from sparse_brdf.fitting.fit_scene import fit_scene
 from sparse_brdf.params import SEED, Choice, Interval, check, check_choice, check_range
 from sparse_brdf.sources.corpora import SPLITS, TRAINING_CORPORA
 from sparse_brdf.sources.dataset import training_data
-from sparse_brdf.sources.samples import plan
+from sparse_brdf.training import train as train_module
+from sparse_brdf.training.train import train_dictionaries, train_ensemble
 from sparse_brdf.transforms import COLOUR_BASES, TRANSFORMS, check_basis, check_transform
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -91,8 +92,8 @@ def test_library_checks_use_it():
 def test_one_sbrdf_version_check(small_ensemble):
     """The writer, the byte budget and the bench's sparse model refuse an unknown .sbrdf
     version with one error type and one message."""
-    from sparse_brdf.model.sbrdf import to_bytes
-    from sparse_brdf.model.sparse import SparseBRDF
+    from sparse_brdf.coding.coefficients import SparseBRDF
+    from sparse_brdf.coding.fileformat import to_bytes
 
     m = SparseBRDF("log-plus", small_ensemble.shape, small_ensemble.id, [0, 0, 0],
                    [[0]] * 3, [[1.0]] * 3)
@@ -213,7 +214,7 @@ def test_cli_choices_are_the_declarations():
     assert tuple(tr["basis"].choices) == COLOUR_BASES
     assert tuple(tr["split"].choices) == SPLITS
     assert tuple(tr["init"].choices) == train_module.PARAMETERS["init"]
-    assert tuple(rn["sampling"].choices) == SAMPLING
+    assert tuple(rn["sampling"].choices) == LOBES
     assert tuple(rn["decoder"].choices) == DECODERS
 
 

@@ -1,5 +1,5 @@
 """The Mitsuba plugins sparse_brdf and tabulated_brdf (mitsuba_plugin), and the numpy
-data they upload (sparse_brdf.model.layouts)."""
+data they upload (sparse_brdf.decoders.layouts)."""
 
 from __future__ import annotations
 
@@ -10,6 +10,11 @@ import numpy as np
 import pytest
 
 from conftest import SMALL, random_orthonormal
+from sparse_brdf.coding.coefficients import SparseBRDF
+from sparse_brdf.coding.encode import PAPER_OPTIONS, encode
+from sparse_brdf.coding.ensemble import Ensemble
+from sparse_brdf.coding.fileformat import load_sbrdf, save_sbrdf
+from sparse_brdf.coding.tensor import hosvd_factors, mode_grams
 from sparse_brdf.coords import (
     angles_to_dirs,
     bin_angles,
@@ -18,10 +23,8 @@ from sparse_brdf.coords import (
     dirs_to_bins,
     geometric_valid,
 )
-from sparse_brdf.mitsuba_env import set_variant
-from sparse_brdf.model.encode import PAPER_OPTIONS, encode
-from sparse_brdf.model.ensemble import Ensemble
-from sparse_brdf.model.layouts import (
+from sparse_brdf.decoders.buffers import mix_channels
+from sparse_brdf.decoders.layouts import (
     UNION_ATOMS,
     channel_terms,
     choose_decoder,
@@ -29,15 +32,12 @@ from sparse_brdf.model.layouts import (
     grouped_channel,
     grouped_eval,
     grouped_layout,
-    mix_channels,
     n_slots,
     sparse_profile,
     strict_channel,
 )
-from sparse_brdf.model.lookups import layout_eval, model_x, strict_eval
-from sparse_brdf.model.sbrdf import load_sbrdf, save_sbrdf
-from sparse_brdf.model.sparse import SparseBRDF
-from sparse_brdf.model.tensor import hosvd_factors, mode_grams
+from sparse_brdf.decoders.lookups import layout_eval, model_x, strict_eval
+from sparse_brdf.mitsuba_env import set_variant
 from sparse_brdf.sources.load import load_brdf
 from sparse_brdf.sources.merl import write_merl
 from sparse_brdf.transforms import TRANSFORMS, colour_matrix, cosine_weight, forward, inverse

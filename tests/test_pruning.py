@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from conftest import random_orthonormal
-from sparse_brdf.model.pruning import PRUNE_ROUNDS, PrunedSearch, search_rounds, slice_order
-from sparse_brdf.model.tensor import project, top_k
+from sparse_brdf.coding.pruning import PRUNE_ROUNDS, PrunedSearch, search_rounds, slice_order
+from sparse_brdf.coding.tensor import project, top_k
 
 SHAPE = (6, 5, 120)
 

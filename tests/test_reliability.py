@@ -26,6 +26,9 @@ import pytest
 from conftest import SMALL, cli_fails, random_orthonormal, run_cli
 from sparse_brdf.brdf import BRDF
 from sparse_brdf.cli import EXIT_BUG, main
+from sparse_brdf.coding.coefficients import SparseBRDF
+from sparse_brdf.coding.ensemble import Ensemble
+from sparse_brdf.coding.fileformat import load_sbrdf, save_sbrdf
 from sparse_brdf.coords import MERL_SHAPE, geometric_valid
 from sparse_brdf.errors import (
     BRDFFileError,
@@ -35,11 +38,8 @@ from sparse_brdf.errors import (
     SparseBRDFError,
     one_line,
 )
-from sparse_brdf.evaluation.render import read_exr, write_exr
+from sparse_brdf.evaluation.images import read_exr, write_exr
 from sparse_brdf.fileio import atomic_write, cleanup_on_signals
-from sparse_brdf.model.ensemble import Ensemble
-from sparse_brdf.model.sbrdf import load_sbrdf, save_sbrdf
-from sparse_brdf.model.sparse import SparseBRDF
 from sparse_brdf.sources.merl import read_merl, write_merl
 from sparse_brdf.sources.nbrdf import tabulate_nbrdf
 
@@ -519,7 +519,7 @@ def test_errors_form_one_hierarchy():
     assert issubclass(OutputError, OSError) and issubclass(InputFileError, OSError)
     assert issubclass(BRDFFileError, ValueError)
     from mitsuba_plugin import PluginError
-    from sparse_brdf.evaluation.render import RenderError
+    from sparse_brdf.errors import RenderError
     from sparse_brdf.mitsuba_env import MitsubaSetupError
 
     assert {PluginError, RenderError, MitsubaSetupError} <= set(classes)
@@ -737,8 +737,8 @@ def test_a_closed_stdout_is_not_an_error():
 def _samples_csv(path: Path, rgb) -> Path:
     """A samples CSV of 40 uniform direction pairs, every row the value ``rgb`` except the
     first, which holds ``rgb`` times the first row's factor given by ``rgb`` itself."""
-    from sparse_brdf.samples import Samples
-    from sparse_brdf.sources.samples import plan, write_samples
+    from sparse_brdf.acquisition.files import plan, write_samples
+    from sparse_brdf.acquisition.measurements import Samples
 
     wi, wo = plan(40, "uniform", 0)
     values = np.broadcast_to(np.asarray(rgb, np.float64), (40, 3)).copy()
@@ -840,12 +840,12 @@ def test_a_blend_across_ensembles_says_how_to_re_encode(tmp_path, capsys, sbrdf,
 
 def test_encode_samples_checks_its_output_before_reading_or_fitting(tmp_path, capsys,
                                                                     monkeypatch):
-    from sparse_brdf.evaluation import acquisition
+    from sparse_brdf.acquisition import defaults as acquisition
 
     def never(*args, **kwargs):
         raise AssertionError("the prior was built before the output was checked")
 
-    monkeypatch.setattr(acquisition, "default_prior", never)
+    monkeypatch.setattr(acquisition, "prior_of", never)
     blocker = tmp_path / "file"
     blocker.write_text("not a folder")
     samples = _samples_csv(tmp_path / "s.csv", 0.1)

@@ -9,18 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sparse_brdf.evaluation.render import (
-    RenderError,
-    noise_floor,
-    noise_floor_snr,
-    object_mask,
-    parse_overrides,
-    plugin_for,
-    read_exr,
-    render_scene,
-    scene_xml,
-    write_exr,
-)
+from sparse_brdf.errors import RenderError
+from sparse_brdf.evaluation.images import read_exr, write_exr
+from sparse_brdf.evaluation.render import noise_floor, noise_floor_snr, object_mask, render_scene
+from sparse_brdf.evaluation.scenes import parse_overrides, plugin_for, scene_xml
 from sparse_brdf.metrics import render_snr
 
 pytest.importorskip("mitsuba")

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from conftest import SMALL, random_orthonormal
-from sparse_brdf.errors import BRDFFileError
-from sparse_brdf.model.ensemble import Ensemble
-from sparse_brdf.model.sbrdf import (
+from sparse_brdf.coding.coefficients import SparseBRDF
+from sparse_brdf.coding.ensemble import Ensemble
+from sparse_brdf.coding.fileformat import (
     FLAG_OPPONENT,
     file_size,
     from_bytes,
@@ -22,7 +22,7 @@ from sparse_brdf.model.sbrdf import (
     save_sbrdf,
     to_bytes,
 )
-from sparse_brdf.model.sparse import SparseBRDF
+from sparse_brdf.errors import BRDFFileError
 from sparse_brdf.transforms import colour_matrix, inverse
 
 FLAGS_AT = 11

@@ -19,12 +19,12 @@ from hypothesis import strategies as st
 
 from conftest import SMALL, random_orthonormal
 from sparse_brdf.cli import main
-from sparse_brdf.errors import BRDFFileError, EnsembleMismatchError
-from sparse_brdf.model import budget
-from sparse_brdf.model.budget import encode_to_bytes, fit_bytes, truncate
-from sparse_brdf.model.encode import encode, encode_sized
-from sparse_brdf.model.ensemble import Ensemble
-from sparse_brdf.model.sbrdf import (
+from sparse_brdf.coding import budget
+from sparse_brdf.coding.budget import encode_to_bytes, fit_bytes, truncate
+from sparse_brdf.coding.coefficients import SparseBRDF
+from sparse_brdf.coding.encode import encode, encode_sized
+from sparse_brdf.coding.ensemble import Ensemble
+from sparse_brdf.coding.fileformat import (
     VERSION,
     as_stored,
     file_size,
@@ -36,8 +36,8 @@ from sparse_brdf.model.sbrdf import (
     step_exponent,
     to_bytes,
 )
-from sparse_brdf.model.sparse import SparseBRDF
-from sparse_brdf.model.specs import make_model
+from sparse_brdf.compared.specs import make_model
+from sparse_brdf.errors import BRDFFileError, EnsembleMismatchError
 from sparse_brdf.sources.load import load_brdf
 from sparse_brdf.sources.merl import write_merl
 from sparse_brdf.transforms import forward, from_basis
@@ -203,9 +203,9 @@ def test_demo_material_size_and_quantisation():
     """A real material at 262 coefficients per channel with the shipped ensemble: at most
     4 bytes per coefficient (header included; measured about 1.9) and quantisation moves
     the cosine-weighted SNR by < 0.1 dB (docs/file-format.md, Measured)."""
+    from sparse_brdf.coding.encode import PAPER_OPTIONS, encode
+    from sparse_brdf.coding.ensemble import resolve_ensemble
     from sparse_brdf.metrics import cosine_weighted_snr
-    from sparse_brdf.model.encode import PAPER_OPTIONS, encode
-    from sparse_brdf.model.ensemble import resolve_ensemble
     from sparse_brdf.paths import DEMO_MATERIALS_DIR
 
     brdf = load_brdf(str(DEMO_MATERIALS_DIR / "blue-metallic-paint2.h5"))
@@ -393,7 +393,7 @@ def test_bench_specs_with_byte_budgets(small_ensemble):
 def test_fit_scene_ladder_ends_at_the_byte_cap(small_ensemble):
     """fit-scene --bytes: the ladder's rungs all fit, the last one is the largest encoding
     that fits (predicting needs no render)."""
-    from sparse_brdf.evaluation.fit_scene import _Ladder
+    from sparse_brdf.fitting.fit_scene import _Ladder
 
     brdf = load_brdf("mitsuba:plastic-red-ggx-0.3", shape=SMALL)
     ladder = _Ladder(brdf, small_ensemble, [16, 32, 64, 128, 262], 0.0, max_bytes=400)

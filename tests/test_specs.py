@@ -1,16 +1,22 @@
-"""The model-spec grammar (sparse_brdf.model.specs): one parser for config checks and
+"""The model-spec grammar (sparse_brdf.compared.specs): one parser for config checks and
 model construction."""
 
 from __future__ import annotations
 
 import pytest
 
+from sparse_brdf.compared import specs
+from sparse_brdf.compared.baselines import (
+    CPDModel,
+    NaiveModel,
+    PCAModel,
+    TabulatedModel,
+    TuckerModel,
+)
+from sparse_brdf.compared.sparse_model import SparseModel
+from sparse_brdf.compared.specs import KINDS, make_model, parse_spec
 from sparse_brdf.errors import ConfigError, UsageError
-from sparse_brdf.evaluation.bench import BenchConfig
-from sparse_brdf.model import specs
-from sparse_brdf.model.baselines import CPDModel, NaiveModel, PCAModel, TabulatedModel, TuckerModel
-from sparse_brdf.model.sparse_model import SparseModel
-from sparse_brdf.model.specs import KINDS, make_model, parse_spec
+from sparse_brdf.evaluation.bench_config import BenchConfig
 
 GOOD = {
     "sparse:262": ("sparse", "sparse-262"),
@@ -51,7 +57,7 @@ def _no_ensemble(*args, **kwargs):
 
 @pytest.mark.parametrize("spec", sorted(GOOD))
 def test_parse_gives_kind_and_name_without_an_ensemble(spec, monkeypatch):
-    monkeypatch.setattr("sparse_brdf.model.sparse_model.encoder_ensemble", _no_ensemble)
+    monkeypatch.setattr("sparse_brdf.compared.sparse_model.encoder_ensemble", _no_ensemble)
     parsed = parse_spec(spec)
     assert (parsed.kind, parsed.name) == GOOD[spec]
     assert parsed.text == spec
@@ -59,7 +65,7 @@ def test_parse_gives_kind_and_name_without_an_ensemble(spec, monkeypatch):
 
 @pytest.mark.parametrize("spec", BAD)
 def test_bad_specs_are_usage_errors_naming_the_spec(spec, monkeypatch):
-    monkeypatch.setattr("sparse_brdf.model.sparse_model.encoder_ensemble", _no_ensemble)
+    monkeypatch.setattr("sparse_brdf.compared.sparse_model.encoder_ensemble", _no_ensemble)
     with pytest.raises(UsageError) as err:
         parse_spec(spec)
     assert repr(spec) in str(err.value)
@@ -96,7 +102,7 @@ def test_sparse_model_takes_the_parsed_options(small_ensemble):
 def test_bench_config_check_uses_the_grammar(tmp_path, monkeypatch):
     """The config check and the model construction agree: every spec the check accepts
     builds, and every spec it refuses names the config file."""
-    monkeypatch.setattr("sparse_brdf.model.sparse_model.encoder_ensemble", _no_ensemble)
+    monkeypatch.setattr("sparse_brdf.compared.sparse_model.encoder_ensemble", _no_ensemble)
     good = tmp_path / "good.toml"
     good.write_text("models = [" + ", ".join(f'"{s}"' for s in GOOD) + "]\n")
     assert BenchConfig.load(good).models == list(GOOD)

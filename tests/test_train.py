@@ -10,14 +10,14 @@ import pytest
 from conftest import SMALL
 from sparse_brdf.brdf import BRDF
 from sparse_brdf.cli import main
+from sparse_brdf.coding.encode import encode
+from sparse_brdf.coding.ensemble import Ensemble
 from sparse_brdf.coords import geometric_valid, grid_angles
-from sparse_brdf.model import train as train_mod
-from sparse_brdf.model.encode import encode
-from sparse_brdf.model.ensemble import Ensemble
-from sparse_brdf.model.tensor_store import TensorStore
-from sparse_brdf.model.train import _converged, train_dictionaries, train_ensemble
 from sparse_brdf.sources.corpora import get_corpus
 from sparse_brdf.sources.dataset import TrainingData, training_data, training_tensors
+from sparse_brdf.training import _codes
+from sparse_brdf.training._tensor_store import TensorStore
+from sparse_brdf.training.train import _converged, train_dictionaries, train_ensemble
 from sparse_brdf.transforms import forward, to_basis
 
 
@@ -211,9 +211,9 @@ def test_pruned_clustering_matches_full_search(small_training, monkeypatch):
     for known in (None, (st.labels, st.codes_idx, st.codes_val, st.errors)):
         out = {}
         for prune in (True, False):
-            monkeypatch.setattr(train_mod, "PRUNE", prune)
+            monkeypatch.setattr(_codes, "PRUNE", prune)
             data = TensorStore(small_training, masked=False)
-            out[prune] = train_mod._assign_all(data, u, 16, False, known)
+            out[prune] = _codes._assign_all(data, u, 16, False, known)
         np.testing.assert_array_equal(out[True][0], out[False][0])
         # errors are ||X||^2 - kept energy: both searches agree to float32 rounding of ||X||^2
         assert np.all(np.abs(out[True][3] - out[False][3]) <= 1e-5 * data.norms)
@@ -221,7 +221,7 @@ def test_pruned_clustering_matches_full_search(small_training, monkeypatch):
         assert np.mean(same) > 0.95
     stats = {}
     data = TensorStore(small_training, masked=False)
-    d = train_mod._Dicts.of(*u)
+    d = _codes._Dicts.of(*u)
     for i in range(len(small_training)):
-        train_mod._search_codes(data[i], data.norms[i], [0, 1, 2, 3], d, 16, stats=stats)
+        _codes._search_codes(data[i], data.norms[i], [0, 1, 2, 3], d, 16, stats=stats)
     assert stats["slices"] < stats["full"]

@@ -26,7 +26,7 @@ import pytest
 
 from conftest import SMALL
 from sparse_brdf.coords import geometric_valid
-from sparse_brdf.model.train import train_ensemble
+from sparse_brdf.training.train import train_ensemble
 
 #: Per case of :func:`_train`: each sparsity's objective after each iteration.
 EXPECTED = {

@@ -24,11 +24,12 @@ from pathlib import Path
 
 import numpy as np
 
-from sparse_brdf.evaluation.render import SHARED_PATHS, find_scene, render_scene
+from sparse_brdf.coding.encode import encode
+from sparse_brdf.coding.ensemble import Ensemble
+from sparse_brdf.coding.fileformat import save_sbrdf
+from sparse_brdf.evaluation.render import SHARED_PATHS, render_scene
+from sparse_brdf.evaluation.scenes import find_scene
 from sparse_brdf.evaluation.speed import eval_rate
-from sparse_brdf.model.encode import encode
-from sparse_brdf.model.ensemble import Ensemble
-from sparse_brdf.model.sbrdf import save_sbrdf
 from sparse_brdf.sources.load import load_brdf
 
 

@@ -26,14 +26,15 @@ from pathlib import Path
 
 import numpy as np
 
+from sparse_brdf.coding.ensemble import resolve_ensemble
 from sparse_brdf.evaluation.batch import encode_batch
-from sparse_brdf.evaluation.bench import Bench, BenchConfig
-from sparse_brdf.model.ensemble import resolve_ensemble
-from sparse_brdf.model.train import train_dictionaries
+from sparse_brdf.evaluation.bench import Bench
+from sparse_brdf.evaluation.bench_config import BenchConfig
 from sparse_brdf.parallel import executor
 from sparse_brdf.paths import shared_data_dir
 from sparse_brdf.sources.corpora import get_corpus
 from sparse_brdf.sources.dataset import training_data
+from sparse_brdf.training.train import train_dictionaries
 
 
 def _modes(only: str | None, workers: int) -> list[int | None]:

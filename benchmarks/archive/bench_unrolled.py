@@ -32,12 +32,12 @@ from pathlib import Path
 
 import numpy as np
 
+from sparse_brdf.coding.encode import encode
+from sparse_brdf.coding.ensemble import Ensemble
+from sparse_brdf.coding.fileformat import save_sbrdf
+from sparse_brdf.decoders.layouts import channel_terms
 from sparse_brdf.evaluation.speed import eval_rate, random_directions
 from sparse_brdf.mitsuba_env import set_variant
-from sparse_brdf.model.encode import encode
-from sparse_brdf.model.ensemble import Ensemble
-from sparse_brdf.model.layouts import channel_terms
-from sparse_brdf.model.sbrdf import save_sbrdf
 from sparse_brdf.sources.load import load_brdf
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # render_timing.py is one up

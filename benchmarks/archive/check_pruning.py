@@ -18,7 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from sparse_brdf import Ensemble, get_corpus
-from sparse_brdf.model.encode import DEFAULT_N_COEFFS, project_all, project_pruned, select
+from sparse_brdf.coding.encode import DEFAULT_N_COEFFS
+from sparse_brdf.coding.projection import project_all, project_pruned, select
 from sparse_brdf.transforms import TRANSFORMS, forward
 
 CASES = ((DEFAULT_N_COEFFS, None), (64, None), (1024, None), (DEFAULT_N_COEFFS, 1e-4))

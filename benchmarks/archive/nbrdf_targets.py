@@ -22,11 +22,12 @@ from pathlib import Path
 import numpy as np
 
 from sparse_brdf.brdf import BRDF
+from sparse_brdf.compared import neural
 from sparse_brdf.coords import angles_to_bins
-from sparse_brdf.evaluation.render import SHARED_PATHS, find_scene, object_mask, render_scene
+from sparse_brdf.evaluation.render import SHARED_PATHS, object_mask, render_scene
+from sparse_brdf.evaluation.scenes import find_scene
 from sparse_brdf.metrics import snr_forms
 from sparse_brdf.mlp import tabulate
-from sparse_brdf.model import neural
 from sparse_brdf.paths import DEMO_MATERIALS_DIR
 from sparse_brdf.sources.load import load_brdf
 from sparse_brdf.sources.merl import write_merl

@@ -4,7 +4,7 @@ scenes against the full table (``docs/results.md``, "Encoding from samples").
 
 Each cell is one fit: a material, a method (``sparse``: :func:`encode_samples` with its
 atom prior and PCA fallback; ``pca``: :func:`pca_from_samples`), a placement
-(:func:`~sparse_brdf.sources.samples.plan`), a sample count N, a sample seed and a noise
+(:func:`~sparse_brdf.acquisition.files.plan`), a sample count N, a sample seed and a noise
 level. Samples are simulated from the material's Neural-BRDF network at the pairs
 themselves (``measure = "nbrdf"``: a continuous BRDF, as an instrument measures it) or
 from its table (``"table"``: each pair gets its bin's value). Every cell is rendered in
@@ -29,31 +29,26 @@ from pathlib import Path
 
 import numpy as np
 
+from ..acquisition import defaults
+from ..acquisition.files import PLACEMENTS, add_noise, measure_nbrdf, measure_table, plan
+from ..acquisition.measurements import Samples
+from ..acquisition.pca import pca_from_samples
+from ..acquisition.recovery import encode_samples
 from ..brdf import BRDF
+from ..coding.encode import DEFAULT_N_COEFFS, encode
+from ..coding.ensemble import resolve_ensemble
+from ..coding.fileformat import VERSION, save_sbrdf
 from ..errors import ConfigError, SparseBRDFError, one_line
 from ..fileio import atomic_write
 from ..metrics import cosine_weighted_snr, snr_forms
-from ..model.encode import DEFAULT_N_COEFFS, encode
-from ..model.ensemble import resolve_ensemble
-from ..model.sbrdf import VERSION, save_sbrdf
 from ..params import Choice, Interval
-from ..samples import Samples
 from ..sources.corpora import SPLITS, get_corpus
 from ..sources.merl import write_merl
-from ..sources.samples import PLACEMENTS, add_noise, measure_nbrdf, measure_table, plan
-from . import acquisition
 from .acquisition_report import write_acquisition_report
-from .bench import check_setting, read_config
-from .render import (
-    RENDER_PARAMETERS,
-    SHARED_PATHS,
-    check_scene_data,
-    find_scene,
-    object_mask,
-    read_exr,
-    render_scene,
-    write_exr,
-)
+from .bench_config import check_setting, read_config
+from .images import read_exr, write_exr
+from .render import SHARED_PATHS, object_mask, render_scene
+from .scenes import RENDER_PARAMETERS, check_scene_data, find_scene
 
 #: The config's ``bench`` setting that selects this bench.
 KIND = "acquisition"
@@ -189,12 +184,12 @@ def check_acquisition_config(cfg: AcquisitionConfig) -> dict:
     try:
         resolve_ensemble(cfg.ensemble)
         mats = get_corpus(cfg.corpus).split(cfg.split)[: cfg.max_materials]
-        acquisition.training_materials()
+        defaults.training_materials()
     except SparseBRDFError as exc:
         raise type(exc)(f"{cfg.label}: {exc}") from exc
     if not mats:
         raise ConfigError(f"{cfg.label}: corpus {cfg.corpus} has no {cfg.split} materials")
-    train = {m.source for m in acquisition.training_materials()}
+    train = {m.source for m in defaults.training_materials()}
     seen = [m.name for m in mats if m.source in train]
     if seen:
         raise ConfigError(f"{cfg.label}: split = {cfg.split!r} evaluates the prior's and "
@@ -258,9 +253,9 @@ class AcquisitionBench:
             m.name not in self.results["full"] for m in mats)
         prior = None  # trained once, outside the fits' timings
         if total and "sparse" in self.cfg.methods:
-            prior = acquisition.default_prior(self.ensemble)
+            prior = defaults.default_prior(self.ensemble)
         if total:
-            acquisition.trained_pca()
+            defaults.trained_pca()
         with tqdm(total=total, desc="bench acquisition", disable=not self.progress) as bar:
             for m in mats:
                 if not todo[m.name] and m.name in self.results["full"]:
@@ -338,15 +333,15 @@ class AcquisitionBench:
             base = self.work / f"{m.name}__{c.key.replace('|', '_')}"
             t0 = time.perf_counter()
             if c.method == "sparse":
-                model = acquisition.encode_samples(s, self.ensemble, self.cfg.n_coeffs,
-                                                   seed=c.seed, prior=prior)
+                model = encode_samples(s, self.ensemble, self.cfg.n_coeffs, seed=c.seed,
+                                       prior=prior)
                 row["fit_s"] = time.perf_counter() - t0
                 rec = model.decode(self.ensemble).values
                 path = save_sbrdf(base.with_suffix(".sbrdf"), model)
                 row.update(coeffs=int(model.n_coeffs.sum()),
                            fallback="fallback" in model.stats)
             else:
-                pca = acquisition.pca_from_samples(s, seed=c.seed)
+                pca = pca_from_samples(s, seed=c.seed)
                 rec = pca.reconstruct()
                 row["fit_s"] = time.perf_counter() - t0
                 path = write_merl(base.with_suffix(".binary"), BRDF(rec, brdf.valid, m.name))

@@ -41,20 +41,20 @@ from pathlib import Path
 
 import numpy as np
 
+from ..acquisition.files import plan, read_samples, write_samples
+from ..acquisition.measurements import Samples
+from ..acquisition.recovery import encode_samples
+from ..coding.budget import encode_to_bytes
+from ..coding.coefficients import SparseBRDF
+from ..coding.encode import DEFAULT_N_COEFFS, check_n_coeffs, encode, encoder_ensemble
+from ..coding.ensemble import Ensemble, resolve_ensemble
+from ..coding.fileformat import load_sbrdf, save_sbrdf
 from ..errors import BRDFFileError, EnsembleMismatchError, MissingFileError, OutputError, UsageError
 from ..fileio import atomic_write, check_output
 from ..metrics import cosine_weighted_snr
-from ..model.budget import encode_to_bytes
-from ..model.encode import DEFAULT_N_COEFFS, check_n_coeffs, encode, encoder_ensemble
-from ..model.ensemble import Ensemble, resolve_ensemble
-from ..model.sbrdf import load_sbrdf, save_sbrdf
-from ..model.sparse import SparseBRDF
 from ..parallel import Executor, InProcess
-from ..params import Interval, check, check_choice
-from ..samples import Samples
+from ..params import Interval, check
 from ..sources.load import SUFFIXES, load_brdf
-from ..sources.samples import plan, read_samples, write_samples
-from .acquisition import PRIORS, encode_samples
 
 #: What a folder contributes to a batch (a glob may also match the other SUFFIXES).
 FOLDER_SUFFIXES = (".binary", ".h5")
@@ -80,16 +80,16 @@ def encode_file(source: str | os.PathLike, output: str | os.PathLike,
     output : path
         The ``.sbrdf`` file; refused if it is a folder or one of the inputs.
     ensemble : Ensemble, path or id, optional
-        Resolved once (``model.ensemble.resolve_ensemble``; default: the shipped one).
+        Resolved once (``coding.ensemble.resolve_ensemble``; default: the shipped one).
     n_coeffs : int
         Coefficients per channel, at most (checked against the ensemble's grid).
     n_bytes : int, optional
-        A byte budget for the whole file (``model.budget.encode_to_bytes``) instead of
+        A byte budget for the whole file (``coding.budget.encode_to_bytes``) instead of
         ``n_coeffs``.
     symmetrize : bool, optional
         As :func:`~sparse_brdf.sources.load.load_brdf` (None: a network is symmetrised).
     **options
-        The other keyword arguments of :func:`~sparse_brdf.model.encode.encode`
+        The other keyword arguments of :func:`~sparse_brdf.coding.encode.encode`
         (``max_error``, ``transform``, ``selector``, ...).
 
     Returns
@@ -216,7 +216,7 @@ def encode_batch(pattern: str | os.PathLike, out_dir: str | os.PathLike,
                  ex: Executor | None = None, progress: bool = True) -> dict:
     """Encode every material of ``pattern`` (a folder or a glob) into ``out_dir``.
 
-    ``options``: keyword arguments of :func:`~sparse_brdf.model.encode.encode`
+    ``options``: keyword arguments of :func:`~sparse_brdf.coding.encode.encode`
     (``n_coeffs``, ``transform``, ``selector``, ...), and ``symmetrize`` as
     :func:`~sparse_brdf.sources.load.load_brdf` takes it. ``ex``: where the work runs
     (default in-process). Returns the summary (``summary.json``'s content): ``rows`` in
@@ -286,9 +286,9 @@ def encode_samples_file(source: str | os.PathLike | Samples, output: str | os.Pa
                         ensemble: Ensemble | str | os.PathLike | None = None,
                         n_coeffs: int = DEFAULT_N_COEFFS, n_bytes: int | None = None,
                         seed: int = 0, prior: str = "default") -> tuple[Path, SparseBRDF]:
-    """Encode a samples file (``sources.samples.read_samples``: CSV or ``.npz``) into the
+    """Encode a samples file (``acquisition.files.read_samples``: CSV or ``.npz``) into the
     ``.sbrdf`` file ``output`` (written atomically), by
-    :func:`~sparse_brdf.evaluation.acquisition.encode_samples`.
+    :func:`~sparse_brdf.acquisition.defaults.encode_samples`.
 
     Parameters
     ----------
@@ -297,7 +297,7 @@ def encode_samples_file(source: str | os.PathLike | Samples, output: str | os.Pa
     output : path
         The ``.sbrdf`` file; refused if it is a folder or one of the inputs.
     ensemble : Ensemble, path or id, optional
-        Resolved once (default: the shipped one).
+        Resolved once, here (default: the shipped one).
     n_coeffs : int
         Coefficients per channel, at most (a joint budget of 3 ``n_coeffs``).
     n_bytes : int, optional
@@ -321,14 +321,14 @@ def encode_samples_file(source: str | os.PathLike | Samples, output: str | os.Pa
     if not np.any(samples.rgb):
         raise UsageError(f"{samples.source or samples.name}: every sample value is 0: nothing "
                          "to encode (fill in the measured r,g,b of the plan)")
-    model = encode_samples(samples, ens, check_n_coeffs(n_coeffs, ens), n_bytes, seed=seed,
-                           prior=check_choice("prior", prior, PRIORS))
+    # encode_samples checks n_coeffs and resolves the prior, once
+    model = encode_samples(samples, ens, n_coeffs, n_bytes, seed=seed, prior=prior)
     return save_sbrdf(out, model), model
 
 
 def plan_samples_file(output: str | os.PathLike, n: int, placement: str = "stratified",
                       seed: int = 0) -> Path:
-    """Write the direction pairs to measure (``sources.samples.plan``) as a CSV samples file
+    """Write the direction pairs to measure (``acquisition.files.plan``) as a CSV samples file
     whose values are 0, to be replaced by the measurements.
 
     Parameters

@@ -30,7 +30,7 @@ import numpy as np
 
 from ..fileio import atomic_write
 from ..metrics import OBJECT_ONLY, WHOLE_IMAGE
-from .render import read_exr
+from .images import read_exr
 from .report import flip_map_path, scenes_of, summary_table, tone
 
 __all__ = ["write_html_report"]

@@ -1,14 +1,17 @@
-"""Rendering helpers: scenes with overridable materials, images, masks, the noise floor.
+"""Rendering: scenes with overridden materials rendered with Mitsuba 3, object masks, the
+noise floor.
 
 Any Mitsuba 3 scene file names its materials by id; :func:`render_scene` replaces each
 overridden id by ``sparse_brdf`` (for a ``.sbrdf`` file) or ``tabulated_brdf`` (any other
-source :func:`sparse_brdf.sources.load.load_brdf` reads) and renders with Mitsuba 3. The
+source :func:`sparse_brdf.sources.load.load_brdf` reads; the scene XML is built in
+:mod:`sparse_brdf.evaluation.scenes`) and renders with Mitsuba 3. The
 scene's ``$``-parameters get values only where it declares them (``<default>``, as the
 shipped ``scenes/`` declare ``spp``, ``res`` and ``seed``); otherwise spp and seed are set
 on its first sensor's sampler and the resolution on its film (aspect ratio kept).
 :func:`object_mask` gives the pixels of the object-only SNR: those whose camera rays first
 hit a shape carrying one of the replaced materials. Images are written by suffix
-(:func:`write_image`: ``.exr`` linear, ``.png``/``.jpg`` an sRGB preview). Errors raised
+(:mod:`sparse_brdf.evaluation.images`: ``.exr`` linear, ``.png``/``.jpg`` an sRGB
+preview). Errors raised
 inside a render surface as "drjit.custom ... (see above)"; :class:`RenderError` carries
 the real message from the ``__cause__`` chain (``docs/method.md``, "Rendering with
 Mitsuba").
@@ -19,319 +22,35 @@ so that ``import sparse_brdf`` and ``sparse-brdf --help`` never load them.
 
 from __future__ import annotations
 
-import contextlib
 import os
-import re
-import sys
-import tempfile
 import xml.etree.ElementTree as ET
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Iterable, Mapping
 from pathlib import Path
-from typing import NamedTuple
 
 import numpy as np
 
+from .._moved import moved_names
+from ..decoders.layouts import LOBES
 from ..errors import (
-    ImageFileError,
-    MissingDataError,
-    MissingFileError,
-    OutputError,
     RenderError,
-    SceneError,
-    SparseBRDFError,
     UnknownNameError,
     UsageError,
 )
-from ..fileio import atomic_path, atomic_write, require_file
+from ..fileio import require_file
 from ..metrics import SNRForms, snr_forms
 from ..mitsuba_env import DEFAULT_VARIANT, set_variant
-from ..model.layouts import SAMPLING
-from ..params import SEED, Interval, check, check_choice
-from ..paths import SCENES_DIR, shared_envmaps_dir
-
-SPARSE_SUFFIX = ".sbrdf"
-#: The spp, seed and res a render accepts (Mitsuba's seed is 32-bit; 0 spp crashes it).
-RENDER_PARAMETERS = {"spp": Interval(int, 1, 1 << 16), "seed": SEED,
-                     "res": Interval(int, 1, 1 << 13)}
-#: The shipped scenes: ``sphere.xml`` (CC0 studio map), ``spheres.xml`` (three materials),
-#: ``paper_sphere.xml`` (the paper's scene; needs the shared Grace Cathedral map).
-
-
-def find_scene(name: str | os.PathLike) -> Path:
-    """A scene file: ``name`` as a path if it exists, else the shipped scene of that name
-    (``paper_sphere`` and ``paper_sphere.xml`` both work)."""
-    p = Path(name)
-    if p.is_file():
-        return p
-    for cand in (SCENES_DIR / p, SCENES_DIR / f"{p}.xml"):
-        if cand.is_file():
-            return cand
-    shipped = ", ".join(sorted(q.stem for q in SCENES_DIR.glob("*.xml")))
-    raise MissingFileError(f"{name}: no such scene file, and no shipped scene of that name "
-                           f"(shipped: {shipped})")
-
-
-_SEPARATORS = re.compile(r"[/\\]")
-
-
-class SceneSpec(NamedTuple):
-    """A scene as a bench names it: ``NAME[:KEY=VALUE[,KEY=VALUE...]]``, e.g.
-    ``sphere_light.xml:lightangle=40`` (see :func:`parse_scene_spec`).
-
-    Attributes
-    ----------
-    path : Path
-        The scene file (:func:`find_scene`).
-    params : dict of str to str
-        Scene defaults set for every render of it (as ``-D KEY=VALUE`` would).
-    key : str
-        Its name in results and file names: the file's stem, then ``-KEY=VALUE`` per
-        parameter in the order given (``sphere_light-lightangle=40``; a value's path
-        separators as underscores).
-    """
-
-    path: Path
-    params: dict
-    key: str
-
-
-def parse_scene_spec(text: str) -> SceneSpec:
-    """Read a scene spec ``NAME[:KEY=VALUE[,KEY=VALUE...]]``: a scene file or shipped
-    scene, then scene defaults to set (the ``<default>`` names the scene declares; spp,
-    seed and res are the bench's own settings).
-
-    Raises
-    ------
-    MissingFileError
-        No such scene.
-    UsageError
-        A malformed parameter, one the scene does not declare, or spp/seed/res.
-    """
-    name, params = text, {}
-    head, sep, tail = text.rpartition(":")
-    if sep and head and not Path(text).is_file():
-        name = head
-        fixed = sorted({x.partition("=")[0].strip() for x in tail.split(",")}
-                       & set(RENDER_PARAMETERS))
-        if fixed:
-            raise UsageError(f"scene {text!r}: {', '.join(fixed)} is set for every scene "
-                             "(a setting of its own), not per scene")
-        params = parse_defaults(filter(None, (x.strip() for x in tail.split(","))),
-                                f"scene {text!r}:")
-    path = find_scene(name)
-    declared = {d.get("name") for d in parse_scene(path).getroot().iter("default")}
-    unknown = sorted(set(params) - declared)
-    if unknown:
-        raise UsageError(f"scene {text!r}: {path.name} declares no parameter "
-                         f"{', '.join(unknown)} (it has {', '.join(sorted(declared))})")
-    # the key names folders and files: a value's path separators become underscores
-    key = path.stem + "".join(f"-{k}={_SEPARATORS.sub('_', v)}" for k, v in params.items())
-    return SceneSpec(path, params, key)
-
-
-def parse_overrides(items: Iterable[str]) -> dict[str, str]:
-    """``["id=FILE", ...]`` -> ``{"id": "FILE"}`` (a bare FILE means id "material")."""
-    out: dict[str, str] = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep:
-            key, value = "material", item
-        key, value = key.strip(), value.strip()
-        if not key or not value:
-            raise UsageError(f"material override {item!r}: expected ID=FILE")
-        out[key] = value
-    return out
-
-
-def parse_defaults(items: Iterable[str], option: str) -> dict[str, str]:
-    """``["KEY=VALUE", ...]`` -> scene defaults ``{"KEY": "VALUE"}`` (e.g. ``envrot=90``).
-
-    ``spp``, ``seed`` and ``res`` are refused: they have options of their own. A
-    malformed item is a :class:`~sparse_brdf.errors.UsageError` naming ``option``."""
-    out: dict[str, str] = {}
-    for item in items:
-        key, eq, value = item.partition("=")
-        key = key.strip()
-        if not eq or not key:
-            raise UsageError(f"{option} {item!r}: expected KEY=VALUE (a scene default, e.g. "
-                             "envrot=90)")
-        if key in RENDER_PARAMETERS:
-            raise UsageError(f"{option} {key}: use --{key}")
-        out[key] = value.strip()
-    return out
-
-
-def plugin_for(source: str) -> str:
-    """The plugin that renders ``source``: sparse_brdf for .sbrdf, else tabulated_brdf."""
-    return "sparse_brdf" if str(source).lower().endswith(SPARSE_SUFFIX) else "tabulated_brdf"
-
-
-def _cause_message(exc: BaseException) -> str:
-    """The message of the innermost of our own errors in the ``__cause__`` chain of
-    ``exc`` (e.g. a plugin's "cannot load FILE: ..."), which says all; else the messages
-    of ``exc`` and its causes, innermost first, without repetitions."""
-    chain: list[BaseException] = []
-    e: BaseException | None = exc
-    while e is not None and all(e is not c for c in chain):
-        chain.append(e)
-        e = e.__cause__ or e.__context__
-    ours = [c for c in chain if isinstance(c, SparseBRDFError)]
-    if ours:
-        return str(ours[-1]).strip()
-    parts: list[str] = []
-    for c in chain:
-        msg = _without_traceback(str(c))
-        if msg and msg not in parts:
-            parts.append(msg)
-    return " <- ".join(reversed(parts)) if len(parts) > 1 else (parts[0] if parts else
-                                                                type(exc).__name__)
-
-
-def _without_traceback(msg: str) -> str:
-    """A Mitsuba message without the Python traceback it may embed (a plugin's error
-    raised during scene loading: only the exception's own message is kept) and without
-    Mitsuba's source position and position in the generated XML string."""
-    head, sep, tb = msg.partition("Traceback (most recent call last):")
-    if sep:
-        last = [ln.strip() for ln in tb.splitlines() if ln.strip()]
-        tail = last[-1] if last else ""
-        name, colon, rest = tail.partition(": ")
-        head = head.rstrip() + " " + (rest if colon and name.isidentifier() else tail)
-    head = re.sub(r"^\[[\w.]+:\d+\]\s*", "", head.strip())
-    return re.sub(r"^At string \(line \d+, col \d+\):\s*", "", head).strip()
-
-
-def parse_scene(scene_path: str | os.PathLike) -> ET.ElementTree:
-    """A scene's XML tree; :class:`SceneError` naming the file if it is malformed."""
-    try:
-        return ET.parse(scene_path)
-    except ET.ParseError as exc:
-        raise SceneError(f"{scene_path}: not a valid scene XML file: {exc}") from exc
-    except UnicodeDecodeError as exc:
-        raise SceneError(f"{scene_path}: not a valid scene XML file ({exc.reason})") from exc
-
-
-def _abs_source(value: str, base: Path) -> str:
-    if value.startswith("mitsuba:"):
-        return value
-    p = Path(value).expanduser()
-    return str(p if p.is_absolute() else (Path.cwd() / p).resolve())
-
-
-def scene_xml(
-    scene_path: str | os.PathLike,
-    materials: Mapping[str, str] | None = None,
-    sparse_options: Mapping[str, object] | None = None,
-    tabulated_options: Mapping[str, object] | None = None,
-) -> str:
-    """The scene's XML with the BSDFs of ``materials`` (id -> file) replaced.
-
-    ``sparse_options``/``tabulated_options`` are extra plugin parameters (e.g.
-    ``{"decoder": "strict", "ensemble": path}``), written as strings (booleans as
-    ``<boolean>``). Relative material paths are taken from the current directory.
-    """
-    root = _replaced(scene_path, materials, sparse_options, tabulated_options)
-    return ET.tostring(root, encoding="unicode")
-
-
-def _replaced(scene_path, materials, sparse_options, tabulated_options) -> ET.Element:
-    """The scene's XML root with the BSDFs of ``materials`` replaced (:func:`scene_xml`)."""
-    scene_path = Path(scene_path)
-    root = parse_scene(scene_path).getroot()
-    for mid, source in (materials or {}).items():
-        parent, elem = _find_by_id(root, mid)
-        if elem is None:
-            raise UnknownNameError(f"{scene_path}: no element with id {mid!r} to override "
-                           f"(ids: {', '.join(sorted(_ids(root))) or 'none'})")
-        plugin = plugin_for(source)
-        new = ET.Element("bsdf", {"type": plugin, "id": mid})
-        ET.SubElement(new, "string", {"name": "filename",
-                                      "value": _abs_source(source, scene_path.parent)})
-        opts = sparse_options if plugin == "sparse_brdf" else tabulated_options
-        for key, val in (opts or {}).items():
-            if isinstance(val, bool):
-                ET.SubElement(new, "boolean", {"name": key, "value": str(val).lower()})
-            else:
-                if key == "ensemble":
-                    val = _abs_source(str(val), scene_path.parent)
-                ET.SubElement(new, "string", {"name": key, "value": str(val)})
-        idx = list(parent).index(elem)
-        parent.remove(elem)
-        parent.insert(idx, new)
-    return root
-
-
-def _ids(root: ET.Element) -> set[str]:
-    return {e.get("id") for e in root.iter() if e.get("id")}
-
-
-def _find_by_id(root: ET.Element, mid: str):
-    for parent in root.iter():
-        for child in parent:
-            if child.get("id") == mid:
-                return parent, child
-    return None, None
-
-
-def _defaults(root: ET.Element, params: Mapping[str, object] | None) -> dict[str, str]:
-    """The scene's ``<default>`` values with ``params`` on top."""
-    out = {d.get("name"): d.get("value", "") for d in root.iter("default")}
-    out.update({k: str(v) for k, v in (params or {}).items()})
-    return out
-
-
-def data_search_path(scene_path: str | os.PathLike) -> list[Path]:
-    """Folders a scene's relative data files are looked up in, in order: the scene's own
-    folder, then the shared environment maps (where the non-redistributable Grace Cathedral
-    map of the paper's scene lives)."""
-    folders = [Path(scene_path).resolve().parent]
-    shared = shared_envmaps_dir()
-    if shared is not None:
-        folders.append(shared)
-    return folders
-
-
-def check_scene_data(scene_path: str | os.PathLike,
-                     params: Mapping[str, object] | None = None) -> None:
-    """Raise :class:`MissingDataError` (one line) when an emitter's image file of the scene
-    is on none of :func:`data_search_path`'s folders (e.g. ``paper_sphere.xml`` without
-    ``../shared/data/envmaps/grace_latlong.exr``)."""
-    scene_path = Path(scene_path)
-    root = parse_scene(scene_path).getroot()
-    values = _defaults(root, params)
-    for em in root.iter("emitter"):
-        for el in em.iter("string"):
-            if el.get("name") != "filename":
-                continue
-            name = el.get("value", "")
-            if name.startswith("$"):
-                name = values.get(name[1:], name)
-            p = Path(name).expanduser()
-            if p.is_absolute() and p.is_file():
-                continue
-            if any((f / p).is_file() for f in data_search_path(scene_path)):
-                continue
-            raise MissingDataError(
-                f"{scene_path.name}: its environment map {name} is not on this machine "
-                f"(looked in {', '.join(str(f) for f in data_search_path(scene_path))}); "
-                "the paper's Grace Cathedral map is not redistributable: put the shared data "
-                "folder at ../shared/data or point SPARSE_BRDF_DATA to it")
-
-
-@contextlib.contextmanager
-def _scene_dir_resolver(scene_path: Path) -> Iterator[None]:
-    """Let Mitsuba resolve the scene's relative paths (envmaps/...) from
-    :func:`data_search_path`."""
-    import mitsuba as mi  # lazy: Mitsuba is slow to import (see the module doc)
-
-    saved = mi.FileResolver(mi.file_resolver())
-    for folder in reversed(data_search_path(scene_path)):
-        mi.file_resolver().prepend(str(folder))
-    try:
-        yield
-    finally:
-        mi.set_file_resolver(saved)
-
+from ..params import check, check_choice
+from .scenes import (
+    RENDER_PARAMETERS,
+    cause_message,
+    check_scene_data,
+    declared_defaults,
+    element_ids,
+    find_scene,
+    parse_scene,
+    replaced_materials,
+    scene_dir_resolver,
+)
 
 #: The film of a scene without one: Mitsuba's ``hdrfilm`` default size (width, height).
 DEFAULT_FILM = (768, 576)
@@ -348,7 +67,7 @@ Size = int | tuple[int, int]
 
 def declared_parameters(scene_path: str | os.PathLike) -> dict[str, str]:
     """The ``$``-parameters a scene declares (its ``<default>`` elements): name -> value."""
-    return _defaults(parse_scene(find_scene(scene_path)).getroot(), None)
+    return declared_defaults(parse_scene(find_scene(scene_path)).getroot(), None)
 
 
 def _sensor(root: ET.Element) -> ET.Element | None:
@@ -396,7 +115,7 @@ def film_size(scene_path: str | os.PathLike, res: Size | None = None,
     """The (width, height) in pixels that :func:`render_scene` renders ``scene_path`` at
     for ``res`` (see there) and the scene defaults ``params``."""
     root = parse_scene(find_scene(scene_path)).getroot()
-    values = _defaults(root, params)
+    values = declared_defaults(root, params)
     if res is None:
         return _film_size(root, values)
     if isinstance(res, tuple):
@@ -420,7 +139,7 @@ def _settings(root: ET.Element, scene_path: Path, spp, seed, res,
     """Apply spp, seed, res and ``params`` to a scene: the ``$``-parameters it declares
     are returned (for ``mi.load_string``), the rest is set on ``root`` itself (the first
     sensor's sampler and film). A ``params`` key the scene does not declare is refused."""
-    declared = _defaults(root, None)
+    declared = declared_defaults(root, None)
     given = {k: str(v) for k, v in (params or {}).items()}
     unknown = sorted(set(given) - set(declared))
     if unknown:
@@ -469,7 +188,7 @@ def _with_sampling(options: Mapping[str, object] | None,
                    sampling: str | None) -> dict[str, object] | None:
     if sampling is None:
         return None if options is None else dict(options)
-    return {**(options or {}), "sampling": check_choice("sampling", sampling, SAMPLING)}
+    return {**(options or {}), "sampling": check_choice("sampling", sampling, LOBES)}
 
 
 def load_scene(
@@ -492,7 +211,7 @@ def load_scene(
     import mitsuba_plugin  # lazy: imports Mitsuba and Dr.Jit
 
     scene_path = require_file(find_scene(scene_path), "scene file")
-    root = _replaced(scene_path, materials, _with_sampling(sparse_options, sampling),
+    root = replaced_materials(scene_path, materials, _with_sampling(sparse_options, sampling),
                      _with_sampling(tabulated_options, sampling))
     kwargs = _settings(root, scene_path, spp, seed, res, params)
     if _edit is not None:
@@ -502,10 +221,10 @@ def load_scene(
     mitsuba_plugin.register()
     xml = ET.tostring(root, encoding="unicode")
     try:
-        with _scene_dir_resolver(scene_path):
+        with scene_dir_resolver(scene_path):
             return mi.load_string(xml, **kwargs)
     except Exception as exc:  # noqa: BLE001 - re-raised with the cause's message
-        raise RenderError(f"{scene_path}: cannot load the scene: {_cause_message(exc)}") from exc
+        raise RenderError(f"{scene_path}: cannot load the scene: {cause_message(exc)}") from exc
 
 
 def render_scene(
@@ -545,7 +264,7 @@ def render_scene(
         img = mi.render(scene, spp=int(spp), seed=int(seed))
         out = np.array(img, dtype=np.float32)
     except Exception as exc:  # noqa: BLE001 - re-raised with the cause's message
-        raise RenderError(f"{scene_path}: rendering failed: {_cause_message(exc)}") from exc
+        raise RenderError(f"{scene_path}: rendering failed: {cause_message(exc)}") from exc
     if out.ndim != 3 or out.shape[2] < 3:
         raise RenderError(f"{scene_path}: expected an RGB image, got shape {out.shape}")
     out = np.ascontiguousarray(out[..., :3])
@@ -606,7 +325,7 @@ def object_mask(
     ids: set[str] = set()
 
     def tag(root: ET.Element) -> None:
-        known = _ids(root)
+        known = element_ids(root)
         missing = sorted(set(wanted) - known)
         if missing:
             raise UnknownNameError(f"{scene_path}: no BSDF with id {', '.join(missing)} (ids: "
@@ -669,158 +388,6 @@ def noise_floor_snr(reference: np.ndarray, reference2: np.ndarray,
     return snr_forms(reference, reference2, mask)
 
 
-# ------------------------------------------------------------------------------- EXR
-
-
-def write_exr(path: str | os.PathLike, img: np.ndarray) -> Path:
-    """Write a linear float32 RGB image (H, W, 3) as an EXR file, atomically;
-    :class:`OutputError` naming ``path`` if the system refuses (a full disk, a file size
-    limit), with nothing left behind."""
-    path = Path(path)
-    arr = np.ascontiguousarray(np.asarray(img, dtype=np.float32))
-    if arr.ndim != 3 or arr.shape[2] != 3:
-        raise ImageFileError(f"{path}: expected an image of shape (H, W, 3), got "
-                             f"{arr.shape}")
-    import OpenEXR  # lazy: only image commands need it, every command imports this module
-
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    with atomic_path(path, suffix=".exr") as tmp, OpenEXR.File(header, {"RGB": arr}) as f:
-        try:
-            f.write(str(tmp))
-        except RuntimeError as exc:  # OpenEXR's I/O errors (ENOSPC, EFBIG, ...)
-            raise OutputError(f"{path}: cannot write the EXR image: {exc}") from exc
-    return path
-
-
-#: The images a render writes, by suffix: ``.exr`` linear HDR (float32), the others an
-#: 8-bit tone-mapped sRGB preview (:func:`preview`).
-IMAGE_SUFFIXES = (".exr", ".png", ".jpg", ".jpeg")
-#: The object masks :func:`write_mask` writes, by suffix.
-MASK_SUFFIXES = (".exr", ".npy")
-
-
-def preview(img: np.ndarray, exposure: float = 0.0) -> np.ndarray:
-    """An 8-bit sRGB preview of a linear image (H, W, 3): scaled by ``2 ** exposure``
-    (stops), clipped to [0, 1] and encoded with the sRGB transfer function; uint8
-    (H, W, 3). NaN and negative values show as black."""
-    x = np.nan_to_num(np.asarray(img, np.float64) * 2.0 ** float(exposure), nan=0.0)
-    x = np.clip(x, 0.0, 1.0)
-    x = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
-    return np.round(x * 255.0).astype(np.uint8)
-
-
-def write_image(path: str | os.PathLike, img: np.ndarray, exposure: float = 0.0) -> Path:
-    """Write a linear RGB image (H, W, 3) by its suffix, atomically: ``.exr`` as linear
-    float32 (``exposure`` unused), ``.png``/``.jpg``/``.jpeg`` as an 8-bit sRGB preview
-    (:func:`preview`, ``exposure`` in stops); another suffix is an
-    :class:`~sparse_brdf.errors.OutputError`."""
-    path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix == ".exr":
-        return write_exr(path, img)
-    if suffix not in IMAGE_SUFFIXES:
-        raise OutputError(f"{path}: an image is written as {', '.join(IMAGE_SUFFIXES)}")
-    arr = np.asarray(img)
-    if arr.ndim != 3 or arr.shape[2] != 3:
-        raise ImageFileError(f"{path}: expected an image of shape (H, W, 3), got "
-                             f"{arr.shape}")
-    from PIL import Image  # lazy: only previews need it (Pillow comes with matplotlib)
-
-    fmt = "PNG" if suffix == ".png" else "JPEG"
-    with atomic_write(path, "wb") as f:
-        Image.fromarray(preview(arr, exposure), "RGB").save(f, format=fmt, quality=95)
-    return path
-
-
-def read_exr(path: str | os.PathLike) -> np.ndarray:
-    """Read the RGB channels of an EXR file (RGB or RGBA, as Mitsuba writes) as float32
-    (H, W, 3); :class:`ImageFileError` naming the file if it is not such an image."""
-    import OpenEXR  # lazy: only image commands need it, every command imports this module
-
-    path = require_file(path, "EXR file")
-    printed: list[str] = []  # OpenEXR's own words about this file (see _c_output_to)
-    try:
-        with _c_output_to(printed, (str(path), "EXR_ERR", "pixel data")), \
-                OpenEXR.File(str(path)) as f:
-            ch = f.channels()
-            key = next((k for k in ("RGB", "RGBA") if k in ch), None)
-            if key is not None:
-                arr = np.asarray(ch[key].pixels)[..., :3]
-            elif all(c in ch for c in "RGB"):
-                arr = np.stack([np.asarray(ch[c].pixels) for c in "RGB"], -1)
-            else:
-                raise ImageFileError(f"no R, G, B channels (has {', '.join(ch) or 'none'})")
-    except Exception as exc:  # noqa: BLE001 - OpenEXR raises plain exceptions
-        said = printed[0].strip().splitlines() if printed and printed[0].strip() else []
-        raise ImageFileError(f"{path}: cannot read EXR: {exc}"
-                             + (f" ({said[0].removeprefix(f'{path}: ')})" if said else "")
-                             ) from exc
-    if printed and printed[0].strip():  # OpenEXR warned of damaged pixel data
-        line = printed[0].strip().splitlines()[0].removeprefix(f"{path}: ")
-        raise ImageFileError(f"{path}: cannot read EXR: {line}")
-    if arr.ndim != 3 or arr.shape[2] != 3 or arr.size == 0:
-        raise ImageFileError(f"{path}: not an RGB image (pixel array of shape {arr.shape})")
-    return np.ascontiguousarray(arr, dtype=np.float32)
-
-
-@contextlib.contextmanager
-def _c_output_to(printed: list[str], marks: tuple[str, ...]) -> Iterator[None]:
-    """Collect the lines that C/C++ libraries print on file descriptors 1 and 2 and that
-    hold one of ``marks`` (OpenEXR's warnings about a damaged file, on both) into
-    ``printed`` (one string) instead of the terminal; other lines (another thread's) go
-    to stderr afterwards. An unnamed temporary file holds them, so an interrupt leaves
-    nothing behind."""
-    try:
-        saved = [os.dup(1), os.dup(2)]
-    except OSError:  # no stdout or stderr: nothing to protect
-        yield
-        return
-    with tempfile.TemporaryFile() as tmp:
-        sys.stdout.flush()
-        sys.stderr.flush()
-        for fd in (1, 2):
-            os.dup2(tmp.fileno(), fd)
-        try:
-            yield
-        finally:
-            for fd, old in zip((1, 2), saved, strict=True):
-                os.dup2(old, fd)
-                os.close(old)
-            tmp.seek(0)
-            lines = tmp.read().decode("utf-8", errors="replace").splitlines(keepends=True)
-            ours = [ln for ln in lines if any(m in ln for m in marks)]
-            others = "".join(ln for ln in lines if ln not in ours)
-            if others:
-                sys.stderr.write(others)
-            printed.append("".join(ours))
-
-
-def write_mask(path: str | os.PathLike, mask: np.ndarray) -> Path:
-    """Write a bool mask (H, W) as an EXR (1.0 = object, in every channel) or, for a
-    ``.npy`` path, as a numpy array; atomically."""
-    path = Path(path)
-    mask = np.asarray(mask, dtype=bool)
-    if path.suffix.lower() == ".npy":
-        with atomic_write(path, "wb") as f:
-            np.save(f, mask)
-        return path
-    return write_exr(path, np.repeat(mask[..., None], 3, -1).astype(np.float32))
-
-
-def read_mask(path: str | os.PathLike) -> np.ndarray:
-    """An object mask, bool (H, W), from an EXR (nonzero in any channel = object) or a
-    ``.npy`` file of booleans."""
-    path = require_file(path, "mask file")
-    if path.suffix.lower() == ".npy":
-        try:
-            mask = np.load(path, allow_pickle=False)
-        except Exception as exc:  # noqa: BLE001 - numpy raises several kinds
-            raise ImageFileError(f"{path}: cannot read mask: {exc}") from exc
-        if mask.ndim != 2 or mask.dtype.kind not in "biuf":
-            raise ImageFileError(f"{path}: a mask must be a 2-D (H, W) array of booleans, "
-                                 f"got {mask.dtype} of shape {mask.shape}")
-        return mask.astype(bool)
-    img = read_exr(path)
-    if not np.all(np.isfinite(img)):
-        raise ImageFileError(f"{path}: mask holds NaN/inf values")
-    return np.any(img != 0, axis=-1)
+# Names that moved to modules of their own (sparse_brdf._moved.MOVED_NAMES) still import
+# from here for one release, with a DeprecationWarning.
+__getattr__ = moved_names(__name__)

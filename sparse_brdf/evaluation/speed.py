@@ -2,11 +2,12 @@
 
 Every model is timed with its own evaluator, never through a dense table:
 
-- ``sparse`` (a :class:`~sparse_brdf.sparse.SparseBRDF`, or the ``Compact`` of
-  :class:`~sparse_brdf.model.sparse_model.SparseModel`): the ``sparse_brdf`` Mitsuba plugin's
+- ``sparse`` (a :class:`~sparse_brdf.coding.coefficients.SparseBRDF`, or the ``Compact`` of
+  :class:`~sparse_brdf.compared.sparse_model.SparseModel`): the ``sparse_brdf`` Mitsuba plugin's
   ``eval``, with the ``grouped`` or ``strict`` decoder;
 - ``tabulated`` (a :class:`~sparse_brdf.brdf.BRDF`, or the ``Compact`` of
-  :class:`~sparse_brdf.model.baselines.TabulatedModel`): the ``tabulated_brdf`` plugin's ``eval``;
+  :class:`~sparse_brdf.compared.baselines.TabulatedModel`): the ``tabulated_brdf``
+  plugin's ``eval``;
 - ``naive``, ``cpd``, ``tucker``, ``pca``, ``nbrdf`` (their ``Compact``): the Dr.Jit
   evaluators of :mod:`mitsuba_plugin.evaluators`, computed from the model's stored
   ``params`` (for ``nbrdf``, the network itself at each pair).
@@ -14,7 +15,7 @@ Every model is timed with its own evaluator, never through a dense table:
 The plugins' ``eval`` includes the cosine factor and the evaluators do not; that one
 multiplication is part of the cost. Mitsuba is imported only when a function is called.
 
->>> from sparse_brdf.model.baselines import NaiveModel
+>>> from sparse_brdf.compared.baselines import NaiveModel
 >>> rate = evals_per_second(NaiveModel().compress(brdf))     # doctest: +SKIP
 >>> f"{rate / 1e6:.0f} M evaluations/s"                 # doctest: +SKIP
 """
@@ -30,12 +31,12 @@ from pathlib import Path
 import numpy as np
 
 from ..brdf import BRDF
+from ..coding.coefficients import SparseBRDF
+from ..coding.fileformat import save_sbrdf
+from ..compared.compact import Compact
 from ..coords import geometric_valid
+from ..decoders.layouts import DECODERS
 from ..mitsuba_env import variant as use_variant
-from ..model.compact import Compact
-from ..model.layouts import DECODERS
-from ..model.sbrdf import save_sbrdf
-from ..model.sparse import SparseBRDF
 from ..params import check_choice
 from ..sources.merl import write_merl
 from .render import SHARED_PATHS
@@ -107,10 +108,10 @@ def evals_per_second(model, n: int = 1 << 20, repeats: int = 5, ensemble=None, *
     Parameters
     ----------
     model : Compact, SparseBRDF, BRDF or CompressedBRDF
-        A fitted :class:`~sparse_brdf.model.compact.Compact` of any baseline kind (naive,
+        A fitted :class:`~sparse_brdf.compared.compact.Compact` of any baseline kind (naive,
         cpd, tucker, pca, nbrdf, tabulated, sparse), a sparse model, a tabulated BRDF, or
         any compressed material with a ``drjit_evaluator()``
-        (:mod:`sparse_brdf.model.protocol`).
+        (:mod:`sparse_brdf.compared.protocol`).
     n : int, default 2**20
         Random upper-hemisphere direction pairs per timed call.
     repeats : int, default 5

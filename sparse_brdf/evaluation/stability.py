@@ -24,11 +24,11 @@ from pathlib import Path
 import numpy as np
 
 from ..brdf import BRDF
+from ..compared.protocol import ComparedModel, table_of
 from ..coords import grid_angles
 from ..errors import SparseBRDFError
 from ..fileio import atomic_write
 from ..metrics import cosine_weighted_snr
-from ..model.protocol import ComparedModel, table_of
 from ..sources.merl import MERL_SCALE, read_merl
 
 Perturb = Callable[[np.ndarray, np.ndarray, np.random.Generator], tuple[np.ndarray, np.ndarray]]

@@ -9,3 +9,6 @@
 - ``cache``: the on-disk cache of tabulations; ``corpora``: named corpora and their
   train/test split; ``dataset``: the training tensors of a list of materials.
 """
+
+__all__ = ["analytic", "cache", "catalog", "corpora", "dataset", "fits", "load", "merl",
+           "nbrdf"]

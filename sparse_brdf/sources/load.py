@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 
 from ..brdf import BRDF
+from ..coding.fileformat import decode_file
 from ..coords import MERL_SHAPE
 from ..errors import BRDFFileError, InvalidBRDFError, UnknownNameError
 from ..fileio import require_file
-from ..model.sbrdf import decode_file
 from .analytic import tabulate_mitsuba
 from .cache import cached_brdf, content_key
 from .catalog import mitsuba_catalog

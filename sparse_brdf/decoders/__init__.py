@@ -1,0 +1,11 @@
+"""What a renderer reads: the flat buffers of a coded material and their numpy twins.
+
+- ``layouts``: the decoders' buffers (``DECODERS``, ``LAYOUTS``), the importance-sampling
+  lobes (``LOBES``) and the plugins' defaults.
+- ``lookups``: numpy lookups of the uploaded data: the kernels' twins and the scalar
+  variants' one-point lookups.
+"""
+
+from .layouts import DECODERS, LAYOUTS, LOBES, PLUGIN_DEFAULTS
+
+__all__ = ["DECODERS", "LAYOUTS", "LOBES", "PLUGIN_DEFAULTS"]

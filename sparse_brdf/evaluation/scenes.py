@@ -1,0 +1,314 @@
+"""Scenes and their materials: finding a scene by name, scene specs ``NAME:KEY=VALUE``,
+reading a scene file, and the scene XML with overridden materials (``sparse_brdf`` for a
+``.sbrdf`` file, ``tabulated_brdf`` for any other source; ``docs/method.md``, "Rendering
+with Mitsuba"). Errors raised inside a render surface as "drjit.custom ... (see above)";
+the real message is found on the ``__cause__`` chain here.
+
+Mitsuba is imported inside the functions that need it, so that ``import sparse_brdf`` and
+``sparse-brdf --help`` never load it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+import xml.etree.ElementTree as ET
+from collections.abc import Iterable, Iterator, Mapping
+from pathlib import Path
+from typing import NamedTuple
+
+from ..errors import (
+    MissingDataError,
+    MissingFileError,
+    SceneError,
+    SparseBRDFError,
+    UnknownNameError,
+    UsageError,
+)
+from ..params import SEED, Interval
+from ..paths import SCENES_DIR, shared_envmaps_dir
+
+SPARSE_SUFFIX = ".sbrdf"
+#: The spp, seed and res a render accepts (Mitsuba's seed is 32-bit; 0 spp crashes it).
+RENDER_PARAMETERS = {"spp": Interval(int, 1, 1 << 16), "seed": SEED,
+                     "res": Interval(int, 1, 1 << 13)}
+
+#: The shipped scenes: ``sphere.xml`` (CC0 studio map), ``spheres.xml`` (three materials),
+#: ``paper_sphere.xml`` (the paper's scene; needs the shared Grace Cathedral map).
+
+
+def find_scene(name: str | os.PathLike) -> Path:
+    """A scene file: ``name`` as a path if it exists, else the shipped scene of that name
+    (``paper_sphere`` and ``paper_sphere.xml`` both work)."""
+    p = Path(name)
+    if p.is_file():
+        return p
+    for cand in (SCENES_DIR / p, SCENES_DIR / f"{p}.xml"):
+        if cand.is_file():
+            return cand
+    shipped = ", ".join(sorted(q.stem for q in SCENES_DIR.glob("*.xml")))
+    raise MissingFileError(f"{name}: no such scene file, and no shipped scene of that name "
+                           f"(shipped: {shipped})")
+
+
+_SEPARATORS = re.compile(r"[/\\]")
+
+
+class SceneSpec(NamedTuple):
+    """A scene as a bench names it: ``NAME[:KEY=VALUE[,KEY=VALUE...]]``, e.g.
+    ``sphere_light.xml:lightangle=40`` (see :func:`parse_scene_spec`).
+
+    Attributes
+    ----------
+    path : Path
+        The scene file (:func:`find_scene`).
+    params : dict of str to str
+        Scene defaults set for every render of it (as ``-D KEY=VALUE`` would).
+    key : str
+        Its name in results and file names: the file's stem, then ``-KEY=VALUE`` per
+        parameter in the order given (``sphere_light-lightangle=40``; a value's path
+        separators as underscores).
+    """
+
+    path: Path
+    params: dict
+    key: str
+
+
+def parse_scene_spec(text: str) -> SceneSpec:
+    """Read a scene spec ``NAME[:KEY=VALUE[,KEY=VALUE...]]``: a scene file or shipped
+    scene, then scene defaults to set (the ``<default>`` names the scene declares; spp,
+    seed and res are the bench's own settings).
+
+    Raises
+    ------
+    MissingFileError
+        No such scene.
+    UsageError
+        A malformed parameter, one the scene does not declare, or spp/seed/res.
+    """
+    name, params = text, {}
+    head, sep, tail = text.rpartition(":")
+    if sep and head and not Path(text).is_file():
+        name = head
+        fixed = sorted({x.partition("=")[0].strip() for x in tail.split(",")}
+                       & set(RENDER_PARAMETERS))
+        if fixed:
+            raise UsageError(f"scene {text!r}: {', '.join(fixed)} is set for every scene "
+                             "(a setting of its own), not per scene")
+        params = parse_defaults(filter(None, (x.strip() for x in tail.split(","))),
+                                f"scene {text!r}:")
+    path = find_scene(name)
+    declared = {d.get("name") for d in parse_scene(path).getroot().iter("default")}
+    unknown = sorted(set(params) - declared)
+    if unknown:
+        raise UsageError(f"scene {text!r}: {path.name} declares no parameter "
+                         f"{', '.join(unknown)} (it has {', '.join(sorted(declared))})")
+    # the key names folders and files: a value's path separators become underscores
+    key = path.stem + "".join(f"-{k}={_SEPARATORS.sub('_', v)}" for k, v in params.items())
+    return SceneSpec(path, params, key)
+
+
+def parse_overrides(items: Iterable[str]) -> dict[str, str]:
+    """``["id=FILE", ...]`` -> ``{"id": "FILE"}`` (a bare FILE means id "material")."""
+    out: dict[str, str] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep:
+            key, value = "material", item
+        key, value = key.strip(), value.strip()
+        if not key or not value:
+            raise UsageError(f"material override {item!r}: expected ID=FILE")
+        out[key] = value
+    return out
+
+
+def parse_defaults(items: Iterable[str], option: str) -> dict[str, str]:
+    """``["KEY=VALUE", ...]`` -> scene defaults ``{"KEY": "VALUE"}`` (e.g. ``envrot=90``).
+
+    ``spp``, ``seed`` and ``res`` are refused: they have options of their own. A
+    malformed item is a :class:`~sparse_brdf.errors.UsageError` naming ``option``."""
+    out: dict[str, str] = {}
+    for item in items:
+        key, eq, value = item.partition("=")
+        key = key.strip()
+        if not eq or not key:
+            raise UsageError(f"{option} {item!r}: expected KEY=VALUE (a scene default, e.g. "
+                             "envrot=90)")
+        if key in RENDER_PARAMETERS:
+            raise UsageError(f"{option} {key}: use --{key}")
+        out[key] = value.strip()
+    return out
+
+
+def plugin_for(source: str) -> str:
+    """The plugin that renders ``source``: sparse_brdf for .sbrdf, else tabulated_brdf."""
+    return "sparse_brdf" if str(source).lower().endswith(SPARSE_SUFFIX) else "tabulated_brdf"
+
+
+def cause_message(exc: BaseException) -> str:
+    """The message of the innermost of our own errors in the ``__cause__`` chain of
+    ``exc`` (e.g. a plugin's "cannot load FILE: ..."), which says all; else the messages
+    of ``exc`` and its causes, innermost first, without repetitions."""
+    chain: list[BaseException] = []
+    e: BaseException | None = exc
+    while e is not None and all(e is not c for c in chain):
+        chain.append(e)
+        e = e.__cause__ or e.__context__
+    ours = [c for c in chain if isinstance(c, SparseBRDFError)]
+    if ours:
+        return str(ours[-1]).strip()
+    parts: list[str] = []
+    for c in chain:
+        msg = _without_traceback(str(c))
+        if msg and msg not in parts:
+            parts.append(msg)
+    return " <- ".join(reversed(parts)) if len(parts) > 1 else (parts[0] if parts else
+                                                                type(exc).__name__)
+
+
+def _without_traceback(msg: str) -> str:
+    """A Mitsuba message without the Python traceback it may embed (a plugin's error
+    raised during scene loading: only the exception's own message is kept) and without
+    Mitsuba's source position and position in the generated XML string."""
+    head, sep, tb = msg.partition("Traceback (most recent call last):")
+    if sep:
+        last = [ln.strip() for ln in tb.splitlines() if ln.strip()]
+        tail = last[-1] if last else ""
+        name, colon, rest = tail.partition(": ")
+        head = head.rstrip() + " " + (rest if colon and name.isidentifier() else tail)
+    head = re.sub(r"^\[[\w.]+:\d+\]\s*", "", head.strip())
+    return re.sub(r"^At string \(line \d+, col \d+\):\s*", "", head).strip()
+
+
+def parse_scene(scene_path: str | os.PathLike) -> ET.ElementTree:
+    """A scene's XML tree; :class:`SceneError` naming the file if it is malformed."""
+    try:
+        return ET.parse(scene_path)
+    except ET.ParseError as exc:
+        raise SceneError(f"{scene_path}: not a valid scene XML file: {exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise SceneError(f"{scene_path}: not a valid scene XML file ({exc.reason})") from exc
+
+
+def _abs_source(value: str, base: Path) -> str:
+    if value.startswith("mitsuba:"):
+        return value
+    p = Path(value).expanduser()
+    return str(p if p.is_absolute() else (Path.cwd() / p).resolve())
+
+
+def scene_xml(
+    scene_path: str | os.PathLike,
+    materials: Mapping[str, str] | None = None,
+    sparse_options: Mapping[str, object] | None = None,
+    tabulated_options: Mapping[str, object] | None = None,
+) -> str:
+    """The scene's XML with the BSDFs of ``materials`` (id -> file) replaced.
+
+    ``sparse_options``/``tabulated_options`` are extra plugin parameters (e.g.
+    ``{"decoder": "strict", "ensemble": path}``), written as strings (booleans as
+    ``<boolean>``). Relative material paths are taken from the current directory.
+    """
+    root = replaced_materials(scene_path, materials, sparse_options, tabulated_options)
+    return ET.tostring(root, encoding="unicode")
+
+
+def replaced_materials(scene_path, materials, sparse_options, tabulated_options) -> ET.Element:
+    """The scene's XML root with the BSDFs of ``materials`` replaced (:func:`scene_xml`)."""
+    scene_path = Path(scene_path)
+    root = parse_scene(scene_path).getroot()
+    for mid, source in (materials or {}).items():
+        parent, elem = _find_by_id(root, mid)
+        if elem is None:
+            raise UnknownNameError(f"{scene_path}: no element with id {mid!r} to override "
+                           f"(ids: {', '.join(sorted(element_ids(root))) or 'none'})")
+        plugin = plugin_for(source)
+        new = ET.Element("bsdf", {"type": plugin, "id": mid})
+        ET.SubElement(new, "string", {"name": "filename",
+                                      "value": _abs_source(source, scene_path.parent)})
+        opts = sparse_options if plugin == "sparse_brdf" else tabulated_options
+        for key, val in (opts or {}).items():
+            if isinstance(val, bool):
+                ET.SubElement(new, "boolean", {"name": key, "value": str(val).lower()})
+            else:
+                if key == "ensemble":
+                    val = _abs_source(str(val), scene_path.parent)
+                ET.SubElement(new, "string", {"name": key, "value": str(val)})
+        idx = list(parent).index(elem)
+        parent.remove(elem)
+        parent.insert(idx, new)
+    return root
+
+
+def element_ids(root: ET.Element) -> set[str]:
+    return {e.get("id") for e in root.iter() if e.get("id")}
+
+
+def _find_by_id(root: ET.Element, mid: str):
+    for parent in root.iter():
+        for child in parent:
+            if child.get("id") == mid:
+                return parent, child
+    return None, None
+
+
+def declared_defaults(root: ET.Element, params: Mapping[str, object] | None) -> dict[str, str]:
+    """The scene's ``<default>`` values with ``params`` on top."""
+    out = {d.get("name"): d.get("value", "") for d in root.iter("default")}
+    out.update({k: str(v) for k, v in (params or {}).items()})
+    return out
+
+
+def data_search_path(scene_path: str | os.PathLike) -> list[Path]:
+    """Folders a scene's relative data files are looked up in, in order: the scene's own
+    folder, then the shared environment maps (where the non-redistributable Grace Cathedral
+    map of the paper's scene lives)."""
+    folders = [Path(scene_path).resolve().parent]
+    shared = shared_envmaps_dir()
+    if shared is not None:
+        folders.append(shared)
+    return folders
+
+
+def check_scene_data(scene_path: str | os.PathLike,
+                     params: Mapping[str, object] | None = None) -> None:
+    """Raise :class:`MissingDataError` (one line) when an emitter's image file of the scene
+    is on none of :func:`data_search_path`'s folders (e.g. ``paper_sphere.xml`` without
+    ``../shared/data/envmaps/grace_latlong.exr``)."""
+    scene_path = Path(scene_path)
+    root = parse_scene(scene_path).getroot()
+    values = declared_defaults(root, params)
+    for em in root.iter("emitter"):
+        for el in em.iter("string"):
+            if el.get("name") != "filename":
+                continue
+            name = el.get("value", "")
+            if name.startswith("$"):
+                name = values.get(name[1:], name)
+            p = Path(name).expanduser()
+            if p.is_absolute() and p.is_file():
+                continue
+            if any((f / p).is_file() for f in data_search_path(scene_path)):
+                continue
+            raise MissingDataError(
+                f"{scene_path.name}: its environment map {name} is not on this machine "
+                f"(looked in {', '.join(str(f) for f in data_search_path(scene_path))}); "
+                "the paper's Grace Cathedral map is not redistributable: put the shared data "
+                "folder at ../shared/data or point SPARSE_BRDF_DATA to it")
+
+
+@contextlib.contextmanager
+def scene_dir_resolver(scene_path: Path) -> Iterator[None]:
+    """Let Mitsuba resolve the scene's relative paths (envmaps/...) from
+    :func:`data_search_path`."""
+    import mitsuba as mi  # lazy: Mitsuba is slow to import (see the module doc)
+
+    saved = mi.FileResolver(mi.file_resolver())
+    for folder in reversed(data_search_path(scene_path)):
+        mi.file_resolver().prepend(str(folder))
+    try:
+        yield
+    finally:
+        mi.set_file_resolver(saved)
