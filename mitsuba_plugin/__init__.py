@@ -19,7 +19,8 @@ One job per module, each building on those before it:
 - :mod:`~mitsuba_plugin.glossy`: the BSDFs' shared base (sampling, pdf, colours);
 - :mod:`~mitsuba_plugin.tabulated`, :mod:`~mitsuba_plugin.sparse`,
   :mod:`~mitsuba_plugin.neural`: one BSDF each, its parameters in its class docstring
-  (the choices: :data:`DECODERS`, :data:`LAYOUTS`, :data:`SAMPLING`);
+  (the choices: :data:`DECODERS`, :data:`LAYOUTS`, :data:`LOBES`,
+  the importance-sampling strategies; :data:`SAMPLING` is its old name, kept for one release);
 - :mod:`~mitsuba_plugin.registration`: the variants' classes, and :func:`register`;
 - :mod:`~mitsuba_plugin.evaluators`: the baseline models' evaluators (the speed axis).
 
@@ -30,11 +31,11 @@ holds).
 
 from __future__ import annotations
 
+from sparse_brdf.decoders.layouts import DECODERS, LAYOUTS, LOBES, SAMPLING
 from sparse_brdf.errors import PluginError
-from sparse_brdf.model.layouts import DECODERS, LAYOUTS, SAMPLING
 
 from .loading import load_ensemble
 from .registration import classes, make_classes, register
 
 __all__ = ["register", "classes", "make_classes", "PluginError", "DECODERS", "LAYOUTS",
-           "SAMPLING", "load_ensemble"]
+           "LOBES", "SAMPLING", "load_ensemble"]

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import warnings
 
+from sparse_brdf.decoders.layouts import DECODERS, LAYOUTS, SAMPLING
 from sparse_brdf.errors import PluginError
-from sparse_brdf.model.layouts import DECODERS, LAYOUTS, SAMPLING
 
 from .decoders import (
     GroupedBuffers,

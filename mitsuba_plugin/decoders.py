@@ -9,8 +9,8 @@ tensor (docs/method.md).
   the ends of their groups; also the derivative carrier of differentiable renders.
 
 The buffers (:class:`GroupedBuffers`, :class:`StrictBuffers`) are uploaded from the
-numpy layouts of :mod:`sparse_brdf.model.layouts`, as opaque Dr.Jit scalars, so every
-material shares one compiled kernel; :mod:`sparse_brdf.model.lookups` holds the numpy
+numpy layouts of :mod:`sparse_brdf.decoders.layouts`, as opaque Dr.Jit scalars, so every
+material shares one compiled kernel; :mod:`sparse_brdf.decoders.lookups` holds the numpy
 twins of both kernels.
 """
 
@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import drjit as dr
 
-from sparse_brdf.model.layouts import END_B, END_C, PACK_BITS, PACKET, SLOT, UNION_ATOMS
+from sparse_brdf.decoders.layouts import END_B, END_C, PACK_BITS, PACKET, SLOT, UNION_ATOMS
 
 from .kernels import Ops, Shape
 
@@ -30,7 +30,7 @@ from .kernels import Ops, Shape
 @dataclass
 class GroupedBuffers:
     """The grouped decoder's per-material data as the kernel reads it (from a
-    :class:`sparse_brdf.model.layouts.GroupedLayout`); numbers are opaque Dr.Jit scalars."""
+    :class:`sparse_brdf.decoders.layouts.GroupedLayout`); numbers are opaque Dr.Jit scalars."""
 
     tables: object  # Float: per bin pair (ip, iq), ``chunks`` chunks of table floats
     values: object  # Float: per bin of mode g, ``chunks`` chunks of atom values
@@ -42,7 +42,7 @@ class GroupedBuffers:
 
 def upload_grouped(ops: Ops, lay, ch) -> GroupedBuffers:
     """:class:`GroupedBuffers` of layout ``lay``, whose channels' modes are those of
-    ``ch`` (a :class:`~sparse_brdf.model.layouts.GroupedChannel`)."""
+    ``ch`` (a :class:`~sparse_brdf.decoders.layouts.GroupedChannel`)."""
     tables = ops.floats(lay.tables)
     values = ops.floats(lay.values)
     # one kernel for both layouts: a loop for each, the other runs 0 times
@@ -110,8 +110,8 @@ def _union_chunk(ops: Ops, tv, vv, acc):
 
 def grouped_x(ops: Ops, buf: GroupedBuffers, bins, lin, active):
     """X of the three channels and the bins' cos_i cos_o from the shared rows (see
-    :func:`sparse_brdf.model.layouts.grouped_layout`; its numpy twin is
-    :func:`~sparse_brdf.model.lookups.layout_eval`). Two loops, one per layout; a
+    :func:`sparse_brdf.decoders.layouts.grouped_layout`; its numpy twin is
+    :func:`~sparse_brdf.decoders.lookups.layout_eval`). Two loops, one per layout; a
     material's data has one of them, and the other's count is 0.
 
     slots: a chunk is one packet of table row and one of atom values, float 4 s + c of
@@ -145,7 +145,7 @@ def grouped_x(ops: Ops, buf: GroupedBuffers, bins, lin, active):
 @dataclass
 class StrictBuffers:
     """The strict decoder's per-material data as the kernel reads it (from a
-    :class:`sparse_brdf.model.layouts.StrictLayout`); numbers are opaque Dr.Jit scalars."""
+    :class:`sparse_brdf.decoders.layouts.StrictLayout`); numbers are opaque Dr.Jit scalars."""
 
     values: object  # Float: the coefficients s of every channel's terms
     packed: object  # UInt32: their packed atom indices and group-end flags
@@ -171,7 +171,7 @@ def strict_x(ops: Ops, buf: StrictBuffers, shape: Shape, c: int, bins, lin, acti
     """X of channel ``c``: one loop over its terms, sorted by (c, b, a), evaluating
     ``sum_c U3[k, c] sum_b U2[j, b] sum_a s U1[i, a]``; the partial sums are closed at
     the flagged ends of each b-group and c-group, so U2 and U3 are read once per group
-    (numpy twin: :func:`~sparse_brdf.model.lookups.strict_eval`). At the nearest bin
+    (numpy twin: :func:`~sparse_brdf.decoders.lookups.strict_eval`). At the nearest bin
     (``bins``) or interpolated (``lin``, bins is None).
 
     ``grad`` = (values, order): instead, the derivative carrier

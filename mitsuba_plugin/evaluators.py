@@ -1,7 +1,7 @@
 """Dr.Jit evaluators of the baseline models, each from its own stored numbers.
 
-One evaluator per model kind of :mod:`sparse_brdf.model.baselines` (the ``params`` of its
-:class:`~sparse_brdf.model.baselines.Compact`), never from a dense reconstruction, so that
+One evaluator per model kind of :mod:`sparse_brdf.compared.baselines` (the ``params`` of its
+:class:`~sparse_brdf.compared.baselines.Compact`), never from a dense reconstruction, so that
 what it costs to evaluate is the model's own cost:
 
 ============  =================================================================
@@ -48,7 +48,7 @@ import importlib
 import drjit as dr
 import numpy as np
 
-from sparse_brdf.model.layouts import PACKET
+from sparse_brdf.decoders.layouts import PACKET
 
 from .kernels import (
     Ops,
@@ -453,7 +453,7 @@ def make_evaluator(kind: str, params: dict, variant: str | None = None) -> Evalu
 
 
 def evaluator_for(compact, variant: str | None = None) -> Evaluator:
-    """The evaluator of a fitted :class:`~sparse_brdf.model.baselines.Compact` (its ``kind``
+    """The evaluator of a fitted :class:`~sparse_brdf.compared.baselines.Compact` (its ``kind``
     and ``params``)."""
     kind = compact.model.split("-", 1)[0]
     if compact.params is None:

@@ -17,7 +17,12 @@ import math
 import drjit as dr
 
 from sparse_brdf.coords import grid_coords
-from sparse_brdf.model.layouts import angle_tables, float_buffer, read_rgb2spec_table, uint_buffer
+from sparse_brdf.decoders.buffers import (
+    angle_tables,
+    float_buffer,
+    read_rgb2spec_table,
+    uint_buffer,
+)
 
 
 class VariantNamespace:
@@ -52,7 +57,7 @@ class Ops:
     # buffers and opaque scalars ------------------------------------------------------
     def floats(self, a):
         """A numpy array as a Float buffer (aligned, see
-        :func:`sparse_brdf.model.layouts.float_buffer`)."""
+        :func:`sparse_brdf.decoders.layouts.float_buffer`)."""
         a = float_buffer(a)
         return self.m.Float(a) if self.jit else a
 
@@ -178,7 +183,7 @@ def rho_from_x(ops: Ops, xs, valid, w) -> list:
 def mix_colour(xs, mt):
     """Transformed R, G, B from the three coded values ``xs``: ``M^T @ xs`` for the
     constant matrix ``mt`` (M^T as nested Python floats, from
-    :func:`sparse_brdf.model.layouts.colour_mix`): at most 9 multiply-adds, its zero
+    :func:`sparse_brdf.decoders.layouts.colour_mix`): at most 9 multiply-adds, its zero
     entries skipped. Kernel constants, not opaque scalars: one colour basis, one matrix.
     The caller skips this for the "rgb" basis (``mt`` None), so rgb kernels are unchanged.
     """

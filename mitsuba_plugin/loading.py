@@ -13,9 +13,9 @@ import os
 import threading
 from pathlib import Path
 
+from sparse_brdf.coding.ensemble import resolve_ensemble
+from sparse_brdf.coding.fileformat import decode_file, load_sbrdf
 from sparse_brdf.errors import PluginError
-from sparse_brdf.model.ensemble import resolve_ensemble
-from sparse_brdf.model.sbrdf import decode_file, load_sbrdf
 from sparse_brdf.sources.load import load_brdf
 
 _ENSEMBLES: dict = {}

@@ -7,9 +7,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from sparse_brdf.coords import MERL_SHAPE
+from sparse_brdf.decoders.layouts import LOBES, PLUGIN_DEFAULTS, table_profile
 from sparse_brdf.errors import PluginError
 from sparse_brdf.mlp import tabulate
-from sparse_brdf.model.layouts import PLUGIN_DEFAULTS, SAMPLING, table_profile
 from sparse_brdf.sources.nbrdf import read_nbrdf_weights
 
 from .glossy import GlossyBSDF
@@ -52,7 +52,7 @@ class NeuralBRDF(GlossyBSDF):
         GlossyBSDF.__init__(self, props)
         p = read_props(props, self.plugin, {"filename": REQUIRED,
                                              "sampling": PLUGIN_DEFAULTS["sampling"]})
-        self.sampling = choice_prop(p["sampling"], SAMPLING, self.plugin, "sampling")
+        self.sampling = choice_prop(p["sampling"], LOBES, self.plugin, "sampling")
         self.filename = resolve_file(str(p["filename"]))
         try:
             layers = read_nbrdf_weights(self.filename)

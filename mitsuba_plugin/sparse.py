@@ -1,6 +1,6 @@
 """The ``sparse_brdf`` BSDF: the sparse model evaluated from its coefficients at render
 time, by the grouped or the strict decoder (:mod:`~mitsuba_plugin.decoders`), in the
-scalar variants by the numpy lookups of :mod:`sparse_brdf.model.lookups`; its
+scalar variants by the numpy lookups of :mod:`sparse_brdf.decoders.lookups`; its
 coefficient values are differentiable. A loaded one exposes ``decoder``, ``layout``,
 ``n_terms``, ``distinct_atoms`` and ``basis`` (the file's colour basis: "rgb", or
 "opponent", whose coded channels the kernel mixes back to R, G, B). Registered for a
@@ -14,16 +14,14 @@ import threading
 
 import drjit as dr
 
-from sparse_brdf.errors import PluginError
-from sparse_brdf.model.layouts import (
+from sparse_brdf.decoders.buffers import colour_mix, float_buffer
+from sparse_brdf.decoders.layouts import (
     DECODERS,
     LAYOUTS,
+    LOBES,
     PLUGIN_DEFAULTS,
-    SAMPLING,
     channel_terms,
     choose_decoder,
-    colour_mix,
-    float_buffer,
     grouped_channels,
     grouped_layout,
     model_digest,
@@ -33,7 +31,8 @@ from sparse_brdf.model.layouts import (
     strict_orders,
     term_values,
 )
-from sparse_brdf.model.lookups import GroupedLookup, StrictLookup
+from sparse_brdf.decoders.lookups import GroupedLookup, StrictLookup
+from sparse_brdf.errors import PluginError
 from sparse_brdf.transforms import scale as transform_scale
 from sparse_brdf.transforms import uses_cosine
 
@@ -75,7 +74,7 @@ class SparseBSDF(GlossyBSDF):
     basis is "opponent" (:func:`~mitsuba_plugin.kernels.mix_colour`; "rgb" materials trace
     no mix, so their kernel is unchanged), then ``rho = max((exp(X) - 1) / w, 0)``, without
     ever building the full tensor (:func:`~mitsuba_plugin.decoders.grouped_x`,
-    :func:`~mitsuba_plugin.decoders.strict_x`; data from :mod:`sparse_brdf.model.layouts`).
+    :func:`~mitsuba_plugin.decoders.strict_x`; data from :mod:`sparse_brdf.decoders.layouts`).
     Per-material data lives in Dr.Jit arrays and opaque scalars, so every material shares
     one compiled kernel. ``memory_bytes`` reports the bytes of the arrays the BSDF holds.
 
@@ -96,11 +95,11 @@ class SparseBSDF(GlossyBSDF):
          - ``grouped`` (terms grouped by the atom of one mode, the other two modes
            contracted at load time into an (n_p n_q) x K table: fastest), ``strict`` (loops
            over the nonzero terms: least memory) or ``auto`` (default: grouped unless its
-           tables exceed ``sparse_brdf.model.layouts.AUTO_GROUPED_MAX_BYTES``, 32 MiB).
+           tables exceed ``sparse_brdf.decoders.layouts.AUTO_GROUPED_MAX_BYTES``, 32 MiB).
        * - layout
          - string
          - How the grouped decoder lays out its rows (see
-           :func:`sparse_brdf.model.layouts.grouped_layout`): ``union`` (each atom the
+           :func:`sparse_brdf.decoders.layouts.grouped_layout`): ``union`` (each atom the
            three channels use stored once), ``slots`` (every channel its own columns) or
            ``auto`` (default: the one that reads fewer packets per lookup). Both run in
            the same kernel.
@@ -127,7 +126,7 @@ class SparseBSDF(GlossyBSDF):
             "filename": REQUIRED, "ensemble": None, "decoder": "auto",
             "sampling": PLUGIN_DEFAULTS["sampling"], "interpolate": False,
             "layout": "auto"})
-        self.sampling = choice_prop(p["sampling"], SAMPLING, self.plugin, "sampling")
+        self.sampling = choice_prop(p["sampling"], LOBES, self.plugin, "sampling")
         self.interpolate = bool_prop(p["interpolate"], self.plugin, "interpolate")
         decoder = choice_prop(p["decoder"], DECODERS, self.plugin, "decoder")
         layout = choice_prop(p["layout"], LAYOUTS, self.plugin, "layout")
@@ -239,7 +238,7 @@ class SparseBSDF(GlossyBSDF):
     def _attach_gradients(self) -> None:
         """Build the derivative carrier's data once (it depends on the support only): the
         strict decoder's atom rows and packed indices, and per channel the file's term
-        index of each of its terms (:func:`sparse_brdf.model.layouts.strict_orders`).
+        index of each of its terms (:func:`sparse_brdf.decoders.layouts.strict_orders`).
         The decoders' own buffers stay detached, so the kernel's derivative flows only
         through the values, read inside the kernel like any Mitsuba parameter."""
         if self._ad is None:
@@ -301,7 +300,7 @@ class SparseBSDF(GlossyBSDF):
     def _rho_point(self, wi, wo, active):
         """:meth:`_rho` in the scalar variants, one direction pair per call: the same
         bins, weights and inverse transform, with X (already mixed to the transformed R,
-        G, B) from the numpy lookups of :mod:`sparse_brdf.model.lookups`, which read the
+        G, B) from the numpy lookups of :mod:`sparse_brdf.decoders.lookups`, which read the
         same decoder data in a few numpy calls instead of the kernels' per-float Python
         loops."""
         ops, sh = self._ops, self._shape

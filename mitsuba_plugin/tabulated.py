@@ -5,7 +5,7 @@ reference the other BSDFs are compared with). Registered for a variant by
 
 from __future__ import annotations
 
-from sparse_brdf.model.layouts import PLUGIN_DEFAULTS, SAMPLING, table_profile
+from sparse_brdf.decoders.layouts import LOBES, PLUGIN_DEFAULTS, table_profile
 
 from .glossy import GlossyBSDF
 from .kernels import Shape, angle_coords, linear_bins, nearest_bins
@@ -59,7 +59,7 @@ class TabulatedBRDF(GlossyBSDF):
         p = read_props(props, self.plugin, {"filename": REQUIRED,
                                              "sampling": PLUGIN_DEFAULTS["sampling"],
                                              "interpolate": False, "ensemble": None})
-        self.sampling = choice_prop(p["sampling"], SAMPLING, self.plugin, "sampling")
+        self.sampling = choice_prop(p["sampling"], LOBES, self.plugin, "sampling")
         self.interpolate = bool_prop(p["interpolate"], self.plugin, "interpolate")
         self.filename = resolve_file(str(p["filename"]))
         brdf = load_table(self.filename, p["ensemble"], self.plugin)

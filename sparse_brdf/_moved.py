@@ -57,6 +57,7 @@ MOVED: dict[str, str] = {
     "sparse_brdf.model.lookups": "sparse_brdf.decoders.lookups",
     "sparse_brdf.evaluation.fit_images": "sparse_brdf.fitting.fit_images",
     "sparse_brdf.evaluation.fit_scene": "sparse_brdf.fitting.fit_scene",
+    "sparse_brdf.evaluation.batch": "sparse_brdf.cli.files",
 }
 #: Old packages that no longer exist: answered by an empty package.
 OLD_PACKAGES = ("sparse_brdf.model",)

@@ -21,9 +21,9 @@ import pytest
 
 from conftest import SMALL
 from sparse_brdf.cli import main
+from sparse_brdf.cli.files import encode_batch
 from sparse_brdf.coding.ensemble import Ensemble
 from sparse_brdf.coding.fileformat import load_sbrdf
-from sparse_brdf.evaluation.batch import encode_batch
 from sparse_brdf.evaluation.bench import Bench
 from sparse_brdf.evaluation.bench_config import BenchConfig
 from sparse_brdf.parallel import start_executor

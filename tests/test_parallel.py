@@ -14,8 +14,8 @@ import pytest
 
 from conftest import SMALL
 from sparse_brdf.cli import main
+from sparse_brdf.cli.files import batch_sources, encode_batch, is_batch
 from sparse_brdf.coding.fileformat import load_sbrdf
-from sparse_brdf.evaluation.batch import batch_sources, encode_batch, is_batch
 from sparse_brdf.evaluation.bench import Bench
 from sparse_brdf.evaluation.bench_config import BenchConfig
 from sparse_brdf.parallel import InProcess, executor, start_executor

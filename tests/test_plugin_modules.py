@@ -38,7 +38,7 @@ MOVED = {
 def test_package_names():
     assert sorted(mitsuba_plugin.__all__) == sorted(
         ["register", "classes", "make_classes", "PluginError", "DECODERS", "LAYOUTS",
-         "SAMPLING", "load_ensemble"])
+         "LOBES", "SAMPLING", "load_ensemble"])
     for name in mitsuba_plugin.__all__:
         assert getattr(mitsuba_plugin, name) is not None, name
     assert mitsuba_plugin.register is registration.register

@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
+from sparse_brdf.cli.files import encode_batch
 from sparse_brdf.coding.ensemble import resolve_ensemble
-from sparse_brdf.evaluation.batch import encode_batch
 from sparse_brdf.evaluation.bench import Bench
 from sparse_brdf.evaluation.bench_config import BenchConfig
 from sparse_brdf.parallel import executor

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 
+from ..compared.specs import parse_spec
 from ..errors import UsageError
 from ..evaluation.acquisition_bench import KIND as ACQUISITION
 from ..evaluation.acquisition_bench import (
@@ -12,9 +13,9 @@ from ..evaluation.acquisition_bench import (
     AcquisitionConfig,
     check_acquisition_config,
 )
-from ..evaluation.bench import Bench, BenchConfig, check_config, config_kind, shipped_configs
+from ..evaluation.bench import Bench, BenchConfig
+from ..evaluation.bench_config import check_config, config_kind, shipped_configs
 from ..evaluation.ranking import RANK_BY, merge_results, write_ranking
-from ..model.specs import parse_spec
 from ..parallel import executor
 from ._options import add_where, default_of
 

@@ -10,6 +10,13 @@ import sys
 import time
 from pathlib import Path
 
+from ..coding import budget as budget_module
+from ..coding.budget import encode_to_bytes
+from ..coding.encode import DEFAULT_FILL_ITERS, PAPER_OPTIONS, check_n_coeffs, encode
+from ..coding.ensemble import resolve_ensemble
+from ..coding.fileformat import decode_file, load_sbrdf, save_sbrdf
+from ..coding.interpolate import PARAMETERS as INTERPOLATE
+from ..coding.interpolate import interpolate
 from ..coords import GRID_BINS
 from ..errors import (
     BRDFFileError,
@@ -18,14 +25,6 @@ from ..errors import (
     OutputError,
     UsageError,
 )
-from ..evaluation.batch import encode_batch, encode_file, is_batch
-from ..model import budget as budget_module
-from ..model.budget import encode_to_bytes
-from ..model.encode import DEFAULT_FILL_ITERS, PAPER_OPTIONS, check_n_coeffs, encode
-from ..model.ensemble import resolve_ensemble
-from ..model.interpolate import PARAMETERS as INTERPOLATE
-from ..model.interpolate import interpolate
-from ..model.sbrdf import decode_file, load_sbrdf, save_sbrdf
 from ..parallel import executor
 from ..sources.merl import write_merl
 from ._options import (
@@ -40,6 +39,7 @@ from ._options import (
     default_of,
     typed,
 )
+from .files import encode_batch, encode_file, is_batch
 
 
 def cmd_encode(args: argparse.Namespace) -> int:

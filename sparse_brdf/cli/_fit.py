@@ -7,15 +7,17 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ..coding import budget as budget_module
+from ..coding.fileformat import save_sbrdf
+from ..decoders.layouts import DECODERS
 from ..errors import OutputError
-from ..evaluation import fit_images as fit_images_module
-from ..evaluation.fit_images import fit_images, load_views
-from ..evaluation.fit_scene import fit_scene
-from ..evaluation.render import SHARED_PATHS, find_scene, parse_overrides, read_exr
+from ..evaluation.images import read_exr
+from ..evaluation.render import SHARED_PATHS, find_scene
+from ..evaluation.scenes import parse_overrides
 from ..fileio import check_writable
-from ..model import budget as budget_module
-from ..model.layouts import DECODERS
-from ..model.sbrdf import save_sbrdf
+from ..fitting import fit_images as fit_images_module
+from ..fitting.fit_images import fit_images, load_views
+from ..fitting.fit_scene import fit_scene
 from ..params import Interval
 from ._options import RENDER, SBRDF, check_outputs, default_of, typed
 

@@ -11,12 +11,13 @@ from __future__ import annotations
 import argparse
 import inspect
 
+from ..coding import encode as encode_module
 from ..coords import GRID_BINS
-from ..evaluation.render import IMAGE_SUFFIXES, MASK_SUFFIXES, RENDER_PARAMETERS
+from ..evaluation.images import IMAGE_SUFFIXES, MASK_SUFFIXES
+from ..evaluation.render import RENDER_PARAMETERS
 from ..fileio import check_output, check_suffix, check_writable
-from ..model import encode as encode_module
-from ..model import train as train_module
 from ..params import Interval
+from ..training import train as train_module
 
 #: The declared parameters the options take their bounds and choices from.
 ENCODE, TRAIN, RENDER = (encode_module.PARAMETERS, train_module.PARAMETERS, RENDER_PARAMETERS)

@@ -6,8 +6,8 @@ from __future__ import annotations
 import argparse
 import textwrap
 
+from ..coding.encode import DEFAULT_N_COEFFS
 from ..errors import one_line
-from ..model.encode import DEFAULT_N_COEFFS
 from ._bench import add_bench_commands
 from ._codec import add_blend, add_decode, add_encode
 from ._data import add_data_commands

@@ -10,24 +10,20 @@ from pathlib import Path
 
 import numpy as np
 
+from ..decoders.layouts import DECODERS, LOBES, PLUGIN_DEFAULTS
 from ..errors import ImageFileError, UsageError
+from ..evaluation.images import read_exr, read_mask, write_image, write_mask
 from ..evaluation.render import (
     SHARED_PATHS,
     find_scene,
     noise_floor_snr,
     object_mask,
-    parse_defaults,
-    parse_overrides,
     parse_scene,
-    read_exr,
-    read_mask,
     render_scene,
-    write_image,
-    write_mask,
 )
+from ..evaluation.scenes import parse_defaults, parse_overrides
 from ..fileio import staged
 from ..metrics import FLIP, OBJECT_ONLY, WHOLE_IMAGE, hdr_flip, snr_forms
-from ..model.layouts import DECODERS, PLUGIN_DEFAULTS, SAMPLING
 from ..params import Interval
 from ._options import IMAGE, MASK, RENDER, check_outputs, default_of, typed
 
@@ -182,7 +178,7 @@ def add_render(sub) -> None:
                    metavar="STOPS",
                    help="a .png/.jpg preview's exposure: values times 2^STOPS before the "
                         "sRGB curve (an .exr is written as rendered)")
-    r.add_argument("--sampling", default=PLUGIN_DEFAULTS["sampling"], choices=SAMPLING,
+    r.add_argument("--sampling", default=PLUGIN_DEFAULTS["sampling"], choices=LOBES,
                    help="BSDF sampling of the replaced materials: lobe (the plugins' "
                         "default) follows each material's highlight, the lower noise for "
                         f"looking at an image; {SHARED_PATHS} gives every material the same "

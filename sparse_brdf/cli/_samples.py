@@ -9,18 +9,18 @@ import time
 
 import numpy as np
 
+from ..acquisition import PRIORS
+from ..acquisition import recovery as acquire_module
+from ..acquisition.files import PLACEMENTS, plan, read_samples
+from ..coding import budget as budget_module
 from ..coords import GRID_BINS
-from ..evaluation.acquisition import PRIORS
-from ..evaluation.batch import (
+from ._options import SAMPLES_FILE, SBRDF, check_outputs, default_of, typed
+from .files import (
     PLAN_PAIRS,
     encode_samples_file,
     plan_samples_file,
     samples_constant,
 )
-from ..model import acquire as acquire_module
-from ..model import budget as budget_module
-from ..sources.samples import PLACEMENTS, plan, read_samples
-from ._options import SAMPLES_FILE, SBRDF, check_outputs, default_of, typed
 
 
 def cmd_encode_samples(args: argparse.Namespace) -> int:

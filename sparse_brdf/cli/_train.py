@@ -7,12 +7,12 @@ import math
 import sys
 import time
 
+from ..coding.ensemble import Ensemble
 from ..coords import GRID_BINS, GRID_SIDE, check_grid
 from ..errors import UsageError
-from ..model.ensemble import Ensemble
-from ..model.train import train_dictionaries, train_ensemble
 from ..sources.corpora import SPLITS, TRAINING_CORPORA, get_corpus
 from ..sources.dataset import training_data
+from ..training.train import train_dictionaries, train_ensemble
 from ..transforms import COLOUR_BASES, TRANSFORMS
 from ._options import (
     ENSEMBLE_NPZ,
