@@ -394,3 +394,24 @@ def test_wheel_ships_scenes_and_configs(tmp_path):
     assert (work / "out.exr").stat().st_size > 0
     assert not (work / "scenes").exists()
     shutil.rmtree(site)
+
+
+# Entry points of scripts: `python -m sparse_brdf.demo` runs demo.main, not the public one.
+SCRIPT_ENTRIES = {("main", "sparse_brdf/demo.py")}
+
+
+def test_every_public_name_is_defined_once():
+    """A function or class that the package or a subpackage exports (``__all__``) has one
+    definition in the package: no second copy, no wrapper of the same name elsewhere."""
+    defined: dict[str, list[str]] = {}
+    for p in (ROOT / "sparse_brdf").rglob("*.py"):
+        for node in ast.parse(p.read_text()).body:
+            if isinstance(node, (ast.FunctionDef, ast.ClassDef)):
+                where = p.relative_to(ROOT).as_posix()
+                if (node.name, where) not in SCRIPT_ENTRIES:
+                    defined.setdefault(node.name, []).append(where)
+    packages = ["sparse_brdf"] + [f"sparse_brdf.{s}" for s in (*SUBPACKAGES, "cli")]
+    public = {n for pkg in packages for n in importlib.import_module(pkg).__all__}
+    assert len(public) > 80
+    twice = {n: defined[n] for n in sorted(public) if len(defined.get(n, [])) > 1}
+    assert twice == {}

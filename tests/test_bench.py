@@ -21,7 +21,7 @@ from sparse_brdf.evaluation.bench_config import (
     config_kind,
     evaluated_materials,
     find_config,
-    training_materials,
+    learners_training_set,
 )
 from sparse_brdf.evaluation.report import pareto
 from sparse_brdf.evaluation.scenes import parse_scene_spec
@@ -214,7 +214,7 @@ def test_every_shipped_config_checks(name):
     if any(m.startswith("pca") for m in plan["models"]):  # never trained on what is scored
         evaluated = evaluated_materials(cfg)
         keys = {(m.corpus, m.name) for m in evaluated}
-        train = training_materials(cfg, evaluated)
+        train = learners_training_set(cfg, evaluated)
         assert len(train) == plan["training"] >= 2
         assert not keys & {(m.corpus, m.name) for m in train}
 

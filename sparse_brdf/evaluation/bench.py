@@ -54,9 +54,9 @@ from .bench_config import (
     _check_training_set,
     evaluated_materials,
     file_stem,
+    learners_training_set,
     make_models,
     material_key,
-    training_materials,
 )
 from .html_report import write_html_report
 from .images import read_exr, write_exr
@@ -116,8 +116,8 @@ class Bench:
         return evaluated_materials(self.cfg)
 
     def training_materials(self, evaluated) -> list:
-        """Training materials for learned models (:func:`training_materials`)."""
-        return training_materials(self.cfg, evaluated)
+        """Training materials for learned models (:func:`~.bench_config.learners_training_set`)."""
+        return learners_training_set(self.cfg, evaluated)
 
     def _resolve_scenes(self) -> None:
         """The config's scenes that can run here; the others are skipped with a reason."""

@@ -228,7 +228,7 @@ def evaluated_materials(cfg: BenchConfig) -> list:
     return mats
 
 
-def training_materials(cfg: BenchConfig, evaluated) -> list:
+def learners_training_set(cfg: BenchConfig, evaluated) -> list:
     """Training materials for learned models: the corpora's training splits, minus every
     evaluated material (a model never sees what it is scored on), at most
     ``pca_train_max``, taken in turn from each corpus (the first of each, then the
@@ -296,7 +296,7 @@ def check_config(cfg: BenchConfig) -> dict:
     _check_byte_budgets(cfg, models + smodels, mats)
     learners = [m for m in models + smodels if m.learns]
     with _naming(cfg, "corpora"):
-        train = training_materials(cfg, mats) if learners else []
+        train = learners_training_set(cfg, mats) if learners else []
     _check_training_set(cfg, learners, train)
     scenes, skipped = [], {}
     for name in cfg.scenes if cfg.render else []:
