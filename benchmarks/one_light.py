@@ -17,7 +17,15 @@ Example::
         --variant default= --variant paper=paper=1 -o one_light.json
 
 Writes a JSON with one row per material, variant and angle; prints the means per corpus,
-and, with ``--maps DIR``, PNGs of reference, model and FLIP map for each row.
+and, with ``--maps DIR``, PNGs of reference, model and FLIP map for each row; with
+``--grid PNG``, one figure of every material and angle: the reference, then each variant's
+render and FLIP map. ``--scene`` scores another scene of ``scenes/`` the same way (without
+angles), e.g. the environment-lit worst maps of ``docs/results.md``::
+
+    PYTHONPATH=. .venv/bin/python benchmarks/one_light.py --corpus rgl --scene sphere.xml \
+        --materials cc_iris_purple_gem_rgb irid_flake_paint1_fine_rgb cg_sunflower_rgb \
+        --variant default= --variant previous=ensemble=5fea9b89 \
+        --grid docs/figures/env_lit_worst.png -o env_lit_worst.json
 """
 
 from __future__ import annotations
@@ -67,9 +75,10 @@ def encode_variant(brdf: BRDF, opts: dict) -> BRDF:
                 valid=brdf.valid, name=brdf.name)
 
 
-def render(table: Path, angle: float, res: int, spp: int) -> np.ndarray:
-    return render_scene(SCENE, {"material": str(table)}, spp=spp, seed=0, res=res,
-                        params={"lightangle": angle},
+def render(table: Path, angle: float | None, res: int, spp: int,
+           scene: str = SCENE) -> np.ndarray:
+    return render_scene(scene, {"material": str(table)}, spp=spp, seed=0, res=res,
+                        params={} if angle is None else {"lightangle": angle},
                         tabulated_options={"sampling": "cosine"})
 
 
@@ -97,6 +106,74 @@ def save_maps(path: Path, ref: np.ndarray, img: np.ndarray, fmap: np.ndarray, ti
     plt.close(fig)
 
 
+def save_grid(path: Path, rows: list[tuple[str, np.ndarray, list]]) -> None:
+    """One figure: per row (title, reference, [(variant and scores, image, FLIP map)]), the
+    reference, then each variant's render and FLIP map (the reference's exposure)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cols = 1 + 2 * max(len(v) for _, _, v in rows)
+    fig, axes = plt.subplots(len(rows), cols, figsize=(2.2 * cols, 2.4 * len(rows)),
+                             squeeze=False)
+    for ax, (title, ref, variants) in zip(axes, rows, strict=True):
+        exposure = -float(np.log2(max(np.percentile(ref[ref > 0], 99.5), 1e-6)))
+        panels = [(tonemap(ref, exposure), f"{title}\nreference")]
+        for name, img, fmap in variants:
+            panels += [(tonemap(img, exposure), name), (fmap, "HDR-FLIP map")]
+        for a in ax:
+            a.axis("off")
+        for a, (im, t) in zip(ax, panels, strict=False):
+            a.imshow(im, cmap="magma" if im.ndim == 2 else None, vmin=0, vmax=1)
+            a.set_title(t, fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+
+
+def score_material(args, corpus: str, m, todo: list, masks: dict, rows: list,
+                   tmp: Path) -> list:
+    """Render material ``m``'s reference and each variant of ``todo``, append a row per
+    variant and angle to ``rows`` (saving the JSON as it goes); return the grid rows."""
+    key = f"{corpus}/{m.name}"
+    kw = {} if args.symmetrize else {"symmetrize": False}
+    ref_brdf = sb.load_brdf(m.source, **kw)
+    ref_path = sb.write_merl(tmp / "ref.binary", ref_brdf)
+    refs = {a: render(ref_path, a, args.res, args.spp, args.scene)
+            for a in args.angles}
+    cells = {a: [] for a in args.angles}
+    for name, opts in todo:
+        t0 = time.perf_counter()
+        rec = encode_variant(ref_brdf, opts)
+        t_enc = time.perf_counter() - t0
+        rec_path = sb.write_merl(tmp / "rec.binary", rec)
+        for a in args.angles:
+            img = render(rec_path, a, args.res, args.spp, args.scene)
+            flip = sb.hdr_flip(refs[a], img, masks[a])
+            snr = sb.snr_forms(refs[a], img, masks[a])
+            cells[a].append((f"{name}: FLIP {flip.mean:.3f}\n{snr.object:.1f} / "
+                             f"{snr.whole:.1f} dB", img, flip.map))
+            rows.append({"corpus": corpus, "material": key, "variant": name,
+                         "scene": args.scene, "angle": a, "flip": flip.mean,
+                         "flip_p95": float(np.percentile(flip.map[masks[a]], 95)),
+                         # FLIP's own exposure range (from the whole image,
+                         # whose median is the black background)
+                         "flip_image_range": float(np.mean(sb.hdr_flip(
+                             refs[a], img).map[masks[a]])),
+                         "snr_whole": snr.whole, "snr_object": snr.object,
+                         "encode_s": t_enc})
+            if args.maps:
+                save_maps(args.maps / f"{m.name}_{name}_{a or 0:g}.png", refs[a],
+                          img, flip.map, f"{key} {name} {a or 0:g} deg: FLIP "
+                          f"{flip.mean:.3f}, {snr}")
+        print(key, name, " ".join(
+            f"{r['angle'] or 0:g}:{r['flip']:.3f}/{r['snr_object']:.1f}"
+            for r in rows[-len(args.angles):]), f"({t_enc:.1f} s)", flush=True)
+        args.out.write_text(json.dumps(rows, indent=1))
+    return [(m.name if a is None else f"{m.name} {a:g} deg", refs[a], cells[a])
+            for a in args.angles if cells[a]]
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--corpus", nargs="+", default=["merl", "rgl"])
@@ -105,6 +182,9 @@ def main(argv=None) -> int:
     ap.add_argument("--variant", action="append", default=None,
                     help="NAME=KEY=VALUE,... (repeatable; default: default=)")
     ap.add_argument("--angles", type=float, nargs="+", default=[0.0, 40.0, 70.0])
+    ap.add_argument("--scene", default=SCENE,
+                    help=f"a scene of scenes/ (default {SCENE}; angles only for it)")
+    ap.add_argument("--grid", type=Path, help="one PNG of every material and angle")
     ap.add_argument("--res", type=int, default=128)
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--symmetrize", type=int, default=1, help="1: symmetrised references")
@@ -112,9 +192,15 @@ def main(argv=None) -> int:
     ap.add_argument("-o", "--out", type=Path, required=True)
     args = ap.parse_args(argv)
     variants = [parse_variant(v) for v in (args.variant or ["default="])]
+    if args.scene != SCENE:
+        args.angles = [None]
+    grid: list = []
     rows = json.loads(args.out.read_text()) if args.out.exists() else []
-    done = {(r["material"], r["variant"], r["angle"]) for r in rows}
-    masks = {a: object_mask(SCENE, res=args.res, params={"lightangle": a}) for a in args.angles}
+    done = {(r["material"], r["variant"], r["angle"]) for r in rows
+            if r.get("scene", SCENE) == args.scene}
+    masks = {a: object_mask(args.scene, res=args.res,
+                            params={} if a is None else {"lightangle": a})
+             for a in args.angles}
     if args.maps:
         args.maps.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory() as tmp:
@@ -128,36 +214,9 @@ def main(argv=None) -> int:
                         if any((key, n, a) not in done for a in args.angles)]
                 if not todo:
                     continue
-                kw = {} if args.symmetrize else {"symmetrize": False}
-                ref_brdf = sb.load_brdf(m.source, **kw)
-                ref_path = sb.write_merl(tmp / "ref.binary", ref_brdf)
-                refs = {a: render(ref_path, a, args.res, args.spp) for a in args.angles}
-                for name, opts in todo:
-                    t0 = time.perf_counter()
-                    rec = encode_variant(ref_brdf, opts)
-                    t_enc = time.perf_counter() - t0
-                    rec_path = sb.write_merl(tmp / "rec.binary", rec)
-                    for a in args.angles:
-                        img = render(rec_path, a, args.res, args.spp)
-                        flip = sb.hdr_flip(refs[a], img, masks[a])
-                        snr = sb.snr_forms(refs[a], img, masks[a])
-                        rows.append({"corpus": corpus, "material": key, "variant": name,
-                                     "angle": a, "flip": flip.mean,
-                                     "flip_p95": float(np.percentile(flip.map[masks[a]], 95)),
-                                     # FLIP's own exposure range (from the whole image,
-                                     # whose median is the black background)
-                                     "flip_image_range": float(np.mean(sb.hdr_flip(
-                                         refs[a], img).map[masks[a]])),
-                                     "snr_whole": snr.whole, "snr_object": snr.object,
-                                     "encode_s": t_enc})
-                        if args.maps:
-                            save_maps(args.maps / f"{m.name}_{name}_{a:g}.png", refs[a], img,
-                                      flip.map, f"{key} {name} {a:g} deg: FLIP "
-                                      f"{flip.mean:.3f}, {snr}")
-                    print(key, name, " ".join(
-                        f"{r['angle']:g}:{r['flip']:.3f}/{r['snr_object']:.1f}"
-                        for r in rows[-len(args.angles):]), f"({t_enc:.1f} s)", flush=True)
-                    args.out.write_text(json.dumps(rows, indent=1))
+                grid += score_material(args, corpus, m, todo, masks, rows, tmp)
+    if args.grid and grid:
+        save_grid(args.grid, grid)
     summarize(rows)
     return 0
 
