@@ -7,7 +7,8 @@ serves both. Everything here is traced once into a kernel: no Python ``if`` on a
 and per-material numbers only as buffers or ``dr.opaque`` scalars (see :meth:`Ops.u`,
 :meth:`Ops.f`), never as Python constants. The few functions a scalar variant runs once
 per BSDF call on plain Python floats (:func:`rho_from_x`, :func:`bin_weight_from_cos`)
-branch to Python arithmetic there, the same formula in the same function.
+branch to Python arithmetic there, through the scalar helpers :func:`point_weight` and
+:func:`point_rho`, which are also the lean path of one bin (:func:`point_rho_from_cos`).
 """
 
 from __future__ import annotations
@@ -23,6 +24,9 @@ from sparse_brdf.decoders.buffers import (
     read_rgb2spec_table,
     uint_buffer,
 )
+from sparse_brdf.transforms import COS_CLIP
+
+_W_LO, _W_HI = COS_CLIP
 
 
 class VariantNamespace:
@@ -153,29 +157,50 @@ def expm1(x):
     return dr.select(dr.abs(x) < 0.1, p * x, dr.exp(x) - 1.0)
 
 
+def point_rho(x0: float, x1: float, x2: float, scale: float) -> tuple:
+    """The inverse transform of one point in a scalar variant: ``max(expm1(X) scale, 0)``
+    per channel for ``scale = valid / w > 0`` (Python floats, 1/sr). ``math.expm1`` in
+    double precision; where it would overflow a double, X is capped at 700 (the value is
+    then inf once stored as float32, as the kernel's is past 88.7)."""
+    try:  # unrolled: this runs once per BSDF call
+        r0, r1, r2 = math.expm1(x0) * scale, math.expm1(x1) * scale, math.expm1(x2) * scale
+    except OverflowError:
+        r0, r1, r2 = (math.expm1(min(x, 700.0)) * scale for x in (x0, x1, x2))
+    return (r0 if r0 > 0.0 else 0.0, r1 if r1 > 0.0 else 0.0, r2 if r2 > 0.0 else 0.0)
+
+
+def point_weight(c: float) -> float:
+    """The transform weight clip(c, 0.01, 1) of a bin's ``c = cos_i cos_o`` (a Python
+    float; scalar variants)."""
+    return (c if c > _W_LO else _W_LO) if c < _W_HI else _W_HI
+
+
+def point_rho_from_cos(x0: float, x1: float, x2: float, c: float, use_cos: bool,
+                       s: float) -> tuple:
+    """One bin's RGB in a scalar variant from its transformed R, G, B and its ``c =
+    cos_i cos_o``: :func:`bin_weight_from_cos` and :func:`rho_from_x` in one call (the
+    scalar variants' default lookup runs it once per BSDF call). ``s``: the transform's
+    scale (the weight is ``s w``). 0 where the bin is invalid (c <= 0)."""
+    if not c > 0.0:
+        return (0.0, 0.0, 0.0)
+    return point_rho(x0, x1, x2, 1.0 / ((point_weight(c) if use_cos else 1.0) * s))
+
+
 def rho_from_x(ops: Ops, xs, valid, w) -> list:
     """The inverse transform of the transformed values ``xs`` (R, G, B: its first three
     items) at a bin (or point) of validity ``valid`` (1 or 0, or interpolated) and weight
     ``w``: ``max((exp(X) - 1) valid / w, 0)`` per channel (1/sr), 0 where ``valid / w``
-    is 0. Returns a list of three values (Floats, or Python floats in scalar variants).
+    is 0. Returns three values (Floats, or Python floats in scalar variants, from
+    :func:`point_rho`).
 
     A select, not only the product: an invalid bin gives 0 even where the model's X
-    there is large enough for exp to overflow (inf * 0 = nan). In scalar variants (plain
-    Python floats, one lookup per call) ``math.expm1`` in double precision instead of
-    :func:`expm1`'s float32 polynomial; where it would overflow a double, X is capped at
-    700 (the value is then inf once stored as float32, as the kernel's is past 88.7).
+    there is large enough for exp to overflow (inf * 0 = nan).
     """
     if not ops.jit:
         scale = valid / w
         if not scale > 0.0:
-            return [0.0, 0.0, 0.0]
-        x0, x1, x2 = xs[0], xs[1], xs[2]
-        try:  # unrolled: this runs once per BSDF call
-            r0, r1, r2 = (math.expm1(x0) * scale, math.expm1(x1) * scale,
-                          math.expm1(x2) * scale)
-        except OverflowError:
-            r0, r1, r2 = (math.expm1(min(x, 700.0)) * scale for x in (x0, x1, x2))
-        return [r0 if r0 > 0.0 else 0.0, r1 if r1 > 0.0 else 0.0, r2 if r2 > 0.0 else 0.0]
+            return (0.0, 0.0, 0.0)
+        return point_rho(xs[0], xs[1], xs[2], scale)
     scale = valid * dr.rcp(w)
     return [dr.select(scale > 0.0, dr.maximum(expm1(x) * scale, 0.0), 0.0) for x in xs[:3]]
 
@@ -316,7 +341,7 @@ def linear_bins(ops: Ops, shape: Shape, coords):
     return tuple(out)
 
 
-def _cos_terms(ops: Ops, shape: Shape, i, j, k):
+def cos_terms(ops: Ops, shape: Shape, i, j, k):
     """cos(theta_i) cos(theta_o) at the lower-edge angles of bin (i, j, k), from the
     angle tables (five table reads instead of five trigonometric functions)."""
     cos_h, sin_h, cos_d, sin_d, cos_p = shape.trig
@@ -335,13 +360,13 @@ def bin_weight_from_cos(c, use_cos):
     >= 0 on the grid, c > 0 means both are positive). In scalar variants (``c`` a
     Python float) with Python's conditionals: this runs once per BSDF call."""
     if isinstance(c, float):
-        return (min(max(c, 0.01), 1.0) if use_cos > 0.5 else 1.0), c > 0.0
-    return dr.select(use_cos > 0.5, dr.clip(c, 0.01, 1.0), 1.0), c > 0.0
+        return (point_weight(c) if use_cos > 0.5 else 1.0), c > 0.0
+    return dr.select(use_cos > 0.5, dr.clip(c, _W_LO, _W_HI), 1.0), c > 0.0
 
 
 def bin_weight(ops: Ops, shape: Shape, i, j, k, use_cos):
     """(w, valid) of bin (i, j, k), see :func:`bin_weight_from_cos`."""
-    return bin_weight_from_cos(_cos_terms(ops, shape, i, j, k), use_cos)
+    return bin_weight_from_cos(cos_terms(ops, shape, i, j, k), use_cos)
 
 
 def interp_weight(ops: Ops, shape: Shape, lin, use_cos):
@@ -352,9 +377,9 @@ def interp_weight(ops: Ops, shape: Shape, lin, use_cos):
     for ei, wi in ((i0, 1.0 - ti), (i1, ti)):
         for ej, wj in ((j0, 1.0 - tj), (j1, tj)):
             for ek, wk in ((k0, 1.0 - tk), (k1, tk)):
-                c = _cos_terms(ops, shape, ei, ej, ek)
+                c = cos_terms(ops, shape, ei, ej, ek)
                 wt = wi * wj * wk
-                acc = acc + wt * dr.clip(c, 0.01, 1.0)
+                acc = acc + wt * dr.clip(c, _W_LO, _W_HI)
                 vacc = vacc + dr.select(c > 0.0, wt, 0.0)
     return dr.select(use_cos > 0.5, acc, 1.0), vacc
 

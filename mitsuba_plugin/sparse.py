@@ -43,10 +43,12 @@ from .kernels import (
     angle_coords,
     bin_weight,
     bin_weight_from_cos,
+    cos_terms,
     interp_weight,
     linear_bins,
     mix_colour,
     nearest_bins,
+    point_rho_from_cos,
     rho_from_x,
 )
 from .loading import REQUIRED, bool_prop, choice_prop, load_model, read_props, resolve_file
@@ -142,7 +144,8 @@ class SparseBSDF(GlossyBSDF):
         self.n_terms = tuple(int(n) for n in model.n_coeffs)
         self.decoder = choose_decoder(decoder, model, ens)
         self._shape = Shape(ops, model.shape)
-        self._use_cos = ops.f(1.0 if uses_cosine(model.transform) else 0.0)
+        self._cos_on = uses_cosine(model.transform)
+        self._use_cos = ops.f(1.0 if self._cos_on else 0.0)
         # the relative transforms' constant factor s of the weight (a Python float: the
         # paper's transforms, s = 1, trace no multiply)
         self._scale = transform_scale(model.transform)
@@ -302,7 +305,9 @@ class SparseBSDF(GlossyBSDF):
         bins, weights and inverse transform, with X (already mixed to the transformed R,
         G, B) from the numpy lookups of :mod:`sparse_brdf.decoders.lookups`, which read the
         same decoder data in a few numpy calls instead of the kernels' per-float Python
-        loops."""
+        loops. The default (grouped, nearest bin) is one lookup and one
+        :func:`~mitsuba_plugin.kernels.point_rho_from_cos`: every Python call here costs
+        a measurable share of the render."""
         ops, sh = self._ops, self._shape
         coords = angle_coords(ops, sh, wi, wo)
         if self.interpolate:
@@ -311,19 +316,16 @@ class SparseBSDF(GlossyBSDF):
             if not active:
                 return self._zero3
             xs = self._lookup.point_linear(lin)
+            return self._m.Color3f(*rho_from_x(ops, xs, valid, w * self._scale))
+        bins = nearest_bins(ops, sh, coords)
+        if not active:
+            return self._zero3
+        if self.decoder == "grouped":  # the rows carry the bins' cos_i cos_o
+            x0, x1, x2, c = self._lookup.point(*bins)
         else:
-            bins = nearest_bins(ops, sh, coords)
-            if not active:
-                return self._zero3
-            xs = self._lookup.point(*bins)
-            if self.decoder == "grouped":  # the rows carry the bins' cos_i cos_o
-                w, ok = bin_weight_from_cos(xs[3], self._use_cos)
-            else:
-                w, ok = bin_weight(ops, sh, *bins, self._use_cos)
-            valid = 1.0 if ok else 0.0
-        if self._scale != 1.0:
-            w = w * self._scale
-        return self._m.Color3f(*rho_from_x(ops, xs, valid, w))
+            (x0, x1, x2), c = self._lookup.point(*bins), cos_terms(ops, sh, *bins)
+        return self._m.Color3f(*point_rho_from_cos(x0, x1, x2, c, self._cos_on,
+                                                   self._scale))
 
     def to_string(self):
         return (f"{type(self).__name__}[filename={self.filename!r}, transform={self.transform}, "

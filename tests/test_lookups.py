@@ -31,7 +31,13 @@ from test_plugin import (  # noqa: E402
     use_variant,
 )
 
-from mitsuba_plugin.kernels import Ops, VariantNamespace, rho_from_x  # noqa: E402
+from mitsuba_plugin.kernels import (  # noqa: E402
+    Ops,
+    VariantNamespace,
+    bin_weight_from_cos,
+    point_rho_from_cos,
+    rho_from_x,
+)
 
 
 @pytest.fixture(scope="module")
@@ -124,4 +130,25 @@ def test_scalar_inverse_transform_survives_overflow():
     assert np.all(np.isfinite(out[1:])) and out[2] == 0.0
     np.testing.assert_allclose(out[1], 2 * np.expm1(1.0))
     assert np.isinf(np.array(mi.Color3f(*out))[0])
-    assert rho_from_x(ops, [800.0, 1.0, 2.0], 0.0, 1.0) == [0.0, 0.0, 0.0]
+    assert list(rho_from_x(ops, [800.0, 1.0, 2.0], 0.0, 1.0)) == [0.0, 0.0, 0.0]
+
+
+@pytest.mark.parametrize("c", [-0.3, 0.0, 0.004, 0.2, 1.0, 1.3])
+@pytest.mark.parametrize("use_cos", [True, False])
+def test_scalar_one_bin_path_matches_weight_then_inverse(c, use_cos):
+    """The scalar variants' one-call path of a bin (weight from cos_i cos_o, then the
+    inverse transform with the transform's scale) gives what the two general steps give,
+    including 0 at invalid bins and the weight's clip at 0.01 and 1."""
+    use_variant("scalar_rgb")
+    ops = Ops(VariantNamespace(mi.scalar_rgb))
+    xs = [2.5, 0.01, -0.2]
+    w, ok = bin_weight_from_cos(c, 1.0 if use_cos else 0.0)
+    expect = rho_from_x(ops, xs, 1.0 if ok else 0.0, w * 300.0)
+    got = point_rho_from_cos(*xs, c, use_cos, 300.0)
+    np.testing.assert_allclose(got, expect, rtol=1e-12)
+    if c <= 0.0:
+        assert list(got) == [0.0, 0.0, 0.0]
+    else:
+        wt = min(max(c, 0.01), 1.0) if use_cos else 1.0
+        np.testing.assert_allclose(got[0], np.expm1(2.5) / (300.0 * wt), rtol=1e-12)
+        assert got[2] == 0.0

@@ -17,10 +17,13 @@ sparse model's terms (docs/method.md):
   from the three modes' distinct atom rows, times its coefficient in its channel's
   row: ``X = coeffs . (r1[i][ia] * r2[j][ib] * r3[k][ic])``, ``coeffs`` (3, T).
 
-Both contract over the last axis with ``np.vecdot`` (a ufunc; ``np.einsum`` before numpy
-2.0), not ``np.dot`` or ``@``: called from Mitsuba's render threads, OpenBLAS took
-10-40 us per tiny product (measured 2026-12-03, sphere scene in ``scalar_rgb``), einsum
-5-8 us, vecdot about 4 us, on a loaded machine.
+How they contract matters as much as what: a numpy call costs about a microsecond, the
+table's whole lookup about seven. The grouped lookups use ``ndarray.dot`` on the (4, L)
+float32 block (a BLAS gemv, single-threaded at this size: 0.5 us against 0.85 us for the
+``np.vecdot`` ufunc). The strict lookups and the N-bin evaluations keep ``np.vecdot``
+(``np.einsum`` before numpy 2.0): ``dot`` gained nothing on the strict decoder's (3, T)
+product, and an earlier build saw 10-40 us per larger BLAS product from the render
+threads of a loaded machine. Measurements: docs/benchmarks.md, "Render speed per variant".
 
 Colour basis: given the basis's matrix M^T (:func:`~sparse_brdf.decoders.layouts.
 colour_mix`), the lookups fold it into ``values`` and ``coeffs`` (the rows of transformed
@@ -135,7 +138,7 @@ class GroupedLookup:
         wts = np.array([(1.0 - tp) * (1.0 - tq), (1.0 - tp) * tq, tp * (1.0 - tq), tp * tq],
                        np.float32)
         vals = (1.0 - tg) * self.values[g0] + tg * self.values[g1]
-        return _vecdot(vals, _vecdot(wts, rows.T)).tolist()
+        return vals.dot(wts.dot(rows)).tolist()
 
 
 def _grouped_point(tables, values, modes, n_q):
@@ -144,7 +147,7 @@ def _grouped_point(tables, values, modes, n_q):
 
     def point(i: int, j: int, k: int) -> list:
         b = (i, j, k)
-        return _vecdot(values[b[g]], tables[b[p] * n_q + b[q]]).tolist()
+        return values[b[g]].dot(tables[b[p] * n_q + b[q]]).tolist()
 
     return point
 
