@@ -6,9 +6,9 @@ scalar variants buffers are numpy arrays indexed with Python ints, so the same c
 serves both. Everything here is traced once into a kernel: no Python ``if`` on arrays,
 and per-material numbers only as buffers or ``dr.opaque`` scalars (see :meth:`Ops.u`,
 :meth:`Ops.f`), never as Python constants. The few functions a scalar variant runs once
-per BSDF call on plain Python floats (:func:`rho_from_x`, :func:`bin_weight_from_cos`)
-branch to Python arithmetic there, through the scalar helpers :func:`point_weight` and
-:func:`point_rho`, which are also the lean path of one bin (:func:`point_rho_from_cos`).
+per BSDF call on plain Python floats use the scalar helpers :func:`point_weight` and
+:func:`point_rho` (:func:`rho_from_x` branches to the latter), fused for one bin in
+:func:`point_rho_from_cos`.
 """
 
 from __future__ import annotations
@@ -357,10 +357,8 @@ def bin_weight_from_cos(c, use_cos):
     """(w, valid) of a bin from its ``c = cos_i cos_o``: the transform weight clip(c,
     0.01, 1) (or 1 for log-plus) and whether both directions are above the horizon at
     the bin's angles (a bin is invalid otherwise, docs/method.md; since cos_i + cos_o
-    >= 0 on the grid, c > 0 means both are positive). In scalar variants (``c`` a
-    Python float) with Python's conditionals: this runs once per BSDF call."""
-    if isinstance(c, float):
-        return (point_weight(c) if use_cos > 0.5 else 1.0), c > 0.0
+    >= 0 on the grid, c > 0 means both are positive). The scalar variants' default
+    lookup takes the same weight from :func:`point_weight` instead (no select)."""
     return dr.select(use_cos > 0.5, dr.clip(c, _W_LO, _W_HI), 1.0), c > 0.0
 
 
