@@ -186,7 +186,7 @@ def point_rho_from_cos(x0: float, x1: float, x2: float, c: float, use_cos: bool,
     return point_rho(x0, x1, x2, 1.0 / ((point_weight(c) if use_cos else 1.0) * s))
 
 
-def rho_from_x(ops: Ops, xs, valid, w) -> list:
+def rho_from_x(ops: Ops, xs, valid, w) -> list | tuple:
     """The inverse transform of the transformed values ``xs`` (R, G, B: its first three
     items) at a bin (or point) of validity ``valid`` (1 or 0, or interpolated) and weight
     ``w``: ``max((exp(X) - 1) valid / w, 0)`` per channel (1/sr), 0 where ``valid / w``
