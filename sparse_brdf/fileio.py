@@ -4,6 +4,12 @@ Every temporary file is registered while it exists; :func:`cleanup_on_signals` (
 the command line) removes the registered ones when SIGTERM or SIGHUP arrives, and an
 interrupt (SIGINT) unwinds through :func:`atomic_path`, which removes its own. So an
 interrupted command leaves neither a partial output nor a temporary file.
+
+A temporary file is never what an error names: each one is registered with the output it
+stands for, and a failure while writing it (a full disk, a file size limit) is reported
+as an :class:`~sparse_brdf.errors.OutputError` naming that output
+(:func:`output_name`), also when a writer that is itself atomic writes to a staging file
+of :func:`staged`.
 """
 
 from __future__ import annotations
@@ -18,9 +24,10 @@ from typing import IO
 
 from .errors import InputFileError, Interrupted, MissingFileError, OutputError, SparseBRDFError
 
-#: Temporary files of :func:`atomic_path` that exist right now (str paths). Sets' add and
-#: discard are atomic under the GIL, so a signal handler may read it without a lock.
-_TEMPORARIES: set[str] = set()
+#: Temporary files of :func:`atomic_path` that exist right now (str paths), each with the
+#: output it stands for. A dict's item assignment and pop are atomic under the GIL, so a
+#: signal handler may read it without a lock.
+_TEMPORARIES: dict[str, Path] = {}
 #: Signals whose arrival removes the temporaries (SIGINT unwinds as KeyboardInterrupt).
 _SIGNALS = tuple(getattr(signal, n) for n in ("SIGTERM", "SIGHUP") if hasattr(signal, n))
 
@@ -39,6 +46,36 @@ def _umask() -> int:
     return umask
 
 
+def output_name(path: str | os.PathLike) -> Path:
+    """The output the user named for ``path``: ``path`` itself, or, when it is a temporary
+    file of :func:`atomic_path` or :func:`staged` (a writer given a staging file), the
+    output that file will be renamed onto. Error messages name this path."""
+    path = Path(path)
+    return _TEMPORARIES.get(str(path), path)
+
+
+def _reworded(exc: BaseException, temporaries: tuple[str, ...],
+              shown: Path) -> BaseException | None:
+    """The error to raise instead of ``exc``, raised while writing ``temporaries`` (the
+    temporary file, and the staging file it replaces, if any) of the output ``shown``, or
+    None to raise ``exc`` itself: the system's refusal (an OSError about one of them or
+    about no file) becomes an OutputError naming ``shown``, and a message of the
+    package's that names one of them names ``shown`` instead."""
+    def named(text: str) -> str:
+        for tmp in temporaries:
+            text = text.replace(tmp, str(shown))
+        return text
+
+    if isinstance(exc, SparseBRDFError):
+        text = str(exc)
+        if len(exc.args) == 1 and named(text) != text:
+            return type(exc)(named(text))
+        return None
+    if isinstance(exc, OSError) and exc.filename in (None, str(shown), *temporaries):
+        return OutputError(f"{shown}: cannot write: {exc.strerror or named(str(exc))}")
+    return None
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, suffix: str = ".tmp") -> Iterator[Path]:
     """A temporary path beside ``path`` to write to (for writers that need a file name);
@@ -47,15 +84,19 @@ def atomic_path(path: str | os.PathLike, suffix: str = ".tmp") -> Iterator[Path]
     The result has the permissions of a newly created file (``0o666 & ~umask``), not
     ``mkstemp``'s 0600. On any exception the temporary file is removed and ``path`` is
     left untouched, so a reader never sees a partial file (also under concurrent writers
-    of the same path).
+    of the same path). An OSError about the temporary file or about no file (ENOSPC,
+    EFBIG, ...) is raised as an :class:`~sparse_brdf.errors.OutputError` naming the
+    output, :func:`output_name` of ``path``; a package error whose message names the
+    temporary file names the output instead.
     """
     path = Path(path)
+    shown = output_name(path)
     _check_replaceable(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = _create_temporary(path, suffix)
+        tmp = _create_temporary(path, suffix, shown)
     except OSError as exc:
-        raise OutputError(f"{path}: cannot write: {exc.strerror or exc}") from exc
+        raise OutputError(f"{shown}: cannot write: {exc.strerror or exc}") from exc
     try:
         yield Path(tmp)
         os.chmod(tmp, 0o666 & ~_umask())
@@ -63,12 +104,13 @@ def atomic_path(path: str | os.PathLike, suffix: str = ".tmp") -> Iterator[Path]
     except BaseException as exc:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
-        if (isinstance(exc, OSError) and not isinstance(exc, SparseBRDFError)
-                and exc.filename in (None, tmp, str(path))):  # not an input's error
-            raise OutputError(f"{path}: cannot write: {exc.strerror or exc}") from exc
+        staging = () if shown == path else (str(path),)
+        other = _reworded(exc, (tmp, *staging), shown)  # the output's error
+        if other is not None:
+            raise other from exc
         raise
     finally:
-        _TEMPORARIES.discard(tmp)
+        _TEMPORARIES.pop(tmp, None)
 
 
 @contextlib.contextmanager
@@ -152,13 +194,13 @@ def check_writable(path: str | os.PathLike, what: str = "output") -> Path:
     if not folder.is_dir():
         raise OutputError(f"{path}: cannot write the {what}: {folder} is not a folder")
     try:
-        probe = _create_temporary(folder / path.name, ".probe")
+        probe = _create_temporary(folder / path.name, ".probe", path)
     except OSError as exc:
         raise OutputError(f"{path}: cannot write the {what}: {exc.strerror or exc}") from exc
     try:
         os.unlink(probe)
     finally:
-        _TEMPORARIES.discard(probe)
+        _TEMPORARIES.pop(probe, None)
     return path
 
 
@@ -166,7 +208,8 @@ def check_writable(path: str | os.PathLike, what: str = "output") -> Path:
 def staged(paths: Iterable[str | os.PathLike]) -> Iterator[list[Path]]:
     """Temporary paths beside each of ``paths`` (same suffix), to write a command's
     outputs to; they are renamed onto ``paths`` only once the block has written them all
-    without an error, else every one is removed: no command leaves part of its outputs."""
+    without an error, else every one is removed: no command leaves part of its outputs.
+    A writer given a staging path names the output in its errors (:func:`output_name`)."""
     with contextlib.ExitStack() as stack:
         yield [stack.enter_context(atomic_path(p, suffix=Path(p).suffix or ".tmp"))
                for p in paths]
@@ -193,7 +236,7 @@ def remove_temporaries() -> None:
     for tmp in pending:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
-        _TEMPORARIES.discard(tmp)
+        _TEMPORARIES.pop(tmp, None)
 
 
 def _on_signal(signum: int, frame) -> None:
@@ -219,18 +262,18 @@ def cleanup_on_signals() -> Iterator[None]:
             signal.signal(sig, handler)
 
 
-def _create_temporary(path: Path, suffix: str) -> str:
+def _create_temporary(path: Path, suffix: str, output: Path) -> str:
     """Create an empty hidden file beside ``path`` (mode 0600, as ``mkstemp``) and return
-    its name, registered *before* it is created: a signal handler that runs at any moment
-    finds every temporary that exists."""
+    its name, registered with ``output`` (the file it stands for) *before* it is created:
+    a signal handler that runs at any moment finds every temporary that exists."""
     for _ in range(100):
         tmp = str(path.parent / f".{path.name}.{secrets.token_hex(4)}{suffix}")
-        _TEMPORARIES.add(tmp)
+        _TEMPORARIES[tmp] = output
         try:
             os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
             return tmp
         except BaseException as exc:
-            _TEMPORARIES.discard(tmp)
+            _TEMPORARIES.pop(tmp, None)
             if not isinstance(exc, FileExistsError):
                 raise
     raise FileExistsError(f"{path}: no free temporary name beside it")

@@ -9,6 +9,7 @@ fast; the few renders are marked ``render``.
 from __future__ import annotations
 
 import errno
+import functools
 import hashlib
 import os
 import signal
@@ -38,8 +39,8 @@ from sparse_brdf.errors import (
     SparseBRDFError,
     one_line,
 )
-from sparse_brdf.evaluation.images import read_exr, write_exr
-from sparse_brdf.fileio import atomic_write, cleanup_on_signals
+from sparse_brdf.evaluation.images import read_exr, write_exr, write_image
+from sparse_brdf.fileio import atomic_write, cleanup_on_signals, output_name, staged
 from sparse_brdf.sources.merl import read_merl, write_merl
 from sparse_brdf.sources.nbrdf import tabulate_nbrdf
 
@@ -190,7 +191,7 @@ def test_output_is_a_folder_or_a_device(capsys, tmp_path, sbrdf, ens_file):
 def test_unwritable_folder(capsys, tmp_path, sbrdf, ens_file, monkeypatch):
     import sparse_brdf.fileio as fileio
 
-    def refuse(path, suffix):  # what creating a file in a read-only folder raises
+    def refuse(path, suffix, output):  # what creating a file in a read-only folder raises
         raise PermissionError(errno.EACCES, "Permission denied", str(path.parent))
 
     monkeypatch.setattr(fileio, "_create_temporary", refuse)
@@ -653,7 +654,8 @@ def test_render_to_a_full_disk_names_the_output(tmp_path):
                           cwd=tmp_path, timeout=120)
     lines = run_.stderr.splitlines()
     assert run_.returncode == 2, run_.stderr
-    assert len(lines) == 1 and "img.exr" in lines[0] and "bug" not in lines[0], lines
+    assert len(lines) == 1 and f"{out}: cannot write" in lines[0], lines
+    assert ".img.exr." not in lines[0] and "File too large" in lines[0], lines
     assert leftovers(tmp_path) == []
 
 
@@ -675,6 +677,90 @@ def test_exr_writer_errors_are_output_errors(tmp_path, monkeypatch):
     with pytest.raises(OutputError, match="x.exr.*No space left"):
         write_exr(tmp_path / "x.exr", np.zeros((4, 4, 3), np.float32))
     assert leftovers(tmp_path) == []
+
+
+class _FullDiskEXR:
+    """OpenEXR.File whose write fails as on a full disk: ``OSError`` (ENOSPC) or, as
+    OpenEXR itself reports it, a RuntimeError naming the file it was given."""
+
+    error = "oserror"
+
+    def __init__(self, *a):
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *a):
+        return False
+
+    def write(self, name):
+        if self.error == "oserror":
+            raise OSError(errno.ENOSPC, "No space left on device")
+        raise RuntimeError(f'Failed to write pixel data to image file "{name}". No space '
+                           'left on device.')
+
+
+@pytest.mark.parametrize("name, fault", [("s7.exr", "oserror"), ("s7.exr", "runtime"),
+                                         ("s7.png", "fsync")])
+def test_render_onto_a_full_disk_names_the_output(capsys, tmp_path, monkeypatch, name,
+                                                  fault):
+    """render stages its outputs and hands the writers staging files: a full disk is one
+    line naming the output the user gave (never the hidden staging file), exit 2, the old
+    output kept and no staging file left."""
+    from sparse_brdf.cli import _render
+
+    monkeypatch.setattr(_render, "render_scene", functools.wraps(_render.render_scene)(
+        lambda *a, **k: np.random.default_rng(0).random((16, 16, 3), np.float32)))
+    if fault == "fsync":
+        def full(fd):
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+        monkeypatch.setattr(os, "fsync", full)
+    else:
+        monkeypatch.setattr(_FullDiskEXR, "error", fault)
+        monkeypatch.setattr(OpenEXR, "File", _FullDiskEXR)
+    folder = tmp_path / "full"
+    folder.mkdir()
+    out = folder / name
+    out.write_bytes(b"the previous image")
+    line = fails(capsys, "render", SPHERE, "-o", out, names=[out, "No space left"])
+    assert line == f"sparse-brdf: error: {out}: cannot write" + (
+        " the EXR image" if fault == "runtime" else "") + ": No space left on device"
+    assert f".{name}." not in line
+    assert out.read_bytes() == b"the previous image"
+    assert leftovers(folder) == [name]
+
+
+def test_encode_onto_a_full_disk_names_the_output(capsys, tmp_path, merl, ens_file,
+                                                   monkeypatch):
+    """The same for encode (one output written by atomic_write): the message names the
+    .sbrdf the user gave, and nothing is left."""
+    def full(fd):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(os, "fsync", full)
+    out = tmp_path / "full" / "c.sbrdf"
+    line = fails(capsys, "encode", merl, "-o", out, "--coeffs", "20", "--ensemble",
+                 ens_file, names=[out, "No space left"])
+    assert line == f"sparse-brdf: error: {out}: cannot write: No space left on device"
+    assert leftovers(tmp_path / "full") == []
+
+
+def test_writers_given_a_staging_file_name_the_output(tmp_path):
+    """A writer that is itself atomic, given a staging file of staged(), names the
+    staged output in its errors: the system's (ENOSPC) and the package's own."""
+    out = tmp_path / "a.exr"
+    with pytest.raises(ImageFileError) as caught, staged([out]) as tmp:
+        assert output_name(tmp[0]) == out and tmp[0] != out
+        write_image(tmp[0], np.zeros((4, 4), np.float32))  # not an (H, W, 3) image
+    assert str(caught.value).startswith(f"{out}: expected an image")
+    with pytest.raises(OutputError) as caught, staged([out]) as tmp:
+        with atomic_write(tmp[0]):
+            raise OSError(errno.ENOSPC, "No space left on device")
+    assert str(caught.value) == f"{out}: cannot write: No space left on device"
+    assert leftovers(tmp_path) == []
+    assert output_name(out) == out
 
 
 def test_encode_on_another_grid_names_the_file(capsys, tmp_path, ens_file):

@@ -19,7 +19,7 @@ from ..errors import (
     ImageFileError,
     OutputError,
 )
-from ..fileio import atomic_path, atomic_write, require_file
+from ..fileio import atomic_path, atomic_write, output_name, require_file
 
 # ------------------------------------------------------------------------------- EXR
 
@@ -40,8 +40,19 @@ def write_exr(path: str | os.PathLike, img: np.ndarray) -> Path:
         try:
             f.write(str(tmp))
         except RuntimeError as exc:  # OpenEXR's I/O errors (ENOSPC, EFBIG, ...)
-            raise OutputError(f"{path}: cannot write the EXR image: {exc}") from exc
+            raise OutputError(f"{output_name(path)}: cannot write the EXR image: "
+                              f"{_exr_reason(exc, tmp)}") from exc
     return path
+
+
+def _exr_reason(exc: RuntimeError, tmp: Path) -> str:
+    """The reason in an OpenEXR write error (``Failed to write pixel data to image file
+    "TMP". File too large.``), without the temporary file's name; the whole message if it
+    does not name it."""
+    text = str(exc)
+    _, quoted, reason = text.partition(f'"{tmp}"')
+    reason = reason.strip(" .")
+    return reason if quoted and reason else text
 
 
 #: The images a render writes, by suffix: ``.exr`` linear HDR (float32), the others an
