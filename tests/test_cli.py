@@ -221,3 +221,27 @@ def test_snr_refuses_a_tone_mapped_preview(tmp_path, capsys):
     assert main(["snr", str(png), str(png)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "look.png" in err and ".exr" in err
+
+
+def test_snr_refusals_name_the_file(tmp_path, capsys):
+    """Images snr cannot score get one line naming the file as given: an all-black
+    reference, an image with negative values, a mask that selects no pixel. A black
+    image against a lit reference is no error: it scores 0 dB."""
+    from conftest import cli_fails
+    from sparse_brdf.evaluation.images import write_exr, write_mask
+
+    lit = np.random.default_rng(0).random((8, 8, 3), np.float32) + 0.1
+    ref, black, negative = tmp_path / "ref.exr", tmp_path / "black.exr", tmp_path / "neg.exr"
+    write_exr(ref, lit)
+    write_exr(black, np.zeros((8, 8, 3), np.float32))
+    write_exr(negative, lit - 1.0)
+    empty = write_mask(tmp_path / "empty.npy", np.zeros((8, 8), bool))
+    line = cli_fails(capsys, "snr", black, ref, names=[black, "black"])
+    assert line.split("error: ")[1].startswith(f"{black}: ")
+    for argv, named in (([ref, negative], negative), ([negative, ref], negative),
+                        ([ref, ref, "--mask", empty], empty)):
+        line = cli_fails(capsys, "snr", *argv, names=[named])
+        assert line.split("error: ")[1].startswith(f"{named}: "), line
+    assert main(["snr", str(ref), str(black), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["snr_whole_db"] == pytest.approx(0.0)

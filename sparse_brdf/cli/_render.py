@@ -61,7 +61,8 @@ def cmd_render(args: argparse.Namespace) -> int:
 
 
 def _read_image(path: str, like: tuple[str, object] | None = None):
-    """An EXR image that is finite, and (``like``: (path, image)) of that image's size."""
+    """An EXR image that is finite and non-negative, and (``like``: (path, image)) of that
+    image's size; every refusal names ``path``."""
     if Path(path).suffix.lower() in (".png", ".jpg", ".jpeg"):
         raise ImageFileError(f"{path}: a tone-mapped preview; the SNR and HDR-FLIP compare "
                              "linear images: give the .exr that `render -o NAME.exr` writes")
@@ -69,6 +70,10 @@ def _read_image(path: str, like: tuple[str, object] | None = None):
     bad = int(np.size(img) - np.count_nonzero(np.isfinite(img)))
     if bad:
         raise ImageFileError(f"{path}: the image holds {bad} NaN or inf pixel values")
+    negative = int(np.count_nonzero(img < 0))
+    if negative:
+        raise ImageFileError(f"{path}: the image holds {negative} negative pixel values; "
+                             "HDR-FLIP scores non-negative radiance")
     if like is not None and img.shape != like[1].shape:
         raise ImageFileError(f"{path}: {img.shape[1]}x{img.shape[0]}, but {like[0]} is "
                              f"{like[1].shape[1]}x{like[1].shape[0]}")
@@ -78,6 +83,9 @@ def _read_image(path: str, like: tuple[str, object] | None = None):
 def cmd_snr(args: argparse.Namespace) -> int:
     """``snr``: the rendering SNR in both forms, HDR-FLIP and the noise floor."""
     ref = _read_image(args.reference)
+    if not np.any(ref > 0):  # neither SNR (no signal) nor HDR-FLIP (no exposure range)
+        raise ImageFileError(f"{args.reference}: the reference image is black (every pixel "
+                             "0): the SNR and HDR-FLIP have nothing to compare against")
     img = _read_image(args.image, (args.reference, ref))
     ref2 = _read_image(args.reference2, (args.reference, ref)) if args.reference2 else None
     mask, why = None, None
