@@ -88,6 +88,20 @@ def _pool(workers: int) -> ThreadPoolExecutor:
         return _POOL
 
 
+def _stop_pool() -> None:
+    """Shut the shared pool down without waiting, its queued tasks cancelled; the next
+    map makes a new one. Shutting down wakes every idle worker thread to exit, also one
+    that an interrupt left unregistered with ``concurrent.futures`` (a KeyboardInterrupt
+    inside ``ThreadPoolExecutor``'s thread start, after the thread runs and before it is
+    recorded for the exit): nothing else would wake that thread, and the interpreter's
+    exit would wait on it forever."""
+    global _POOL
+    with _POOL_LOCK:
+        pool, _POOL = _POOL, None
+    if pool is not None:
+        pool.shutdown(wait=False, cancel_futures=True)
+
+
 def blas_single_thread() -> contextlib.AbstractContextManager:
     """A context holding BLAS to one thread in this process (the controller, a scan of
     the loaded BLAS libraries, is built once)."""
@@ -101,7 +115,8 @@ def parallel_map(fn: Callable[[T], R], items: Iterable[T], limit_blas: bool = Tr
                  ) -> Iterator[R]:
     """``map(fn, items)`` on the pool's threads, results in input order, BLAS held to one
     thread (``limit_blas``). Called from inside one of its own tasks, it maps in that
-    thread (no pool deadlock)."""
+    thread (no pool deadlock). An interrupt (KeyboardInterrupt) while it maps shuts the
+    pool down, so the process can exit."""
     workers = n_threads()
     with blas_single_thread() if limit_blas else contextlib.nullcontext():
         if workers == 1 or getattr(_IN_WORKER, "active", False):
@@ -115,7 +130,11 @@ def parallel_map(fn: Callable[[T], R], items: Iterable[T], limit_blas: bool = Tr
             finally:
                 _IN_WORKER.active = False
 
-        yield from _pool(workers).map(task, items)
+        try:
+            yield from _pool(workers).map(task, items)
+        except KeyboardInterrupt:  # Ctrl-C, SIGTERM: the process is ending; let it exit
+            _stop_pool()
+            raise
 
 
 # -------------------------------------------------------------------- executors

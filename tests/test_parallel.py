@@ -5,6 +5,7 @@ never imported unless a cluster is asked for."""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -165,6 +166,7 @@ def test_batch_encode_command_on_a_cluster(small_materials, small_ensemble_file,
 # ------------------------------------------------------------------ training
 
 
+@pytest.mark.train
 def test_training_is_bit_identical_on_workers(small_training, cluster, tmp_path,
                                               monkeypatch):
     """Masked, seeded training of 40 tensors in 3 shards: the same dictionaries, codes and
@@ -190,6 +192,7 @@ def test_training_is_bit_identical_on_workers(small_training, cluster, tmp_path,
         np.testing.assert_array_equal(getattr(here, k), getattr(resumed, k), err_msg=k)
 
 
+@pytest.mark.train
 def test_unmasked_random_training_on_workers(small_training, cluster):
     x = small_training[:20]
     kw = dict(tau=8, n_dicts=2, n_iter=2, tol=0, seed=1, progress=False, masked=False,
@@ -199,6 +202,7 @@ def test_unmasked_random_training_on_workers(small_training, cluster):
         np.testing.assert_array_equal(getattr(here, k), getattr(there, k), err_msg=k)
 
 
+@pytest.mark.train
 def test_train_command_on_a_cluster(cluster, tmp_path):
     out = tmp_path / "ens.npz"
     assert main(["train", "--corpus", "mitsuba", "--grid", *map(str, SMALL), "--taus", "8",
@@ -235,3 +239,27 @@ def test_bench_gives_the_same_results_on_workers(tmp_path, cluster):
     assert here["noise_floor"] == there["noise_floor"]
     assert set(here["speed"]) == set(there["speed"]) == {"sparse-32", "naive"}
     assert (tmp_path / "there" / "report.md").is_file()
+
+
+def test_an_interrupted_map_does_not_hang_the_exit():
+    """Ctrl-C can land inside ThreadPoolExecutor's thread start, after the worker thread
+    runs but before concurrent.futures registers it for the exit: no one would wake that
+    thread and the interpreter's exit would wait on it forever. Here the interrupt is put
+    exactly there; parallel_map must leave a process that exits."""
+    code = (
+        "import concurrent.futures.thread as cft\n"
+        "from sparse_brdf.parallel import parallel_map\n"
+        "start = cft.ThreadPoolExecutor._adjust_thread_count\n"
+        "def interrupted(self):\n"
+        "    start(self)\n"
+        "    for t in list(self._threads):\n"  # the state the race leaves: unregistered
+        "        cft._threads_queues.pop(t, None)\n"
+        "    raise KeyboardInterrupt\n"
+        "cft.ThreadPoolExecutor._adjust_thread_count = interrupted\n"
+        "try:\n"
+        "    list(parallel_map(abs, range(8)))\n"
+        "except KeyboardInterrupt:\n"
+        "    print('interrupted')\n")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=60, env={**os.environ, "SPARSE_BRDF_THREADS": "2"})
+    assert (run.returncode, run.stdout, run.stderr) == (0, "interrupted\n", "")
