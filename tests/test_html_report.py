@@ -70,6 +70,12 @@ def test_the_page_in_headless_chromium(report, tmp_path):
     check = json.loads(found.group(1).replace("&quot;", '"'))
     assert check["ok"] and not check["errors"], check
     assert set(check["checks"]) >= {"flips_to_reference", "flips_back", "flip_map", "sorts"}
+    # the sort was checked on a column whose values differ, reordering the rows both ways
+    sort = check["sort"]
+    assert len(set(sort["before"])) >= 2, sort
+    assert sort["ascending"] == sorted(sort["before"]), sort
+    assert sort["descending"] == sorted(sort["before"], reverse=True), sort
+    assert sort["ascending"] != sort["descending"], sort
     shot = tmp_path / "shot.png"
     run = subprocess.run([*common, "--window-size=1000,900", f"--screenshot={shot}", url],
                          capture_output=True, text=True, timeout=120)

@@ -11,8 +11,9 @@ from disk with no network and can be mailed or archived as one file:
   its render; renders are tone-mapped as the report's figures (x / (1 + x), gamma 2.2);
 - the report's charts (its PNGs, but for the render figures, which the viewer replaces).
 
-Opened as ``report.html#selftest`` the page checks itself (a flip, the FLIP map, a sort)
-and writes the outcome into the element ``#selftest-result`` (what the test suite reads through
+Opened as ``report.html#selftest`` the page checks itself (a flip, the FLIP map, a
+column of differing values sorted up then down, its rows reordered) and writes the
+outcome into the element ``#selftest-result`` (what the test suite reads through
 headless Chromium, ``tests/test_html_report.py``).
 """
 
@@ -254,6 +255,35 @@ document.addEventListener('keydown', e => {
   if (e.key === 'm' || e.key === 'M') { active.toggleMap(); e.preventDefault(); }
 });
 
+// A sort that changes nothing proves nothing: check on the first numeric column whose
+// values differ that a click sorts it ascending and a second click descending, the
+// rows (not just the arrow) reordered and none lost.
+function sortCheck() {
+  for (const table of document.querySelectorAll('table.sortable')) {
+    const ths = Array.from(table.tHead.rows[0].cells), body = table.tBodies[0];
+    for (let col = 0; col < ths.length; col++) {
+      const keys = () => Array.from(body.rows, tr => {
+        const v = tr.children[col].dataset.v;
+        return v === undefined || v === '' ? NaN : parseFloat(v);
+      });
+      const rows = () => Array.from(body.rows, tr => tr.textContent).join('\n');
+      const before = keys();
+      if (before.some(isNaN) || new Set(before).size < 2) continue;
+      const sorted = before.slice().sort((a, b) => a - b);
+      ths[col].click();
+      const up = keys(), upRows = rows(), upSort = ths[col].getAttribute('aria-sort');
+      ths[col].click();
+      const down = keys(), downRows = rows(), downSort = ths[col].getAttribute('aria-sort');
+      const same = (a, b) => a.length === b.length && a.every((x, i) => x === b[i]);
+      const ascending = upSort === 'ascending' && same(up, sorted);
+      const descending = downSort === 'descending' && same(down, sorted.slice().reverse());
+      return {column: ths[col].textContent, before, ascending: up, descending: down,
+              ok: ascending && descending && upRows !== downRows};
+    }
+  }
+  return null;  // no numeric column with two different values: nothing to check
+}
+
 function selftest() {
   const out = {checks: {}, errors};
   out.checks.images_loaded = Array.from(document.images).every(
@@ -275,8 +305,8 @@ function selftest() {
   } else {
     out.checks.viewer = false;
   }
-  const th = document.querySelector('table.sortable th:nth-child(2)');
-  if (th) { th.click(); out.checks.sorts = th.getAttribute('aria-sort') === 'ascending'; }
+  out.sort = sortCheck();
+  out.checks.sorts = out.sort !== null && out.sort.ok;
   out.ok = Object.values(out.checks).every(Boolean) && errors.length === 0;
   document.getElementById('selftest-result').textContent = JSON.stringify(out);
   document.title = 'selftest ' + (out.ok ? 'ok' : 'failed');
