@@ -10,6 +10,7 @@ from sparse_brdf.training import _shards as shards_mod
 from sparse_brdf.training.train import train_dictionaries, train_ensemble
 
 
+@pytest.mark.train
 def test_objective_never_increases(small_training):
     st = train_dictionaries(small_training, 32, n_dicts=3, n_iter=6, reassign_every=2,
                             tol=0, seed=0, progress=False)
@@ -28,6 +29,7 @@ def test_mode_matrices_orthonormal(small_ensemble):
     assert small_ensemble.taus.tolist() == [16, 16, 16, 64, 64, 64]
 
 
+@pytest.mark.train
 def test_same_seed_same_result(small_training):
     a = train_dictionaries(small_training, 16, n_dicts=2, n_iter=2, seed=5, progress=False)
     b = train_dictionaries(small_training, 16, n_dicts=2, n_iter=2, seed=5, progress=False)
@@ -36,6 +38,7 @@ def test_same_seed_same_result(small_training):
     np.testing.assert_array_equal(a.labels, b.labels)
 
 
+@pytest.mark.train
 def test_resume_from_checkpoint_matches_uninterrupted(small_training, tmp_path):
     ck = tmp_path / "ck.npz"
     full = train_dictionaries(small_training, 16, n_dicts=2, n_iter=4, seed=2, tol=0,
@@ -51,6 +54,7 @@ def test_resume_from_checkpoint_matches_uninterrupted(small_training, tmp_path):
                            progress=False)
 
 
+@pytest.mark.train
 def test_shard_size_is_part_of_the_run(small_training, tmp_path):
     """The shard size fixes the summation order, so a checkpoint of one size is refused
     by a run of another; 0 (one shard of all tensors) is accepted and recorded, a
@@ -70,6 +74,7 @@ def test_shard_size_is_part_of_the_run(small_training, tmp_path):
                            shard_tensors=-1)
 
 
+@pytest.mark.train
 def test_empty_clusters_are_reseeded():
     # three identical tensors and one other: K = 3 leaves a cluster empty after assignment
     rng = np.random.default_rng(0)
@@ -101,6 +106,7 @@ def test_union_save_load(small_ensemble, tmp_path):
         Ensemble.load(p)
 
 
+@pytest.mark.train
 def test_extend_with_new_transform(small_training):
     a = train_ensemble(small_training[:36], taus=(16,), n_dicts=2, n_iter=1, progress=False)
     b = train_ensemble(small_training[36:], taus=(8,), n_dicts=2, n_iter=1, progress=False)
@@ -109,6 +115,7 @@ def test_extend_with_new_transform(small_training):
     assert "history" in u.meta["parts"][0]
 
 
+@pytest.mark.train
 def test_partial_product_cache_changes_nothing(small_training, monkeypatch):
     """Keeping X x3 U3^T between the U1 and U2 passes gives the same dictionaries as
     recomputing it (cache disabled by a zero byte budget)."""
@@ -192,19 +199,25 @@ def test_an_id_names_a_shipped_ensemble():
 
 
 @pytest.mark.shared
+@pytest.mark.train
+@pytest.mark.numerics
 def test_the_default_ensemble_was_trained_on_the_data_its_rebuild_reads(shared_data):
-    """The training data the documented rebuild reads hash to the shipped default's
-    ``meta["data_sha256"]``: the tabulations (symmetrised networks, Mitsuba's BSDFs), the
-    transforms and the colour basis have not drifted since it was trained
-    (docs/ensemble.md, "Rebuilding the default")."""
+    """The training data the documented rebuild reads match the shipped default's
+    ``meta["data_fingerprint"]``: the exact inputs (each network's bytes, Mitsuba's BSDFs
+    and version, the transforms, the colour basis, the grid, the symmetrisation) and every
+    tensor's statistics within the stated tolerance, which rounding on another CPU stays
+    far inside (docs/ensemble.md, "Rebuilding the default"). A failure names each
+    material and statistic that moved. The bit-exact digest (``meta["data_sha256"]``) is
+    not compared: it holds only on the machine that trained the ensemble."""
     from sparse_brdf.sources.corpora import get_corpus
-    from sparse_brdf.sources.dataset import training_digest
+    from sparse_brdf.sources.dataset import fingerprint_mismatches, training_fingerprint
 
     ens = Ensemble.default()
     meta = ens.meta
     materials = [m for c in meta["corpora"] for m in get_corpus(c).split(meta["split"])]
     assert [f"{m.corpus}/{m.name}" for m in materials] == meta["data"]
     assert ens.transforms == tuple(meta["transforms"])
-    digest = training_digest(materials, meta["transforms"], tuple(meta["grid"]),
-                             progress=False, basis=meta["basis"])
-    assert digest == meta["data_sha256"]
+    got = training_fingerprint(materials, meta["transforms"], tuple(meta["grid"]),
+                               progress=False, basis=meta["basis"])
+    mismatches = fingerprint_mismatches(got, meta["data_fingerprint"])
+    assert not mismatches, "\n".join(mismatches[:20])

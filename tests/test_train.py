@@ -14,7 +14,13 @@ from sparse_brdf.coding.encode import encode
 from sparse_brdf.coding.ensemble import Ensemble
 from sparse_brdf.coords import geometric_valid, grid_angles
 from sparse_brdf.sources.corpora import get_corpus
-from sparse_brdf.sources.dataset import TrainingData, training_data, training_tensors
+from sparse_brdf.sources.dataset import (
+    TrainingData,
+    fingerprint_mismatches,
+    training_data,
+    training_fingerprint,
+    training_tensors,
+)
 from sparse_brdf.training import _codes
 from sparse_brdf.training._tensor_store import TensorStore
 from sparse_brdf.training.train import _converged, train_dictionaries, train_ensemble
@@ -46,6 +52,7 @@ def _valid_error(brdf: BRDF, ens: Ensemble, n: int) -> float:
     return float(np.sum(d**2) / np.sum(y[:, brdf.valid].astype(np.float64) ** 2))
 
 
+@pytest.mark.train
 def test_masked_training_codes_held_out_materials_better():
     """Dictionaries that do not spend atoms on the horizon edge code unseen materials of the
     family with less error over valid bins, with the same encoder for both."""
@@ -63,6 +70,7 @@ def test_masked_training_codes_held_out_materials_better():
     assert ens[True].meta["masked"] is True and ens[False].meta["masked"] is False
 
 
+@pytest.mark.train
 def test_masked_training_ignores_free_bins(small_training):
     """Masked, whatever the tensors hold below the horizon or in unmeasured bins changes
     nothing: those bins are free values, refilled from the model."""
@@ -89,6 +97,7 @@ def test_masked_training_ignores_free_bins(small_training):
     assert not np.allclose(a.u1, c.u1)
 
 
+@pytest.mark.train
 @pytest.mark.parametrize("masked, init", [(True, "seeded"), (False, "random")])
 def test_objective_never_increases_in_each_mode(small_training, masked, init):
     st = train_dictionaries(small_training, 24, n_dicts=3, n_iter=5, reassign_every=2,
@@ -102,6 +111,7 @@ def test_objective_never_increases_in_each_mode(small_training, masked, init):
     assert all(0 <= h["moved_fraction"] <= 1 for h in st.history)
 
 
+@pytest.mark.train
 def test_seeded_init_is_deterministic_and_resumes(small_training, tmp_path):
     kw = dict(tau=16, n_dicts=3, n_iter=3, tol=0, seed=7, progress=False, init="seeded")
     a = train_dictionaries(small_training, **kw)
@@ -130,6 +140,7 @@ def test_stopping_rule():
     assert not _converged([h(10.0, 90, True), h(9.0, 1, True), h(8.9)], 1e-4, 0.01, n)
 
 
+@pytest.mark.train
 def test_training_stops_when_settled(small_training):
     st = train_dictionaries(small_training, 16, n_dicts=2, n_iter=30, reassign_every=1,
                             tol=1.0, max_moved=1.0, seed=0, progress=False)
@@ -175,6 +186,7 @@ def test_training_data_records_unmeasured_bins(monkeypatch):
     assert m.sum() == (geometric_valid(SMALL)[4:6, 2:4, :]).sum()
 
 
+@pytest.mark.train
 def test_train_command_options(tmp_path):
     out = tmp_path / "e.npz"
     assert main(["train", "--corpus", "mitsuba", "--grid", "18", "18", "36", "--taus", "8",
@@ -189,6 +201,12 @@ def test_train_command_options(tmp_path):
     data = training_data(get_corpus("mitsuba").split("train"), shape=SMALL, progress=False,
                          basis="opponent")
     assert meta["data_sha256"] == data.digest() and len(data.digest()) == 64
+    fp = meta["data_fingerprint"]
+    assert fp["data_sha256"] == data.digest()
+    assert len(fp["tensors"]) == len(data.labels) == 6 * len(fp["inputs"])
+    assert fingerprint_mismatches(training_fingerprint(
+        get_corpus("mitsuba").split("train"), shape=SMALL, progress=False, basis="opponent"),
+        fp) == []
 
 
 def test_training_data_digest_sees_one_ulp(small_training):
@@ -202,6 +220,56 @@ def test_training_data_digest_sees_one_ulp(small_training):
     assert c.digest() != a.digest()
 
 
+@pytest.fixture(scope="module")
+def two_fingerprinted():
+    """Two mitsuba materials on the small grid, and the fingerprint of their data."""
+    mats = get_corpus("mitsuba").split("train")[:2]
+    data = training_data(mats, shape=SMALL, progress=False)
+    return mats, data, training_fingerprint(mats, shape=SMALL, data=data)
+
+
+@pytest.mark.numerics
+def test_fingerprint_streams_what_training_data_stacks(two_fingerprinted):
+    mats, data, fp = two_fingerprinted
+    streamed = training_fingerprint(mats, shape=SMALL, progress=False)
+    assert streamed == fp and fp["data_sha256"] == data.digest()
+    assert list(fp["tensors"]) == data.labels and fp["size"] == data.x[0].size
+
+
+@pytest.mark.numerics
+def test_fingerprint_forgives_rounding_and_names_what_moved(two_fingerprinted):
+    """A last-bit change of every value (another CPU's rounding) changes the bit digest
+    but not the fingerprint; a 0.1 % change of one tensor, a changed value of the largest
+    bin, another transform or another material's file are named."""
+    mats, data, fp = two_fingerprinted
+    rounded = TrainingData(np.nextafter(data.x, np.float32(np.inf)), data.labels)
+    got = training_fingerprint(mats, shape=SMALL, data=rounded)
+    assert got["data_sha256"] != fp["data_sha256"]
+    assert fingerprint_mismatches(got, fp) == []
+
+    drift = data.x.copy()
+    drift[4] *= 1.001
+    got = training_fingerprint(mats, shape=SMALL, data=TrainingData(drift, data.labels))
+    lines = fingerprint_mismatches(got, fp)
+    assert len(lines) == 1 and lines[0].startswith(data.labels[4] + ": sum ")
+    assert "l2" in lines[0] and "tolerance 1e-05" in lines[0]
+
+    peak = data.x.copy()
+    peak[0].flat[np.argmax(peak[0])] += 0.01
+    got = training_fingerprint(mats, shape=SMALL, data=TrainingData(peak, data.labels))
+    assert [line.split(": ")[1].split()[0] for line in fingerprint_mismatches(got, fp)] == [
+        "max"]
+
+    other = training_fingerprint(mats, ("log-plus", "log-plus-cosine"), SMALL,
+                                 progress=False)
+    assert fingerprint_mismatches(other, fp)[0].startswith("settings: ")
+    swapped = training_fingerprint([mats[0], get_corpus("mitsuba").split("train")[5]],
+                                   shape=SMALL, progress=False)
+    named = fingerprint_mismatches(swapped, fp)
+    assert any(line.startswith(f"mitsuba/{mats[1].name}: missing now") for line in named)
+
+
+@pytest.mark.train
 def test_pruned_clustering_matches_full_search(small_training, monkeypatch):
     """The pruned search (``train.PRUNE``) clusters and codes as projecting every tensor on
     every dictionary does, with and without known codes of the own dictionaries."""

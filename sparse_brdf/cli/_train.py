@@ -11,7 +11,7 @@ from ..coding.ensemble import Ensemble
 from ..coords import GRID_BINS, GRID_SIDE, check_grid
 from ..errors import UsageError
 from ..sources.corpora import SPLITS, TRAINING_CORPORA, get_corpus
-from ..sources.dataset import training_data
+from ..sources.dataset import training_data, training_fingerprint
 from ..training.train import train_dictionaries, train_ensemble
 from ..transforms import COLOUR_BASES, TRANSFORMS
 from ._options import (
@@ -48,6 +48,9 @@ def cmd_train(args: argparse.Namespace) -> int:
         "corpora": args.corpus, "split": args.split, "transforms": list(args.transform),
         "basis": args.basis, "grid": list(shape), "load_seconds": load_s,
         "data_sha256": data.digest(), "symmetrize": args.symmetrize is not False,
+        "data_fingerprint": training_fingerprint(materials, args.transform, shape,
+                                                 basis=args.basis, symmetrize=args.symmetrize,
+                                                 data=data),
         "command": "sparse-brdf " + " ".join(sys.argv[1:]),
         "created": time.strftime("%Y-%m-%d %H:%M:%S %Z"),
     }

@@ -3,14 +3,23 @@
 from __future__ import annotations
 
 import hashlib
+import json
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..coords import MERL_SHAPE, geometric_valid
+from ..fingerprints import (
+    FINGERPRINT_RTOL,
+    FINGERPRINT_STATS,
+    fingerprint_changes,
+    fingerprint_list,
+)
 from ..transforms import check_basis, check_transform, forward, to_basis
 from .corpora import Material
+from .load import source_key
 
 #: The transforms an ensemble is trained for by default: the relative ones, which code dim
 #: values with relative precision (``docs/method.md``, "Transforms"). The paper's
@@ -48,9 +57,9 @@ class TrainingData:
 
         Two runs whose digests match trained on bit-identical data, so their ensembles
         match for the same options, seed and thread count; the ``train`` command stores
-        it in the ensemble's ``meta["data_sha256"]``. Tabulations made through Mitsuba
-        can differ in their last bits between Mitsuba builds or machines, which this
-        makes visible.
+        it in the ensemble's ``meta["data_sha256"]``, for information: numpy's SIMD
+        kernels and Mitsuba's LLVM backend round differently on other CPUs, which changes
+        it. :func:`training_fingerprint` tells a change of the data from that.
         """
         return _digest(self.x.shape, self.labels, self.basis, self.transforms, [self.x],
                        self.missing)
@@ -95,23 +104,102 @@ def training_data(
     return TrainingData(x, labels, missing, basis, tuple(transforms))
 
 
-def training_digest(
+def training_fingerprint(
     materials: Sequence[Material],
     transforms: Sequence[str] = TRAIN_TRANSFORMS,
     shape: tuple[int, int, int] = MERL_SHAPE,
     progress: bool = True,
     basis: str = "rgb",
     symmetrize: bool | None = None,
-) -> str:
-    """:meth:`TrainingData.digest` of :func:`training_data` with the same arguments,
-    computed one material at a time (the tensors are never stacked: 36 MB at a time
-    instead of 5.5 GB for the shipped ensemble's data)."""
-    n = len(materials) * len(transforms) * 3
+    data: TrainingData | None = None,
+) -> dict:
+    """What an ensemble was trained on, in a form that tells a change of the data from
+    the rounding that differs between machines (:mod:`sparse_brdf.fingerprints`).
+
+    Parameters
+    ----------
+    materials, transforms, shape, progress, basis, symmetrize
+        As :func:`training_data`.
+    data : TrainingData, optional
+        :func:`training_data` of the same arguments, when already computed; else the
+        tensors are computed one material at a time (36 MB at a time instead of 5.5 GB
+        for the shipped ensemble's data).
+
+    Returns
+    -------
+    dict
+        JSON-ready: ``inputs_sha256`` (exact: every material's inputs as
+        :func:`~sparse_brdf.sources.load.source_key` reads them, the labels, transforms,
+        basis, grid and symmetrisation), ``inputs`` ({material: its key}), ``settings``,
+        ``tensors`` ({label: fingerprint list}, float64 statistics of each tensor, in
+        the order of ``stats``), ``size`` (values per tensor), ``rtol``, and
+        ``data_sha256`` (:meth:`TrainingData.digest`: bit identity, for information).
+        :func:`fingerprint_mismatches` compares two of them.
+    """
     labels = _labels(materials, transforms, basis)
-    missing: dict[int, np.ndarray] = {}  # filled as the blocks go; _digest reads it last
-    blocks = (b for _, b in _channel_blocks(materials, transforms, shape, progress, basis,
-                                            symmetrize, missing))
-    return _digest((n, *shape), labels, basis, transforms, blocks, missing)
+    inputs = {f"{m.corpus}/{m.name}": source_key(m.source, shape, symmetrize)
+              for m in materials}
+    settings = {"transforms": list(transforms), "basis": basis, "grid": list(shape),
+                "symmetrize": symmetrize is not False}
+    h = hashlib.sha256(json.dumps([inputs, settings, labels], sort_keys=True).encode())
+    tensors: dict[str, list[float]] = {}
+    if data is None:
+        missing: dict[int, np.ndarray] = {}
+        blocks = _channel_blocks(materials, transforms, shape, progress, basis, symmetrize,
+                                 missing)
+    else:
+        missing = data.missing
+        blocks = ((i, data.x[i : i + 3]) for i in range(0, len(data.x), 3))
+
+    def fingerprinted(blocks):
+        for i, block in blocks:
+            for j, tensor in enumerate(block):
+                tensors[labels[i + j]] = fingerprint_list(tensor)
+            yield block
+
+    digest = _digest((len(labels), *shape), labels, basis, transforms, fingerprinted(blocks),
+                     missing)
+    return {"inputs_sha256": h.hexdigest(), "inputs": inputs, "settings": settings,
+            "stats": list(FINGERPRINT_STATS), "size": math.prod(shape),
+            "rtol": FINGERPRINT_RTOL, "tensors": tensors, "data_sha256": digest}
+
+
+def fingerprint_mismatches(got: dict, want: dict) -> list[str]:
+    """How two :func:`training_fingerprint` results differ, one line per difference.
+
+    Parameters
+    ----------
+    got : dict
+        The fingerprint of the data as computed now.
+    want : dict
+        The fingerprint stored when the ensemble was trained (``meta["data_fingerprint"]``).
+
+    Returns
+    -------
+    list of str
+        Empty when the data match: the same exact inputs, and every tensor's statistics
+        within ``want["rtol"]``. Else a line per material whose inputs changed, per setting
+        that changed, and per tensor (named ``"<corpus>/<name>:<transform>:<channel>"``)
+        whose statistics moved, naming each statistic.
+    """
+    lines = []
+    for key in ("settings", "stats", "size"):
+        if got[key] != want[key]:
+            lines.append(f"{key}: {want[key]} -> {got[key]}")
+    for name in sorted(got["inputs"].keys() | want["inputs"].keys()):
+        a, b = got["inputs"].get(name), want["inputs"].get(name)
+        if a != b:
+            lines.append(f"{name}: " + ("not in the stored data" if b is None else
+                                        "missing now" if a is None else
+                                        "its inputs changed (the source file's bytes, the "
+                                        "BSDF's parameters or the Mitsuba version)"))
+    if lines:
+        return lines
+    for label, fp in want["tensors"].items():
+        moved = fingerprint_changes(got["tensors"][label], fp, want["size"], want["rtol"])
+        if moved:
+            lines.append(f"{label}: " + "; ".join(moved))
+    return lines
 
 
 def _labels(materials, transforms, basis) -> list[str]:

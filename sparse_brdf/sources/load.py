@@ -79,33 +79,79 @@ def load_brdf(
     return brdf
 
 
+def source_key(
+    source: str | os.PathLike | dict,
+    shape: tuple[int, int, int] = MERL_SHAPE,
+    symmetrize: bool | None = None,
+) -> str:
+    """The sha256 (hex) of everything a tabulation of ``source`` reads: the exact inputs.
+
+    A file's bytes (a network, a MERL table, a coefficient file), a Mitsuba BSDF's
+    parameters with the Mitsuba version, an analytic fit's parameters; the grid; whether
+    a network is symmetrised. Two sources with one key tabulate to the same values on
+    one machine (the key of the tabulation cache). Arguments as :func:`load_brdf`.
+
+    Returns
+    -------
+    str
+        64 hex digits.
+
+    Raises
+    ------
+    As :func:`load_brdf` for a missing file or an unknown name.
+    """
+    symmetric_network = symmetrize is not False
+    if isinstance(source, dict):
+        return content_key("mitsuba-dict", source, list(shape), _mitsuba_version())
+    s = os.fspath(source)
+    if s.startswith("mitsuba:"):
+        return content_key("mitsuba", _catalog_entry(s), list(shape), _mitsuba_version())
+    prefix, colon, name = s.partition(":")
+    if colon and prefix in FIT_MODELS:
+        params = material_parameters(prefix, name)
+        return content_key("fit", FITS_VERSION, prefix, name,
+                           {k: v.tolist() for k, v in params.items()}, list(shape))
+    data = require_file(Path(s), "BRDF file").read_bytes()
+    if s.lower().endswith(".h5"):
+        return content_key("nbrdf", data, list(shape),
+                           *(["symmetric"] if symmetric_network else []))
+    return content_key("file", data, *(["symmetric"] if symmetrize else []))
+
+
+def _catalog_entry(source: str) -> dict:
+    """The Mitsuba BSDF of a ``mitsuba:<name>`` source."""
+    name = source.split(":", 1)[1]
+    catalog = mitsuba_catalog()
+    if name not in catalog:
+        raise UnknownNameError(f"{source}: no built-in material of that name (see "
+                               "`sparse-brdf corpus list mitsuba`)")
+    return catalog[name]
+
+
 def _load(source, shape: tuple[int, int, int], cache: bool, symmetric_network: bool) -> BRDF:
     """:func:`load_brdf` without a table's symmetrisation; ``symmetric_network`` averages
     a network over its symmetries as it is tabulated."""
     if isinstance(source, dict):
         name = str(source.get("type", "mitsuba"))
-        key = content_key("mitsuba-dict", source, list(shape), _mitsuba_version())
-        return cached_brdf(key, lambda: tabulate_mitsuba(source, name, shape), cache)
+        return cached_brdf(source_key(source, shape),
+                           lambda: tabulate_mitsuba(source, name, shape), cache)
     s = os.fspath(source)
     if s.startswith("mitsuba:"):
-        name = s.split(":", 1)[1]
-        catalog = mitsuba_catalog()
-        if name not in catalog:
-            raise UnknownNameError(f"{s}: no built-in material of that name (see "
-                                   "`sparse-brdf corpus list mitsuba`)")
-        key = content_key("mitsuba", catalog[name], list(shape), _mitsuba_version())
-        return cached_brdf(key, lambda: tabulate_mitsuba(catalog[name], name, shape), cache)
+        bsdf, name = _catalog_entry(s), s.split(":", 1)[1]
+        return cached_brdf(source_key(s, shape),
+                           lambda: tabulate_mitsuba(bsdf, name, shape), cache)
     prefix, colon, _ = s.partition(":")
     if colon and prefix in FIT_MODELS:
-        return _load_fit(s, shape, cache)
+        model, name = s.split(":", 1)
+        return cached_brdf(source_key(s, shape), lambda: tabulate_fit(model, name, shape),
+                           cache)
     path = Path(s)
     suffix = path.suffix.lower()
     if suffix == ".binary":
         return read_merl(path)
     if suffix == ".h5":
-        data = require_file(path, "Neural-BRDF file").read_bytes()
-        key = content_key("nbrdf", data, list(shape), *(["symmetric"] if symmetric_network
-                                                          else []))
+        require_file(path, "Neural-BRDF file")
+        key = source_key(path, shape, symmetric_network)
         brdf = cached_brdf(key, lambda: tabulate_nbrdf(path, shape, symmetric_network),
                            cache)
         brdf.meta["symmetric"] = symmetric_network
@@ -147,15 +193,6 @@ def symmetrize_table(brdf: BRDF) -> BRDF:
     values = np.where(valid[..., None], values, 0).astype(np.float32)
     return BRDF(values=values, valid=valid, name=brdf.name, source=brdf.source,
                 meta={**brdf.meta, "symmetric": True})
-
-
-def _load_fit(source: str, shape: tuple[int, int, int], cache: bool) -> BRDF:
-    """``abc:<name>`` or ``sgd:<name>``, tabulated (cached by the material's parameters)."""
-    model, name = source.split(":", 1)
-    params = material_parameters(model, name)
-    key = content_key("fit", FITS_VERSION, model, name,
-                      {k: v.tolist() for k, v in params.items()}, list(shape))
-    return cached_brdf(key, lambda: tabulate_fit(model, name, shape), cache)
 
 
 def _mitsuba_version() -> str:
