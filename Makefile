@@ -7,14 +7,25 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test setup llvm lint clean chromium
+.PHONY: demo test test-fast test-other-cpu setup llvm lint clean chromium
 
 demo: setup
 	$(PY) -m sparse_brdf.demo
 
+# The whole suite, then its numerics tests again on another CPU's kernels (docs/testing.md).
 test: setup
 	$(VENV)/bin/ruff check sparse_brdf mitsuba_plugin tests benchmarks examples
 	$(PY) -m pytest -q --durations=10 tests
+	$(MAKE) --no-print-directory test-other-cpu
+
+# What neither renders nor trains: the edit-test loop.
+test-fast: setup
+	$(PY) -m pytest -q -m "not render and not train" tests
+
+# numpy, OpenBLAS and Dr.Jit on kernels other than the ones they pick here
+# (tests/other_cpu.py prints the settings).
+test-other-cpu: setup
+	env $$($(PY) tests/other_cpu.py) $(PY) -m pytest -q -m numerics tests
 
 setup: llvm $(STAMP)
 

@@ -10,6 +10,68 @@ from sparse_brdf.paths import shared_data_dir
 SMALL = (18, 18, 36)
 
 
+def pytest_report_header(config) -> list[str]:
+    """The kernels this run's numerics use: what differs from one CPU to another
+    (docs/testing.md, "Another CPU at home")."""
+    import os
+
+    from threadpoolctl import threadpool_info
+
+    blas = sorted({f"{i['internal_api']} {i.get('architecture')}" for i in threadpool_info()
+                   if i.get("user_api") == "blas"})
+    return [f"numerics: numpy SIMD off {os.environ.get('NPY_DISABLE_CPU_FEATURES') or '-'}; "
+            f"BLAS {', '.join(blas)}; Dr.Jit LLVM target "
+            f"{os.environ.get('SPARSE_BRDF_LLVM_TARGET') or 'this CPU'}"]
+
+
+#: The markers of slow work, and what a test that does it without its marker is told.
+SLOW_WORK = {"render": "renders with Mitsuba", "train": "trains an ensemble"}
+_running: set[str] = set()  # the slow work the running test's markers allow; None: any
+
+
+def pytest_configure(config) -> None:
+    """Watch the two doors slow work goes through: ``mitsuba.render`` and the trainer's
+    iteration. A test that passes one without its marker fails, so that ``make
+    test-fast`` (``-m "not render and not train"``) stays fast. Work in fixtures and in
+    child processes is not watched."""
+    import mitsuba
+
+    from sparse_brdf.training import train
+
+    def guarded(work, fn):
+        def run(*args, **kwargs):
+            if _running is not None and work not in _running:
+                pytest.fail(f"this test {SLOW_WORK[work]}: mark it @pytest.mark.{work}",
+                            pytrace=False)
+            return fn(*args, **kwargs)
+        return run
+
+    mitsuba.render = guarded("render", mitsuba.render)
+    train._iterate = guarded("train", train._iterate)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_call(item):
+    global _running
+    _running = {m for m in SLOW_WORK if item.get_closest_marker(m)}
+    try:
+        yield
+    finally:
+        _running = None
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _llvm_target():
+    """``$SPARSE_BRDF_LLVM_TARGET``: compile every LLVM kernel of the run for that CPU,
+    including those of tests that set a variant through Mitsuba directly."""
+    import os
+
+    from sparse_brdf.mitsuba_env import LLVM_TARGET_ENV, set_variant
+
+    if os.environ.get(LLVM_TARGET_ENV):
+        set_variant("llvm_ad_rgb")
+
+
 @pytest.fixture(scope="session", autouse=True)
 def _isolated_cache(tmp_path_factory):
     """Keep the tests' tabulation cache out of the user's cache folder."""

@@ -76,6 +76,7 @@ def few_training(shared_data, monkeypatch):
     return mats
 
 
+@pytest.mark.render
 def test_a_real_run_scores_both_methods_and_the_full_table(tmp_path, few_training):
     cfg = ab.AcquisitionConfig(max_materials=1, n_samples=[300], seeds=[0],
                                placements=["stratified"], bins_n=[], noise=0.0, res=16,

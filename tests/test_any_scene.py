@@ -62,6 +62,7 @@ def test_object_is_the_shapes_of_the_replaced_materials():
         object_mask(SCENE, materials=["nothere"])
 
 
+@pytest.mark.render
 def test_render_snr_and_masks_on_any_scene(tmp_path, capsys):
     a, b, mask = tmp_path / "a.exr", tmp_path / "b.exr", tmp_path / "m.exr"
     common = ["--material", f"paint={PAINT}", "--spp", 2, "--sampling", "cosine"]
@@ -91,6 +92,7 @@ def test_render_snr_and_masks_on_any_scene(tmp_path, capsys):
           names=["envrot", "not a parameter"])
 
 
+@pytest.mark.render
 def test_fit_scene_and_fit_images_on_any_scene(tmp_path, capsys):
     out = tmp_path / "fs"
     code, text, err = run(capsys, "fit-scene", SCENE, "--material", f"paint={PAINT}",
@@ -111,6 +113,7 @@ def test_fit_scene_and_fit_images_on_any_scene(tmp_path, capsys):
     assert load_sbrdf(fitted).n_coeffs.tolist() == start.n_coeffs.tolist()  # support kept
 
 
+@pytest.mark.render
 def test_outputs_follow_their_names(tmp_path, capsys):
     png, jpg = tmp_path / "a.png", tmp_path / "a.jpg"
     common = ["--material", f"paint={PAINT}", "--spp", 2]
@@ -177,6 +180,7 @@ def test_staged_outputs_are_written_together(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt", "b.txt"]
 
 
+@pytest.mark.render
 def test_readme_own_scene_example_runs(tmp_path, monkeypatch):
     """The README's block that swaps a material into an existing scene and wraps the
     plugin in twosided for open meshes runs as printed (from the checkout's root)."""

@@ -52,6 +52,7 @@ def test_errors_are_one_line_and_name_the_file(tmp_path, capsys):
     assert "truncated" in capsys.readouterr().err
 
 
+@pytest.mark.train
 def test_train_encode_decode_round_trip(tmp_path, capsys):
     ens = tmp_path / "e.npz"
     assert main(["train", "--corpus", "mitsuba", "--grid", "18", "18", "36", "--taus", "16",
@@ -81,6 +82,7 @@ def test_train_encode_decode_round_trip(tmp_path, capsys):
     assert read_merl(out).shape == (18, 18, 36)
 
 
+@pytest.mark.render
 def test_render_and_snr(tmp_path, capsys):
     a, b = tmp_path / "a.exr", tmp_path / "b.exr"
     common = ["--material", "material=mitsuba:plastic-red-ggx-0.3", "--spp", "4", "--res", "24"]

@@ -71,6 +71,7 @@ def test_traverse_exposes_the_coded_values(mat, llvm):
                                          "filename": mat["binary"]})).keys()
 
 
+@pytest.mark.render
 @pytest.mark.parametrize("decoder", ["grouped", "strict"])
 def test_update_renders_as_a_file_with_those_values(mat, llvm, tmp_path, decoder):
     """After ``params.update()`` the render is bit for bit the render of a .sbrdf
@@ -130,6 +131,7 @@ def _fd(sc, params, key, j, base, w, seed):
 @pytest.mark.parametrize(("integrator", "decoder"), [("direct", "grouped"),
                                                      ("prb", "grouped"),
                                                      ("prb", "strict")])
+@pytest.mark.render
 def test_gradients_match_finite_differences(mat, llvm, integrator, decoder):
     """Reverse-mode gradients of a weighted sum of the image, for the two values of
     largest gradient in each channel, and the forward-mode derivative along one of them,

@@ -21,6 +21,8 @@ from sparse_brdf.metrics import cosine_weighted_snr
 from sparse_brdf.sources.load import load_brdf
 from sparse_brdf.transforms import forward, inverse
 
+pytestmark = pytest.mark.numerics
+
 encode = functools.partial(_encode, **PAPER_OPTIONS)
 
 

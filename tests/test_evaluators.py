@@ -39,6 +39,8 @@ from mitsuba_plugin.evaluators import (  # noqa: E402
 from sparse_brdf.evaluation.speed import evals_per_second  # noqa: E402
 from sparse_brdf.mitsuba_env import set_variant  # noqa: E402
 
+pytestmark = pytest.mark.numerics
+
 MODELS = {
     "naive": lambda: NaiveModel(),
     "cpd-1": lambda: CPDModel(1, n_iter=10),

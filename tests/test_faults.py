@@ -165,6 +165,7 @@ def reference_id(tmp_path_factory) -> str:
     return Ensemble.load(folder / "ref.npz").id
 
 
+@pytest.mark.train
 def test_training_stops_when_a_worker_dies_and_resumes(cluster, reference_id, tmp_path,
                                                        capsys):
     """A worker killed mid-iteration takes its shards of tensors with it: the command

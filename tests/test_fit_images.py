@@ -58,6 +58,7 @@ def _snr(case, path: Path) -> float:
         params={"envrot": r})) for r in ROTS]))
 
 
+@pytest.mark.render
 def test_fit_images_command_moves_towards_the_references(capsys, case):
     out = case["work"] / "fitted.sbrdf"
     views = [f"{p}:envrot={r}" for p, r in zip(case["paths"], ROTS, strict=True)]
@@ -77,6 +78,7 @@ def test_fit_images_command_moves_towards_the_references(capsys, case):
     assert _snr(case, out) > _snr(case, case["start"]) + 3.0
 
 
+@pytest.mark.render
 def test_fit_resumes_from_its_checkpoint(case, monkeypatch):
     """A fit interrupted after its checkpoint at iteration 4 and run again ends where an
     uninterrupted fit of the same settings ends (to rounding: the gradients' atomic sums
@@ -159,6 +161,7 @@ def test_fit_images_bad_input_is_one_line(capsys, case, tmp_path, bad):
     assert sorted(p.name for p in tmp_path.iterdir()) == before  # nothing written
 
 
+@pytest.mark.render
 def test_readme_inverse_rendering_example_runs(case, tmp_path):
     """The README's loop, as printed there, lowers its loss from the perturbed start."""
     import re
@@ -179,6 +182,7 @@ def test_readme_inverse_rendering_example_runs(case, tmp_path):
     assert isinstance(env["scene"], mi.Scene) and dr.grad_enabled(env["opt"][env["keys"][0]])
 
 
+@pytest.mark.render
 def test_render_sets_scene_defaults(capsys, tmp_path):
     """``render -D KEY=VALUE`` sets a scene default (the views of a fit are rendered so);
     a malformed one, or one that has its own option, is one line and exit 2."""
@@ -206,6 +210,7 @@ def _uniform_map(path: Path, rgb) -> str:
     return str(write_exr(path, np.broadcast_to(np.float32(rgb), (8, 16, 3)).copy()))
 
 
+@pytest.mark.render
 def test_views_carry_their_own_envmap(capsys, case, tmp_path):
     """A view's ``envmap`` is rendered with that map: the start's own render under a red
     map is matched exactly (shared sample paths) by a view that names the map, and not by
@@ -235,6 +240,7 @@ def test_views_carry_their_own_envmap(capsys, case, tmp_path):
     assert float(re.search(r"SNR (\d+\.\d) dB at the start", stdout).group(1)) > 60.0
 
 
+@pytest.mark.render
 def test_envtilt_default_leaves_the_scene_unchanged(tmp_path):
     """``sphere.xml``'s ``envtilt`` (a rotation of the map about +x after ``envrot``)
     is 0 by default, and then renders bit for bit as the scene without it; a tilt moves
@@ -258,6 +264,7 @@ def test_envtilt_default_leaves_the_scene_unchanged(tmp_path):
     assert not np.allclose(new, tilted, rtol=0.05)
 
 
+@pytest.mark.render
 def test_scenes_sharing_a_model_keep_their_own_values(case):
     """The plugin reuses the last grouped build for scenes holding the same model and
     values (an image fit's views): new values in one scene do not leak into another."""
@@ -279,6 +286,7 @@ def test_scenes_sharing_a_model_keep_their_own_values(case):
     assert np.array_equal(again, before[1])
 
 
+@pytest.mark.render
 def test_lbfgs_fit_improves_and_resumes(case):
     """``optimizer="lbfgs"``: L-BFGS-B on the shared-path loss lifts the views' SNR from
     the perturbed start within a few evaluations; its checkpoint holds the best values,
@@ -300,6 +308,7 @@ def test_lbfgs_fit_improves_and_resumes(case):
         fit_images(case["scene"], views, case["start"], **{**kw, "optimizer": "sgd"})
 
 
+@pytest.mark.render
 def test_log_loss_is_the_views_mean_snr(case):
     """``loss="log"`` optimises the mean of the views' SNRs in dB: its first record is
     exactly that mean for the start (the views' renders share the references' paths),
@@ -323,6 +332,7 @@ def _start_values(case) -> list[np.ndarray]:
     return [np.asarray(v, np.float32) for v in load_sbrdf(case["start"]).values]
 
 
+@pytest.mark.render
 def test_prior_weight_keeps_the_values_near_the_start(case):
     """``prior_weight`` adds ``w * mean((u - 1)^2)`` to the loss, ``u`` each value over
     its starting scale: the L-BFGS fit returns its best objective, so the penalty of its
@@ -357,6 +367,7 @@ def test_prior_weight_keeps_the_values_near_the_start(case):
         fit_images(case["scene"], views, case["start"], prior_weight=-1.0, **kw)
 
 
+@pytest.mark.render
 def test_validation_returns_the_iterate_it_rates_best(case, tmp_path):
     """Validation views are never fitted: the fit measures them at the start and every
     ``validate_every`` evaluations, reports each SNR, and returns the iterate they rate
@@ -409,6 +420,7 @@ def test_validation_returns_the_iterate_it_rates_best(case, tmp_path):
         np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.render
 def test_fit_images_command_validation_view_and_prior(capsys, case, tmp_path):
     """``--validation-view`` and ``--prior-weight`` reach the fit: it reports the
     iterate it kept, and writes it."""
@@ -426,6 +438,7 @@ def test_fit_images_command_validation_view_and_prior(capsys, case, tmp_path):
     assert out.is_file()
 
 
+@pytest.mark.render
 def test_a_fit_does_not_flood_stderr(capfd, case):
     """Differentiating the plugin's loops logs nothing: Dr.Jit's warning per traced loop
     (``ad_loop(...): forcing conditional statement to symbolic mode``) once wrote

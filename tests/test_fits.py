@@ -14,6 +14,8 @@ from sparse_brdf.sources.corpora import Corpus, Material, get_corpus, list_corpo
 from sparse_brdf.sources.fits import FIT_FILES, FIT_MODELS, fit_names, tabulate_fit
 from sparse_brdf.sources.load import load_brdf
 
+pytestmark = pytest.mark.numerics
+
 SMALL = (18, 18, 36)
 
 

@@ -39,6 +39,8 @@ from mitsuba_plugin.kernels import (  # noqa: E402
     rho_from_x,
 )
 
+pytestmark = pytest.mark.numerics
+
 
 @pytest.fixture(scope="module")
 def materials(tmp_path_factory):

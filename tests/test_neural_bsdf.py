@@ -121,6 +121,7 @@ def test_save_refuses_a_wrong_number_of_layers(tmp_path):
 # ------------------------------------------------------------------------------ the BSDF
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("variant", ["scalar_rgb", "llvm_ad_rgb"])
 def test_eval_is_the_numpy_network_times_cos_o(variant):
     """eval at 300 direction pairs is mlp.py's forward pass times cos_o (float32
@@ -157,6 +158,7 @@ def test_grey_network_in_spectral_and_mono(tmp_path):
     np.testing.assert_allclose(mono[:, 0], lum, rtol=2e-4, atol=1e-5)
 
 
+@pytest.mark.render
 @pytest.mark.parametrize("variant", CPU_VARIANTS)
 def test_renders_in_every_cpu_variant(variant):
     """Three spheres (twosided, blendbsdf, mask; cosine and lobe sampling) under the
@@ -174,6 +176,7 @@ def test_renders_in_every_cpu_variant(variant):
     assert np.isfinite(img).all() and img.mean() > 1e-3
 
 
+@pytest.mark.numerics
 def test_lobe_is_the_tabulated_networks_lobe():
     """Lobe sampling fits the same lobe as tabulated_brdf reading the same file."""
     use("llvm_ad_rgb")

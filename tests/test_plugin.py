@@ -50,6 +50,8 @@ from mitsuba.chi2 import BSDFAdapter, ChiSquareTest, SphericalDomain  # noqa: E4
 import mitsuba_plugin  # noqa: E402
 from mitsuba_plugin.kernels import expm1  # noqa: E402
 
+pytestmark = pytest.mark.numerics
+
 FULL = (90, 90, 180)
 #: The decoders and grouped layouts every evaluation test runs (the two layouts share
 #: one kernel; each material's data is in one of them).

@@ -13,6 +13,8 @@ from sparse_brdf.sources.catalog import mitsuba_catalog
 from sparse_brdf.sources.corpora import TEST_FRACTION, get_corpus, list_corpora
 from sparse_brdf.sources.load import load_brdf
 
+pytestmark = pytest.mark.numerics
+
 SMALL = (18, 18, 36)
 
 

@@ -13,6 +13,8 @@ from sparse_brdf.coords import geometric_valid, grid_angles
 from sparse_brdf.mlp import LAYER_SIZES, evaluate, network_inputs, save_keras, tabulate
 from sparse_brdf.sources.load import symmetrize_table
 
+pytestmark = pytest.mark.numerics
+
 
 def _mirror(n3: int) -> np.ndarray:
     return (-np.arange(n3)) % n3
@@ -30,20 +32,30 @@ def _lopsided_network(seed: int = 3):
     return layers
 
 
+def close(a: np.ndarray, b: np.ndarray) -> bool:
+    """Equal up to float32 rounding of the table's scale: 1e-5 relative, or 1e-6 of the
+    largest value. The network is evaluated at a bin's inputs and at its mirror bin's,
+    which differ in their last bits (sin and cos of phi_d and of pi - phi_d, rounded by
+    numpy's SIMD kernels, differently per CPU); where this lopsided network's output is
+    a small difference of large terms, that moves a value of 2e-6 by 6 % on an AMD EPYC
+    with AVX-512, 1e-10 of the largest value."""
+    return np.allclose(a, b, rtol=1e-5, atol=1e-6 * float(np.abs(b).max()))
+
+
 def test_symmetric_tabulation_is_mirror_invariant_and_the_mean_of_four():
     layers = _lopsided_network()
     raw, valid = tabulate(layers, SMALL)
     sym, valid2 = tabulate(layers, SMALL, symmetric=True)
     assert np.array_equal(valid, valid2)
     m = _mirror(SMALL[2])
-    assert np.allclose(sym, sym[:, :, m], rtol=1e-5, atol=1e-7)  # mirror o reciprocity
+    assert close(sym, sym[:, :, m])  # mirror o reciprocity
     assert not np.allclose(raw, raw[:, :, m], rtol=1e-2)  # the raw network is lopsided
     # the mean of the network at the four sign combinations of (dx, dy), bin by bin
     th, td, pd = grid_angles(SMALL)
     x = network_inputs(th[valid], td[valid], pd[valid])
     four = [evaluate(layers, x * np.array([1, 1, 1, sx, sy, 1], np.float32))
             for sx in (1, -1) for sy in (1, -1)]
-    assert np.allclose(sym[valid], np.mean(four, axis=0), rtol=1e-5, atol=1e-7)
+    assert close(sym[valid], np.mean(four, axis=0))
     assert np.all(sym[~valid] == 0)
 
 
@@ -54,7 +66,7 @@ def test_load_brdf_symmetrizes_networks_by_default_and_tables_on_request(tmp_pat
     raw = sb.load_brdf(path, symmetrize=False)
     assert sym.meta["symmetric"] and not raw.meta["symmetric"]
     v = sym.valid
-    assert np.allclose(sym.values, sym.values[:, :, m], rtol=1e-5, atol=1e-7)
+    assert close(sym.values, sym.values[:, :, m])
     assert np.abs(raw.values - raw.values[:, :, m])[v].max() > 0.05 * raw.values[v].max()
     # a table is kept as it is unless asked
     table = sb.write_merl(tmp_path / "raw.binary", raw)
@@ -108,6 +120,6 @@ def test_the_command_line_symmetrizes_unless_told_not_to(tmp_path):
     assert main(["convert", str(net), str(a)]) == 0
     assert main(["convert", str(net), str(b), "--no-symmetrize"]) == 0
     sym, raw = sb.read_merl(a).values, sb.read_merl(b).values
-    assert np.allclose(sym, sym[:, :, _mirror(180)], rtol=1e-5, atol=1e-7)
+    assert close(sym, sym[:, :, _mirror(180)])
     assert np.array_equal(raw, sb.load_brdf(net, symmetrize=False).values)
     assert not np.allclose(raw, sym, rtol=1e-2)

@@ -1,22 +1,24 @@
 """The trainer is deterministic: the same tensors, options and seed give the same
-ensemble, bit for bit, on one machine. The expected objectives below pin today's training
-output on the small grid, on tensors drawn from a seeded generator (numpy's PCG64 draws
-the same numbers everywhere; a corpus tabulated by Mitsuba differs between machines in
-its last bits, which the seeded initialisation can amplify).
+ensemble, bit for bit, on one machine, in one process or in two. Across machines, the
+objectives stay within a stated tolerance of the values pinned here.
 
-Across machines, BLAS kernels round differently: OpenBLAS picks its kernels for the CPU
-it finds (SkylakeX on a recent Xeon, Haswell's on AMD Zen), and after three iterations
-the objectives of the two differ by up to 0.4 %. The pinned runs therefore train in a
-subprocess with ``OPENBLAS_CORETYPE=Haswell`` (kernels every x86-64 CPU with AVX2 runs
-alike) and two BLAS threads, and compare the objectives to a relative 1e-7, far below
-what any change to the algorithm moves them by. Any change
-that alters training output must change the expected values here, and say so in its
-commit message; a refactoring that keeps training output must leave them as they are.
+Why a tolerance across machines: BLAS kernels round differently (OpenBLAS picks SkylakeX
+kernels on a recent Xeon, Haswell's on AMD Zen), and the trainer's discrete steps (each
+tensor's dictionary, each code's largest coefficients) turn a last-bit difference into a
+different choice now and then. Measured on the pinned cases with OpenBLAS's Haswell,
+SkylakeX and Sandybridge kernels and numpy's AVX2 and AVX-512 dispatch (2026-12-07), the
+objectives after three iterations differ by up to 0.37 %; :data:`CROSS_MACHINE_RTOL`
+allows 1 %. That catches a change of the algorithm that moves training by more than that
+(another seed moves "masked-seeded" by 2.5 %), not a subtle one: the exact promise is
+bit identity on one machine, which the other tests here check.
+
+Any change that alters training output must change the expected values here, and say so
+in its commit message; a refactoring that keeps training output must leave them as they
+are (on the machine that pinned them they still match to the last bit).
 """
 
 import hashlib
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -28,6 +30,8 @@ from conftest import SMALL
 from sparse_brdf.coords import geometric_valid
 from sparse_brdf.training.train import train_ensemble
 
+pytestmark = pytest.mark.numerics
+
 #: Per case of :func:`_train`: each sparsity's objective after each iteration.
 EXPECTED = {
     "masked-seeded": {"16": [6071.4233666042255, 5443.544977039515, 5097.796315116813],
@@ -37,8 +41,9 @@ EXPECTED = {
 }
 
 
-#: The BLAS kernels and thread count of the pinned runs (see the module doc).
-PINNED_BLAS = {"OPENBLAS_CORETYPE": "Haswell", "OPENBLAS_NUM_THREADS": "2"}
+#: How far the objectives may be from :data:`EXPECTED` on another machine (see the
+#: module doc: up to 0.37 % measured between BLAS kernels).
+CROSS_MACHINE_RTOL = 1e-2
 
 
 @pytest.fixture(scope="module")
@@ -80,32 +85,34 @@ def _objectives(meta: dict) -> dict[str, list[float]]:
             for tau, hist in sorted(meta["history"].items())}
 
 
-def _pinned_objectives(case: str) -> dict[str, list[float]]:
-    """:func:`_objectives` of ``case``, trained in a subprocess on the pinned BLAS."""
+def _objectives_in_subprocess(case: str) -> tuple[dict[str, list[float]], str]:
+    """:func:`_objectives` and :func:`_objectives_digest` of ``case``, trained in a fresh
+    Python process on this machine."""
     code = ("import json, sys; sys.path.insert(0, sys.argv[1]); "
-            "import test_train_determinism as t; from threadpoolctl import threadpool_info; "
-            "res = t._objectives(t._train(t.make_tensors(), sys.argv[2]).meta); "
-            "blas = [i.get('architecture') for i in threadpool_info() "
-            "if i.get('internal_api') == 'openblas']; "
-            "print(json.dumps({'blas': blas, 'objectives': res}))")
+            "import test_train_determinism as t; "
+            "meta = t._train(t.make_tensors(), sys.argv[2]).meta; "
+            "print(json.dumps([t._objectives(meta), t._objectives_digest(meta)]))")
     out = subprocess.run([sys.executable, "-c", code, str(Path(__file__).parent), case],
-                         env={**os.environ, **PINNED_BLAS}, capture_output=True, text=True,
-                         check=True)
-    got = json.loads(out.stdout.strip().splitlines()[-1])
-    if not got["blas"] or set(got["blas"]) != {"Haswell"}:
-        pytest.skip(f"numpy's BLAS here is not an OpenBLAS that runs Haswell kernels "
-                    f"({got['blas']}): the pinned objectives need them")
-    return got["objectives"]
+                         capture_output=True, text=True, check=True)
+    objectives, digest = json.loads(out.stdout.strip().splitlines()[-1])
+    return objectives, digest
 
 
+@pytest.mark.train
 @pytest.mark.parametrize("case", sorted(EXPECTED))
-def test_training_output_is_pinned(case):
-    got = _pinned_objectives(case)
+def test_training_output_is_pinned(tensors, case):
+    """Near the pinned values on any machine; in a second process, bit-identical to this
+    one's."""
+    meta = _train(tensors, case).meta
+    got = _objectives(meta)
     assert got.keys() == EXPECTED[case].keys()
     for tau, want in EXPECTED[case].items():
-        np.testing.assert_allclose(got[tau], want, rtol=1e-7, err_msg=f"{case}, tau {tau}")
+        np.testing.assert_allclose(got[tau], want, rtol=CROSS_MACHINE_RTOL,
+                                   err_msg=f"{case}, tau {tau}")
+    assert _objectives_in_subprocess(case) == (got, _objectives_digest(meta))
 
 
+@pytest.mark.train
 def test_same_inputs_same_ensemble(tensors):
     a, b = (_train(tensors, "masked-seeded") for _ in range(2))
     assert a.id == b.id

@@ -14,6 +14,8 @@ from sparse_brdf.transforms import (
     weight,
 )
 
+pytestmark = pytest.mark.numerics
+
 SHAPE = (18, 18, 36)
 
 

@@ -20,6 +20,8 @@ from test_plugin import make_exact_material  # noqa: E402
 import mitsuba_plugin  # noqa: E402
 from mitsuba_plugin.registration import variant_kind  # noqa: E402
 
+pytestmark = pytest.mark.numerics
+
 #: Every variant of Mitsuba 3.9 that runs on the CPU.
 CPU_VARIANTS = ("scalar_rgb", "scalar_spectral", "scalar_spectral_polarized", "llvm_ad_rgb",
                 "llvm_ad_mono", "llvm_ad_mono_polarized", "llvm_ad_spectral",
@@ -77,6 +79,7 @@ def render(scene: dict, spp: int, seed: int = 0) -> np.ndarray:
     return np.array(mi.render(mi.load_dict(scene), spp=spp, seed=seed), dtype=np.float64)
 
 
+@pytest.mark.render
 @pytest.mark.parametrize("variant", CPU_VARIANTS)
 def test_sparse_equals_its_table_in_every_variant(materials, variant):
     """In each variant, ``sparse_brdf`` renders what ``tabulated_brdf`` of the model's own
@@ -128,6 +131,7 @@ def _render_in(variant: str, bsdf: dict, res: int, spp: int) -> np.ndarray:
     return render(sphere_scene(bsdf, res, spp), spp)
 
 
+@pytest.mark.render
 @pytest.mark.parametrize("name", ["plastic-grey-beckmann-0.12", "plastic-red-ggx-0.3"])
 def test_spectral_render_agrees_with_rgb(materials, name):
     """A spectral render's mean colour is the rgb render's within 2 % per channel (16 x

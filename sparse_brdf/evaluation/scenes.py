@@ -192,7 +192,8 @@ def parse_scene(scene_path: str | os.PathLike) -> ET.ElementTree:
         raise SceneError(f"{scene_path}: not a valid scene XML file ({exc.reason})") from exc
 
 
-def _abs_source(value: str, base: Path) -> str:
+def _abs_source(value: str | os.PathLike, base: Path) -> str:
+    value = os.fspath(value)
     if value.startswith("mitsuba:"):
         return value
     p = Path(value).expanduser()
