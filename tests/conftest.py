@@ -26,7 +26,7 @@ def pytest_report_header(config) -> list[str]:
 
 #: The markers of slow work, and what a test that does it without its marker is told.
 SLOW_WORK = {"render": "renders with Mitsuba", "train": "trains an ensemble"}
-_running: set[str] = set()  # the slow work the running test's markers allow; None: any
+_running: set[str] | None = None  # the slow work the running test's markers allow; None: any
 
 
 def pytest_configure(config) -> None:
