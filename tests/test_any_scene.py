@@ -15,6 +15,7 @@ from PIL import Image
 from conftest import cli_fails, run_cli
 from sparse_brdf.cli import main
 from sparse_brdf.coding.fileformat import load_sbrdf
+from sparse_brdf.errors import UsageError
 from sparse_brdf.evaluation.images import preview, read_exr, read_mask
 from sparse_brdf.evaluation.render import film_size, object_mask, render_scene
 
@@ -60,6 +61,48 @@ def test_object_is_the_shapes_of_the_replaced_materials():
     assert cols.min() < 48 < cols.max() and not paint[:, 46:50].any()
     with pytest.raises(KeyError, match="nothere"):
         object_mask(SCENE, materials=["nothere"])
+
+
+def _scene_with_ids(tmp_path: Path) -> Path:
+    """still_life.xml with ids on a shape, an emitter, the sensor and a texture."""
+    text = SCENE.read_text()
+    for old, new in (('<shape type="sphere">', '<shape type="sphere" id="shape-ball">'),
+                     ('<emitter type="constant">',
+                      '<emitter type="constant" id="emitter-envmap">'),
+                     ('<sensor type="perspective">', '<sensor type="perspective" id="cam">'),
+                     ('<bsdf type="diffuse" id="floor">',
+                      '<texture type="checkerboard" id="tex-check"/>\n'
+                      '    <bsdf type="diffuse" id="floor">')):
+        assert old in text
+        text = text.replace(old, new)
+    scene = tmp_path / "ids.xml"
+    scene.write_text(text)
+    return scene
+
+
+def test_material_ids_must_name_bsdfs(tmp_path, capsys):
+    """``--material ID=FILE`` with the id of a shape, an emitter, a sensor or a texture,
+    an unknown id, or one id twice: one line naming the option and the id, before any
+    work (no output), in render, snr --scene and render_scene alike."""
+    scene = _scene_with_ids(tmp_path)
+    out = tmp_path / "x.exr"
+    for mid, kind in (("shape-ball", "a shape"), ("emitter-envmap", "an emitter"),
+                      ("cam", "a sensor"), ("tex-check", "a texture")):
+        line = fails(capsys, "render", scene, "-o", out, "--material", f"{mid}={PAINT}",
+                     names=[f"--material {mid}: that id is {kind}, not a BSDF"])
+        assert "floor, paint" in line  # the ids it could have meant
+        fails(capsys, "snr", out, out, "--scene", scene, "--material", mid,
+              names=[f"--material {mid}: that id is {kind}, not a BSDF"])
+        with pytest.raises(UsageError, match=f"{mid}.*{kind}, not a BSDF"):
+            render_scene(scene, {mid: PAINT}, spp=1)
+        with pytest.raises(UsageError, match=f"{mid}.*{kind}, not a BSDF"):
+            object_mask(scene, materials=[mid])
+    fails(capsys, "render", scene, "-o", out, "--material", f"nothere={PAINT}",
+          names=["--material nothere", "no element", "floor, paint"])
+    fails(capsys, "render", scene, "-o", out, "--material", f"paint={PAINT}",
+          "--material", "paint=other.sbrdf", names=["--material paint", "given twice",
+                                                    PAINT, "other.sbrdf"])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ids.xml"]
 
 
 @pytest.mark.render

@@ -48,10 +48,14 @@ def test_scenes_and_envmap_are_shipped():
 
 
 def test_overrides_and_plugin_choice(exact_material):
-    assert parse_overrides(["material=a.sbrdf", "material2=b.binary", "c.h5"]) == {
-        "material": "a.sbrdf", "material2": "b.binary"} | {"material": "c.h5"}
+    assert parse_overrides(["material=a.sbrdf", "material2=b.binary"]) == {
+        "material": "a.sbrdf", "material2": "b.binary"}
+    assert parse_overrides(["c.h5"]) == {"material": "c.h5"}  # a bare file: id "material"
     with pytest.raises(ValueError):
         parse_overrides(["material="])
+    # an id given twice (a bare file is id "material"): refused, neither wins
+    with pytest.raises(ValueError, match="--material material: given twice"):
+        parse_overrides(["material=a.sbrdf", "c.h5"])
     assert plugin_for("x.SBRDF") == "sparse_brdf"
     assert plugin_for("mitsuba:cu-ggx-0.12") == "tabulated_brdf"
     xml = scene_xml(SPHERE, {"material": exact_material["sbrdf"]},

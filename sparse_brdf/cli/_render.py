@@ -21,7 +21,7 @@ from ..evaluation.render import (
     parse_scene,
     render_scene,
 )
-from ..evaluation.scenes import parse_defaults, parse_overrides
+from ..evaluation.scenes import bsdf_ids, check_bsdf_ids, parse_defaults, parse_overrides
 from ..fileio import staged
 from ..metrics import FLIP, OBJECT_ONLY, WHOLE_IMAGE, hdr_flip, snr_forms
 from ..params import Interval
@@ -35,6 +35,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         opts["ensemble"] = args.ensemble
     t0 = time.perf_counter()
     scene, materials = find_scene(args.scene), parse_overrides(args.material)
+    check_bsdf_ids(scene, materials, "--material")
     if args.mask and not materials:
         raise UsageError("--mask: the object is the shapes of the replaced materials; give "
                          "--material ID=FILE")
@@ -82,6 +83,8 @@ def _read_image(path: str, like: tuple[str, object] | None = None):
 
 def cmd_snr(args: argparse.Namespace) -> int:
     """``snr``: the rendering SNR in both forms, HDR-FLIP and the noise floor."""
+    scene = find_scene(args.scene) if args.scene and not args.mask else None
+    objects = None if scene is None else _object_materials(scene, args.material)
     ref = _read_image(args.reference)
     if not np.any(ref > 0):  # neither SNR (no signal) nor HDR-FLIP (no exposure range)
         raise ImageFileError(f"{args.reference}: the reference image is black (every pixel "
@@ -91,10 +94,8 @@ def cmd_snr(args: argparse.Namespace) -> int:
     mask, why = None, None
     if args.mask:
         mask = read_mask(args.mask)
-    elif args.scene:
-        scene = find_scene(args.scene)
-        mask = object_mask(scene, res=(ref.shape[1], ref.shape[0]),
-                           materials=_object_materials(scene, args.material))
+    elif scene is not None:
+        mask = object_mask(scene, res=(ref.shape[1], ref.shape[0]), materials=objects)
     else:
         why = ("object-only not computed: give --scene SCENE (with --material ID) or --mask "
                "FILE to tell which pixels are the object")
@@ -136,14 +137,17 @@ def cmd_snr(args: argparse.Namespace) -> int:
 def _object_materials(scene: Path, given: list[str]) -> list[str]:
     """The BSDF ids whose shapes are the object of ``snr --scene``: ``--material`` (IDs,
     or ID=FILE as render takes them), else the shipped scenes' ``material``."""
+    root = parse_scene(scene).getroot()
     if given:
-        return [g.partition("=")[0].strip() for g in given]
-    ids = {e.get("id") for e in parse_scene(scene).getroot().iter("bsdf") if e.get("id")}
+        ids = list(dict.fromkeys(g.partition("=")[0].strip() for g in given))
+        check_bsdf_ids(scene, ids, "--material", root=root)
+        return ids
+    ids = bsdf_ids(root)
     if "material" in ids:
         return ["material"]
     raise UsageError(f"--scene {scene}: give --material ID, the id of the BSDF the images "
                      f"replaced, whose shapes are the object (the scene's BSDF ids: "
-                     f"{', '.join(sorted(ids)) or 'none'})")
+                     f"{', '.join(ids) or 'none'})")
 
 
 def add_render(sub) -> None:

@@ -31,11 +31,7 @@ import numpy as np
 
 from .._moved import moved_names
 from ..decoders.layouts import LOBES
-from ..errors import (
-    RenderError,
-    UnknownNameError,
-    UsageError,
-)
+from ..errors import RenderError, UsageError
 from ..fileio import require_file
 from ..metrics import SNRForms, snr_forms
 from ..mitsuba_env import DEFAULT_VARIANT, set_variant
@@ -43,9 +39,9 @@ from ..params import check, check_choice
 from .scenes import (
     RENDER_PARAMETERS,
     cause_message,
+    check_bsdf_ids,
     check_scene_data,
     declared_defaults,
-    element_ids,
     find_scene,
     parse_scene,
     replaced_materials,
@@ -325,11 +321,7 @@ def object_mask(
     ids: set[str] = set()
 
     def tag(root: ET.Element) -> None:
-        known = element_ids(root)
-        missing = sorted(set(wanted) - known)
-        if missing:
-            raise UnknownNameError(f"{scene_path}: no BSDF with id {', '.join(missing)} (ids: "
-                                   f"{', '.join(sorted(known)) or 'none'})")
+        check_bsdf_ids(scene_path, wanted, root=root)
         for i, shape in enumerate(_carrying_shapes(root, wanted)):
             if not shape.get("id"):
                 shape.set("id", f"{_SHAPE_ID}{i}")

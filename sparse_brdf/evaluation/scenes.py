@@ -110,8 +110,11 @@ def parse_scene_spec(text: str) -> SceneSpec:
     return SceneSpec(path, params, key)
 
 
-def parse_overrides(items: Iterable[str]) -> dict[str, str]:
-    """``["id=FILE", ...]`` -> ``{"id": "FILE"}`` (a bare FILE means id "material")."""
+def parse_overrides(items: Iterable[str], option: str = "--material") -> dict[str, str]:
+    """``["id=FILE", ...]`` -> ``{"id": "FILE"}`` (a bare FILE means id "material").
+
+    An id given twice is a :class:`~sparse_brdf.errors.UsageError` naming ``option``
+    and the id (no override silently wins over another)."""
     out: dict[str, str] = {}
     for item in items:
         key, sep, value = item.partition("=")
@@ -119,7 +122,10 @@ def parse_overrides(items: Iterable[str]) -> dict[str, str]:
             key, value = "material", item
         key, value = key.strip(), value.strip()
         if not key or not value:
-            raise UsageError(f"material override {item!r}: expected ID=FILE")
+            raise UsageError(f"{option} {item!r}: expected ID=FILE")
+        if key in out:
+            raise UsageError(f"{option} {key}: given twice ({out[key]} and {value}); give "
+                             "each id one material")
         out[key] = value
     return out
 
@@ -220,11 +226,9 @@ def replaced_materials(scene_path, materials, sparse_options, tabulated_options)
     """The scene's XML root with the BSDFs of ``materials`` replaced (:func:`scene_xml`)."""
     scene_path = Path(scene_path)
     root = parse_scene(scene_path).getroot()
+    check_bsdf_ids(scene_path, materials or {}, root=root)
     for mid, source in (materials or {}).items():
         parent, elem = _find_by_id(root, mid)
-        if elem is None:
-            raise UnknownNameError(f"{scene_path}: no element with id {mid!r} to override "
-                           f"(ids: {', '.join(sorted(element_ids(root))) or 'none'})")
         plugin = plugin_for(source)
         new = ET.Element("bsdf", {"type": plugin, "id": mid})
         ET.SubElement(new, "string", {"name": "filename",
@@ -244,15 +248,61 @@ def replaced_materials(scene_path, materials, sparse_options, tabulated_options)
 
 
 def element_ids(root: ET.Element) -> set[str]:
+    """Every id the scene's elements carry (BSDFs, shapes, emitters, textures...)."""
     return {e.get("id") for e in root.iter() if e.get("id")}
 
 
+def bsdf_ids(root: ET.Element) -> list[str]:
+    """The ids of the scene's BSDFs, sorted."""
+    return sorted({e.get("id") for e in root.iter("bsdf") if e.get("id")})
+
+
 def _find_by_id(root: ET.Element, mid: str):
+    """(parent, element) of the element that defines id ``mid`` (not a ``<ref>`` to it),
+    or (None, None)."""
     for parent in root.iter():
         for child in parent:
-            if child.get("id") == mid:
+            if child.get("id") == mid and child.tag != "ref":
                 return parent, child
     return None, None
+
+
+def check_bsdf_ids(scene_path: str | os.PathLike, ids: Iterable[str],
+                   option: str | None = None, root: ET.Element | None = None) -> None:
+    """Refuse, in one line, an id of ``ids`` that names no BSDF of the scene.
+
+    Parameters
+    ----------
+    scene_path : str or path-like
+        The scene file.
+    ids : iterable of str
+        The BSDF ids to replace (or whose shapes are the object).
+    option : str, optional
+        The command-line option that gave them (``"--material"``), named in the message;
+        None names the scene file instead.
+    root : xml.etree.ElementTree.Element, optional
+        The scene's parsed root (read from ``scene_path`` when None).
+
+    Raises
+    ------
+    UnknownNameError
+        An id no element of the scene carries.
+    UsageError
+        An id of an element that is not a BSDF (a shape, an emitter, a sensor, a
+        texture...): replacing it would remove that element from the scene.
+    """
+    scene_path = Path(scene_path)
+    if root is None:
+        root = parse_scene(scene_path).getroot()
+    listing = f"the BSDF ids of {scene_path.name}: {', '.join(bsdf_ids(root)) or 'none'}"
+    for mid in ids:
+        where = f"{option} {mid}" if option else f"{scene_path}: material id {mid!r}"
+        _, elem = _find_by_id(root, mid)
+        if elem is None:
+            raise UnknownNameError(f"{where}: no element of the scene has that id ({listing})")
+        if elem.tag != "bsdf":
+            article = "an" if elem.tag[:1] in "aeiou" else "a"
+            raise UsageError(f"{where}: that id is {article} {elem.tag}, not a BSDF ({listing})")
 
 
 def declared_defaults(root: ET.Element, params: Mapping[str, object] | None) -> dict[str, str]:
