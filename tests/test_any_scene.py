@@ -18,6 +18,7 @@ from sparse_brdf.coding.fileformat import load_sbrdf
 from sparse_brdf.errors import UsageError
 from sparse_brdf.evaluation.images import preview, read_exr, read_mask
 from sparse_brdf.evaluation.render import film_size, object_mask, render_scene
+from sparse_brdf.evaluation.scenes import scene_xml
 
 SCENE = Path(__file__).resolve().parent / "data" / "still_life.xml"
 PAINT = "mitsuba:plastic-red-ggx-0.3"
@@ -103,6 +104,24 @@ def test_material_ids_must_name_bsdfs(tmp_path, capsys):
           "--material", "paint=other.sbrdf", names=["--material paint", "given twice",
                                                     PAINT, "other.sbrdf"])
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ids.xml"]
+
+
+@pytest.mark.render
+def test_a_twosided_bsdf_stays_twosided(tmp_path):
+    """Replacing the id of a ``twosided`` wrapper (as Mitsuba's two-sided Cornell box
+    names its walls) keeps the wrapper: the quad, seen from behind, is lit."""
+    import xml.etree.ElementTree as ET
+
+    scene = SCENE.parent / "back_face.xml"
+    root = ET.fromstring(scene_xml(scene, {"red": PAINT}))
+    outer = next(e for e in root.iter("bsdf") if e.get("id") == "red")
+    assert outer.get("type") == "twosided"
+    assert [(e.get("type"), e.get("id")) for e in outer] == [("tabulated_brdf", None)]
+    original = render_scene(scene, None, spp=4)
+    img = render_scene(scene, {"red": PAINT}, spp=4)
+    assert img.shape == (16, 16, 3) and original.mean() > 0.02
+    assert img.mean() > 0.02 and (img.sum(-1) > 0).all()  # every pixel sees the back face
+    assert img[..., 0].mean() > 2 * img[..., 2].mean()  # and it is the red plastic
 
 
 @pytest.mark.render

@@ -214,6 +214,10 @@ def scene_xml(
 ) -> str:
     """The scene's XML with the BSDFs of ``materials`` (id -> file) replaced.
 
+    A replaced ``twosided`` BSDF stays two-sided: the material goes inside a new
+    ``twosided`` wrapper that keeps the id (the plugins shade the front side only, so a
+    bare plugin would render the back faces black); its two sides get the one material.
+
     ``sparse_options``/``tabulated_options`` are extra plugin parameters (e.g.
     ``{"decoder": "strict", "ensemble": path}``), written as strings (booleans as
     ``<boolean>``). Relative material paths are taken from the current directory.
@@ -230,7 +234,11 @@ def replaced_materials(scene_path, materials, sparse_options, tabulated_options)
     for mid, source in (materials or {}).items():
         parent, elem = _find_by_id(root, mid)
         plugin = plugin_for(source)
-        new = ET.Element("bsdf", {"type": plugin, "id": mid})
+        if elem.get("type") == "twosided":  # the plugins shade the front side only:
+            outer = ET.Element("bsdf", {"type": "twosided", "id": mid})  # keep the wrapper
+            new = ET.SubElement(outer, "bsdf", {"type": plugin})
+        else:
+            outer = new = ET.Element("bsdf", {"type": plugin, "id": mid})
         ET.SubElement(new, "string", {"name": "filename",
                                       "value": _abs_source(source, scene_path.parent)})
         opts = sparse_options if plugin == "sparse_brdf" else tabulated_options
@@ -243,7 +251,7 @@ def replaced_materials(scene_path, materials, sparse_options, tabulated_options)
                 ET.SubElement(new, "string", {"name": key, "value": str(val)})
         idx = list(parent).index(elem)
         parent.remove(elem)
-        parent.insert(idx, new)
+        parent.insert(idx, outer)
     return root
 
 
