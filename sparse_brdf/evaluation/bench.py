@@ -61,7 +61,7 @@ from .bench_config import (
 from .html_report import write_html_report
 from .images import read_exr, write_exr
 from .render import SHARED_PATHS, noise_floor_snr, object_mask, render_scene
-from .report import write_report
+from .report import failed_cells, write_report
 from .results_file import SCHEMA, environment
 from .scenes import SceneSpec, check_scene_data, parse_scene_spec
 from .speed import evals_per_second
@@ -168,6 +168,12 @@ class Bench:
         self._save()
         write_report(self.results, self.out)
         write_html_report(self.results, self.out)
+        failed = failed_cells(self.results)
+        if failed:
+            first = failed[0]
+            print(f"bench: {len(failed)} of {len(self.results['cells'])} cells failed, listed "
+                  f"with their errors in {self.out / 'report.md'} (first: {first['model']} on "
+                  f"{first['material']}: {one_line(first['error'])})", file=sys.stderr)
         return self.results
 
     def _run_cells(self, ex: Executor, ens, models, mats) -> None:
@@ -177,8 +183,9 @@ class Bench:
 
         todo_mats = [m for m in mats if material_key(m) not in self.results["curves"] or any(
             material_key(m) not in self.results["noise_floor"].get(s, {}) for s in self.scenes)]
+        cells = self.results["cells"]  # failed cells run again: the model may be mended
         todo = [(m, mod) for m in mats for mod in models
-                if f"{material_key(m)}|{mod.name}" not in self.results["cells"]]
+                if cells.get(f"{material_key(m)}|{mod.name}", {}).get("status") != "finished"]
         # closed on an error too, so that the error line starts a line of its own
         with tqdm(total=len(todo) + len(todo_mats), desc="bench",
                   disable=not self.progress) as bar:
@@ -359,7 +366,7 @@ class Bench:
             row["status"] = "finished"
         except Exception as exc:  # noqa: BLE001 - one model's failure never stops the run
             row["status"] = "failed"
-            row["error"] = f"{type(exc).__name__}: {exc}"
+            row["error"] = f"{type(exc).__name__}: {one_line(exc)}"
         return row
 
 

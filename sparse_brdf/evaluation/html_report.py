@@ -32,7 +32,7 @@ import numpy as np
 from ..fileio import atomic_write
 from ..metrics import OBJECT_ONLY, WHOLE_IMAGE
 from .images import read_exr
-from .report import flip_map_path, scenes_of, summary_table, tone
+from .report import failed_cells, flip_map_path, scenes_of, summary_table, tone
 
 __all__ = ["write_html_report"]
 
@@ -129,7 +129,9 @@ def _material_table(results: dict, scene: str) -> str:
                      _cell(s.get("snr_object", math.nan), ".1f"),
                      _cell(s.get("snr_whole", math.nan), ".1f"),
                      _cell(math.nan if s.get("flip") is None else s["flip"], ".3f"),
-                     _cell(c.get("rae", math.nan), ".4f"), _cell(c["status"], "")])
+                     _cell(c.get("rae", math.nan), ".4f"),
+                     _cell(f"{c['status']}: {c['error']}" if c.get("error") else c["status"],
+                           "")])
     return _table(["material", "model", "SNR obj (dB)", "SNR whole (dB)", "HDR-FLIP", "RAE",
                    "status"], rows)
 
@@ -349,6 +351,14 @@ def write_html_report(results: dict, out: Path) -> Path:
     for scene, why in results.get("skipped_scenes", {}).items():
         body.append(f"<p>Skipped scene <code>{html.escape(scene)}</code>: "
                     f"{html.escape(why)}</p>")
+    failed = failed_cells(results)
+    if failed:
+        body += [f"<h2>Failed cells</h2><p>{len(failed)} of {len(results['cells'])} cells "
+                 "failed; they are left out of every mean below and run again by the next "
+                 "run of this bench.</p>",
+                 _table(["material", "model", "error"],
+                        [[_cell(c["material"], ""), _cell(c["model"], ""),
+                          _cell(c["error"], "")] for c in failed])]
     data: dict = {"viewer": {}}
     for i, scene in enumerate(scenes):
         data["viewer"][scene] = viewer_data(results, out, scene)

@@ -60,8 +60,9 @@ def _stats(xs: list[float]) -> dict:
 
 
 def scenes_of(results: dict) -> list[str]:
-    """Scenes with renders in ``results``, in first-seen order."""
-    out: dict[str, None] = {}
+    """Scenes rendered in ``results`` (a model's render or the reference's noise floor,
+    so a scene where every model failed still has its section), in first-seen order."""
+    out: dict[str, None] = dict.fromkeys(results.get("noise_floor") or {})
     for r in results["cells"].values():
         for s in r.get("renders") or {}:
             out[s] = None
@@ -238,6 +239,8 @@ def difference_figure(results: dict, out: Path, scene: str,
             continue
         ref = read_exr(ref_p)
         shown = [m for m in models if (work / f"{stem}__{m}.exr").is_file()]
+        if not shown:  # every model failed on this material: nothing to set beside it
+            continue
         fig, axes = plt.subplots(3, len(shown) + 1, figsize=(2.2 * (len(shown) + 1), 7.0),
                                  constrained_layout=True)
         axes = np.atleast_2d(axes)
@@ -391,8 +394,35 @@ def _material_table(results: dict, scene: str) -> list[str]:
         md.append(f"| {r['material']} | {r['model']} | {_f(s.get('snr_object'))} | "
                   f"{_f(s.get('snr_whole'))} | {_f(s.get('flip'), '.3f')} | "
                   f"{_f(r.get('rae'), '.4f')} | {r['status']}"
-                  f"{': ' + r['error'] if r.get('error') else ''} |")
+                  f"{': ' + _md_text(r['error']) if r.get('error') else ''} |")
     return md
+
+
+def failed_cells(results: dict) -> list[dict]:
+    """The cells that failed, sorted by material then model: each a dict with
+    ``material``, ``model`` and ``error`` (the exception's type and message)."""
+    return [{"material": c["material"], "model": c["model"],
+             "error": c.get("error") or "no error recorded"}
+            for c in sorted(results["cells"].values(), key=lambda c: (c["material"], c["model"]))
+            if c.get("status") != "finished"]
+
+
+def _failed_section(results: dict) -> list[str]:
+    """Every failed cell with its error; nothing when none failed."""
+    failed = failed_cells(results)
+    if not failed:
+        return []
+    md = ["## Failed cells", "",
+          f"{len(failed)} of {len(results['cells'])} cells failed; they are left out of "
+          "every mean below and run again by the next run of this bench.", "",
+          "| material | model | error |", "|---|---|---|"]
+    md += [f"| {c['material']} | {c['model']} | {_md_text(c['error'])} |" for c in failed]
+    return md + [""]
+
+
+def _md_text(text: str) -> str:
+    """``text`` as one Markdown table cell: on one line, its pipes escaped."""
+    return " ".join(str(text).split()).replace("|", "\\|")
 
 
 def _transform_sections(results: dict, scene: str) -> list[str]:
@@ -422,6 +452,7 @@ def write_report(results: dict, out: Path) -> Path:
           f"{cfg['spp']} spp, seed {cfg['seed']}, scenes {', '.join(cfg['scenes'])}.", ""]
     for scene, why in results.get("skipped_scenes", {}).items():
         md += [f"Skipped scene `{scene}`: {why}", ""]
+    md += _failed_section(results)
     for scene in scenes_of(results):
         md += _scene_section(results, out, scene)
     if not scenes_of(results):

@@ -1,0 +1,127 @@
+"""Benches a researcher can trust: a user's model that fails (raises on some materials,
+returns NaN, fails everywhere) alone or beside built-in models never stops the bench nor
+its reports; tables sort failed figures last."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from sparse_brdf.cli import main
+
+# Models of the test's own, written into the current directory: each fails in its own way.
+FAILING = '''
+import numpy as np
+
+
+class Fails:
+    """Raises on the materials whose name holds ``on`` (every one for "all")."""
+    learns = False
+
+    def __init__(self, on="all"):
+        self.on = on
+        self.name = f"fails-{on}"
+
+    def fit(self, brdfs):
+        return self
+
+    def compress(self, brdf):
+        if self.on == "all" or self.on in brdf.name:
+            raise IndexError(f"no fit for {brdf.name}")
+        return Constant(0.1)
+
+
+class NaNs:
+    """Compresses every material to a table of NaN."""
+    learns = False
+    name = "nans"
+
+    def fit(self, brdfs):
+        return self
+
+    def compress(self, brdf):
+        return Constant(float("nan"))
+
+
+class Constant:
+    nbytes = 4
+
+    def __init__(self, value):
+        self.value = value
+
+    def evaluate(self, wi, wo):
+        return np.full((len(wi), 3), self.value)
+'''
+
+#: A tiny bench: one scene at 16 x 16, 2 spp; the first material is al-ggx-0.3, the
+#: second au-ggx-0.25.
+CONFIG = '''corpora = ["mitsuba"]
+max_materials = {n}
+stability = false
+scenes = ["sphere.xml"]
+res = 16
+spp = 2
+curve_coeffs = [16]
+speed_evals = 4096
+models = ["naive"]
+'''
+
+
+@pytest.fixture
+def user_dir(tmp_path, monkeypatch):
+    """The current directory holds ``failmodels.py``."""
+    (tmp_path / "failmodels.py").write_text(FAILING)
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
+
+
+def _bench(user_dir: Path, models: list[str], n: int, *extra: str) -> tuple[int, Path]:
+    """``sparse-brdf bench`` of the tiny config with ``models`` on ``n`` materials."""
+    cfg = user_dir / f"tiny{n}.toml"
+    cfg.write_text(CONFIG.format(n=n))
+    out = user_dir / "out"
+    argv = ["bench", str(cfg), "--out", str(out), *extra]
+    for m in models:
+        argv += ["--model", m]
+    return main(argv), out
+
+
+AU_ERROR = "IndexError: no fit for au-ggx-0.25"
+AL_ERROR = "IndexError: no fit for al-ggx-0.3"
+NAN_ERROR = "FloatingPointError: reconstruction holds NaN/inf"
+
+
+@pytest.mark.render
+@pytest.mark.parametrize("models, n, failed", [
+    (["failmodels:Fails:on=au"], 2, {"mitsuba/au-ggx-0.25|fails-au": AU_ERROR}),
+    (["failmodels:NaNs"], 1, {"mitsuba/al-ggx-0.3|nans": NAN_ERROR}),
+    (["failmodels:Fails"], 1, {"mitsuba/al-ggx-0.3|fails-all": AL_ERROR}),
+    (["failmodels:Fails:on=au", "failmodels:NaNs", "failmodels:Fails", "naive", "sparse:16"],
+     2, {"mitsuba/au-ggx-0.25|fails-au": AU_ERROR, "mitsuba/al-ggx-0.3|nans": NAN_ERROR,
+         "mitsuba/au-ggx-0.25|nans": NAN_ERROR, "mitsuba/al-ggx-0.3|fails-all": AL_ERROR,
+         "mitsuba/au-ggx-0.25|fails-all": "IndexError: no fit for au-ggx-0.25"}),
+], ids=["raises-on-one-alone", "nan-alone", "fails-everywhere-alone", "beside-built-ins"])
+def test_a_failing_model_never_stops_the_bench_nor_its_reports(user_dir, capsys, models, n,
+                                                                failed):
+    rc, out = _bench(user_dir, models, n)
+    err = capsys.readouterr().err
+    assert rc == 0, err
+    assert "internal error" not in err and f"{len(failed)} of " in err
+    for name in ("report.md", "report.html", "results.json", "results.csv"):
+        assert (out / name).is_file(), name
+    cells = json.loads((out / "results.json").read_text())["cells"]
+    got = {k: c["error"] for k, c in cells.items() if c["status"] == "failed"}
+    assert got == failed
+    assert all(c["status"] == "finished" for k, c in cells.items() if k not in failed)
+    md, page = (out / "report.md").read_text(), (out / "report.html").read_text()
+    assert "## Failed cells" in md and "<h2>Failed cells</h2>" in page
+    for key, error in failed.items():
+        material, model = key.split("|")
+        assert f"| {material} | {model} | {error} |" in md
+        assert f"failed: {error}" in md and f"failed: {error}" in page
+    # a rerun runs the failed cells again, and again writes every report
+    (out / "report.md").unlink()
+    rc, _ = _bench(user_dir, models, n)
+    assert rc == 0 and (out / "report.md").is_file()
