@@ -15,10 +15,10 @@ from PIL import Image
 from conftest import cli_fails, run_cli
 from sparse_brdf.cli import main
 from sparse_brdf.coding.fileformat import load_sbrdf
-from sparse_brdf.errors import UsageError
+from sparse_brdf.errors import MissingDataError, UsageError
 from sparse_brdf.evaluation.images import preview, read_exr, read_mask
-from sparse_brdf.evaluation.render import film_size, object_mask, render_scene
-from sparse_brdf.evaluation.scenes import scene_xml
+from sparse_brdf.evaluation.render import film_size, load_scene, object_mask, render_scene
+from sparse_brdf.evaluation.scenes import check_scene_data, scene_xml
 
 SCENE = Path(__file__).resolve().parent / "data" / "still_life.xml"
 PAINT = "mitsuba:plastic-red-ggx-0.3"
@@ -28,6 +28,7 @@ run = run_cli
 fails = cli_fails
 
 
+@pytest.mark.render
 def test_render_scene_keeps_the_film_and_sets_what_the_scene_does_not_declare():
     img = render_scene(SCENE, {"paint": PAINT}, spp=2, seed=0)
     assert img.shape == (64, 96, 3) and np.isfinite(img).all() and img.mean() > 0
@@ -104,6 +105,64 @@ def test_material_ids_must_name_bsdfs(tmp_path, capsys):
           "--material", "paint=other.sbrdf", names=["--material paint", "given twice",
                                                     PAINT, "other.sbrdf"])
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ids.xml"]
+
+
+def test_scene_mistakes_are_one_line_naming_the_file(tmp_path, capsys, monkeypatch):
+    """A parameter the scene does not use, a copied scene without its data file, and a
+    folder given as the scene: one line each, naming what is wrong."""
+    text = SCENE.read_text()
+    out = tmp_path / "x.exr"
+    # declared as a <default> but never used as $width: Mitsuba would refuse the value
+    declared = tmp_path / "declared.xml"
+    declared.write_text(text.replace('<scene version="3.0.0">', '<scene version="3.0.0">\n'
+                                     '    <default name="width" value="96"/>'))
+    fails(capsys, "render", declared, "-o", out, "-D", "width=200", "-D", "envrot=1",
+          names=["-D width, envrot: not a parameter of declared.xml", "$width",
+                 "its parameters: none"])
+    with pytest.raises(UsageError, match=r"declared.xml: width is not a parameter"):
+        render_scene(declared, None, spp=1, params={"width": 200})
+    # used as $width: the value reaches the film
+    used = tmp_path / "used.xml"
+    used.write_text(text.replace('name="width" value="96"', 'name="width" value="$width"')
+                    .replace('<scene version="3.0.0">', '<scene version="3.0.0">\n'
+                             '    <default name="width" value="96"/>'))
+    sensor = load_scene(used, None, spp=1, params={"width": 20}).sensors()[0]
+    assert [int(v) for v in sensor.film().size()] == [20, 64]
+    # used as $width without a <default>: the value must be given
+    undeclared = tmp_path / "undeclared.xml"
+    undeclared.write_text(text.replace('name="width" value="96"', 'name="width" '
+                                       'value="$width"'))
+    with pytest.raises(UsageError, match=r"uses \$width but declares no <default>"):
+        load_scene(undeclared, None, spp=1)
+    # a copied scene whose environment map stayed behind: the map and the scene, no advice
+    # about the paper's map
+    copy = tmp_path / "copy.xml"
+    copy.write_text(text.replace('<emitter type="constant">\n        <rgb name="radiance" '
+                                 'value="0.2"/>', '<emitter type="envmap">\n        '
+                                 '<string name="filename" value="envmaps/sky.exr"/>'))
+    line = fails(capsys, "render", copy, "-o", out, names=["envmaps/sky.exr", str(copy)])
+    assert "Grace" not in line and "SPARSE_BRDF_DATA" not in line
+    # ... but the paper's scene without its map says where the shared data goes
+    monkeypatch.setattr("sparse_brdf.evaluation.scenes.shared_envmaps_dir", lambda: None)
+    paper = tmp_path / "paper_sphere.xml"
+    paper.write_text((Path(__file__).resolve().parents[1] / "scenes" / "paper_sphere.xml")
+                     .read_text())
+    fails(capsys, "render", paper, "-o", out, names=["grace_latlong.exr", "Grace",
+                                                    "SPARSE_BRDF_DATA"])
+    # a file of a BSDF being replaced is not needed
+    textured = tmp_path / "textured.xml"
+    textured.write_text(text.replace(
+        '<rgb name="diffuse_reflectance" value="0.6, 0.2, 0.1"/>',
+        '<texture type="bitmap" name="diffuse_reflectance">\n'
+        '            <string name="filename" value="paint.png"/>\n        </texture>'))
+    with pytest.raises(MissingDataError, match="textured.xml: refers to paint.png"):
+        check_scene_data(textured)
+    check_scene_data(textured, replaced=["paint"])
+    # a folder is a folder, not a missing scene; its scene files are named
+    line = fails(capsys, "render", tmp_path, "-o", out, names=[str(tmp_path), "a folder",
+                                                                 "copy.xml"])
+    assert "no such" not in line
+    assert not out.exists()
 
 
 @pytest.mark.render

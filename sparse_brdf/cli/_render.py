@@ -21,7 +21,13 @@ from ..evaluation.render import (
     parse_scene,
     render_scene,
 )
-from ..evaluation.scenes import bsdf_ids, check_bsdf_ids, parse_defaults, parse_overrides
+from ..evaluation.scenes import (
+    bsdf_ids,
+    check_bsdf_ids,
+    check_parameters,
+    parse_defaults,
+    parse_overrides,
+)
 from ..fileio import staged
 from ..metrics import FLIP, OBJECT_ONLY, WHOLE_IMAGE, hdr_flip, snr_forms
 from ..params import Interval
@@ -42,6 +48,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     check_outputs([(args.output, IMAGE, "-o"), (args.mask, MASK, "--mask")],
                    [scene, *materials.values(), args.ensemble])
     defines = parse_defaults(args.define, "-D")
+    check_parameters(scene, defines, "-D")
     img = render_scene(scene, materials, spp=args.spp, seed=args.seed, res=args.res,
                        params=defines, sparse_options=opts, sampling=args.sampling)
     mask = None
@@ -177,8 +184,8 @@ def add_render(sub) -> None:
                         "source tabulated_brdf (repeatable; default: none, the scene as it "
                         "is)")
     r.add_argument("-D", "--define", action="append", default=[], metavar="KEY=VALUE",
-                   help="set a parameter the scene declares, e.g. -D envrot=90 (repeatable; "
-                        "default: the scene's values)")
+                   help="set a parameter the scene uses as $KEY, e.g. -D envrot=90 "
+                        "(repeatable; default: the scene's values)")
     r.add_argument("--spp", type=typed(RENDER["spp"]), default=default_of(render_scene, "spp"),
                    help="samples per pixel")
     r.add_argument("--seed", type=typed(RENDER["seed"]), default=default_of(render_scene, "seed"),

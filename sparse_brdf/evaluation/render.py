@@ -40,12 +40,14 @@ from .scenes import (
     RENDER_PARAMETERS,
     cause_message,
     check_bsdf_ids,
+    check_parameters,
     check_scene_data,
     declared_defaults,
     find_scene,
     parse_scene,
     replaced_materials,
     scene_dir_resolver,
+    scene_parameters,
 )
 
 #: The film of a scene without one: Mitsuba's ``hdrfilm`` default size (width, height).
@@ -132,22 +134,21 @@ def _check_size(res: Size) -> Size:
 
 def _settings(root: ET.Element, scene_path: Path, spp, seed, res,
               params: Mapping[str, object] | None) -> dict[str, str]:
-    """Apply spp, seed, res and ``params`` to a scene: the ``$``-parameters it declares
+    """Apply spp, seed, res and ``params`` to a scene: the ``$``-parameters it uses
     are returned (for ``mi.load_string``), the rest is set on ``root`` itself (the first
-    sensor's sampler and film). A ``params`` key the scene does not declare is refused."""
+    sensor's sampler and film). A ``params`` key the scene does not use is refused, and
+    so is a ``$``-parameter it uses without a ``<default>`` that nothing sets."""
     declared = declared_defaults(root, None)
     given = {k: str(v) for k, v in (params or {}).items()}
-    unknown = sorted(set(given) - set(declared))
-    if unknown:
-        raise UsageError(f"{scene_path}: {', '.join(unknown)} is not a parameter of the "
-                         f"scene (it declares {', '.join(sorted(declared)) or 'none'})")
+    check_parameters(scene_path, given, root=root)
+    taken = scene_parameters(root)
     kwargs = dict(given)
     sensor = _sensor(root)
     for key, val in (("spp", spp), ("seed", seed)):
         if val is None:
             continue
         val = check(key, val, RENDER_PARAMETERS[key])  # 0 spp is a SIGFPE inside Mitsuba
-        if key in declared:
+        if key in taken:
             kwargs[key] = str(val)
         elif sensor is not None:
             sampler = sensor.find("sampler")
@@ -157,7 +158,7 @@ def _settings(root: ET.Element, scene_path: Path, spp, seed, res,
     if res is not None:
         res = _check_size(res)
         square = not isinstance(res, tuple) or res[0] == res[1]
-        if "res" in declared and square:
+        if "res" in taken and square:
             kwargs["res"] = str(res if not isinstance(res, tuple) else res[0])
         elif sensor is not None:
             w, h = res if isinstance(res, tuple) else _scaled(
@@ -171,6 +172,12 @@ def _settings(root: ET.Element, scene_path: Path, spp, seed, res,
                     film.remove(el)
             _set_integer(film, "width", w)
             _set_integer(film, "height", h)
+    unset = sorted(taken - set(declared) - set(kwargs))
+    if unset:
+        raise UsageError(f"{scene_path}: the scene uses {', '.join('$' + k for k in unset)} "
+                         f"but declares no <default> for {'them' if len(unset) > 1 else 'it'}"
+                         f": give {', '.join(k + '=VALUE' for k in unset)} (-D on the command "
+                         "line)")
     return kwargs
 
 
@@ -212,7 +219,7 @@ def load_scene(
     kwargs = _settings(root, scene_path, spp, seed, res, params)
     if _edit is not None:
         _edit(root)
-    check_scene_data(scene_path, kwargs)
+    check_scene_data(scene_path, kwargs, replaced=materials or ())
     set_variant(variant)
     mitsuba_plugin.register()
     xml = ET.tostring(root, encoding="unicode")

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 from ..errors import (
+    InputFileError,
     MissingDataError,
     MissingFileError,
     SceneError,
@@ -47,6 +48,14 @@ def find_scene(name: str | os.PathLike) -> Path:
     for cand in (SCENES_DIR / p, SCENES_DIR / f"{p}.xml"):
         if cand.is_file():
             return cand
+    if p.is_dir():
+        inside = sorted(q.name for q in p.glob("*.xml"))
+        raise InputFileError(f"{name}: a folder, not a scene file (give the .xml file"
+                             + (f"; it holds {', '.join(inside[:8])}"
+                                f"{', ...' if len(inside) > 8 else ''})" if inside else ")"))
+    if p.exists():
+        raise InputFileError(f"{name}: not a regular file (a pipe or device), expected a "
+                             "scene file")
     shipped = ", ".join(sorted(q.stem for q in SCENES_DIR.glob("*.xml")))
     raise MissingFileError(f"{name}: no such scene file, and no shipped scene of that name "
                            f"(shipped: {shipped})")
@@ -100,11 +109,11 @@ def parse_scene_spec(text: str) -> SceneSpec:
         params = parse_defaults(filter(None, (x.strip() for x in tail.split(","))),
                                 f"scene {text!r}:")
     path = find_scene(name)
-    declared = {d.get("name") for d in parse_scene(path).getroot().iter("default")}
-    unknown = sorted(set(params) - declared)
+    taken = scene_parameters(parse_scene(path).getroot())
+    unknown = sorted(set(params) - taken)
     if unknown:
         raise UsageError(f"scene {text!r}: {path.name} declares no parameter "
-                         f"{', '.join(unknown)} (it has {', '.join(sorted(declared))})")
+                         f"{', '.join(unknown)} (it has {', '.join(sorted(taken))})")
     # the key names folders and files: a value's path separators become underscores
     key = path.stem + "".join(f"-{k}={_SEPARATORS.sub('_', v)}" for k, v in params.items())
     return SceneSpec(path, params, key)
@@ -313,6 +322,52 @@ def check_bsdf_ids(scene_path: str | os.PathLike, ids: Iterable[str],
             raise UsageError(f"{where}: that id is {article} {elem.tag}, not a BSDF ({listing})")
 
 
+#: A ``$name`` reference in an attribute value, which Mitsuba fills from its parameters.
+_REFERENCE = re.compile(r"\$([A-Za-z_]\w*)")
+
+
+def scene_parameters(root: ET.Element) -> set[str]:
+    """The parameters a scene takes: the names it refers to as ``$name`` in its
+    attributes (Mitsuba refuses a value for any other, "Found unused parameters", even
+    one the scene declares a ``<default>`` for)."""
+    return {m for e in root.iter() if e.tag != "default" for v in e.attrib.values()
+            for m in _REFERENCE.findall(v)}
+
+
+def check_parameters(scene_path: str | os.PathLike, params: Iterable[str],
+                     option: str | None = None, root: ET.Element | None = None) -> None:
+    """Refuse, in one line, a parameter of ``params`` (names) that the scene does not take.
+
+    Parameters
+    ----------
+    scene_path : str or path-like
+        The scene file.
+    params : iterable of str
+        The names of the parameters to set (e.g. ``-D width=200``'s ``width``).
+    option : str, optional
+        What gave them (``"-D"``), named in the message; None names the scene file.
+    root : xml.etree.ElementTree.Element, optional
+        The scene's parsed root (read from ``scene_path`` when None).
+
+    Raises
+    ------
+    UsageError
+        A name the scene does not refer to as ``$name`` (see :func:`scene_parameters`);
+        the message lists the ones it does.
+    """
+    scene_path = Path(scene_path)
+    if root is None:
+        root = parse_scene(scene_path).getroot()
+    taken = scene_parameters(root)
+    unknown = [k for k in dict.fromkeys(params) if k not in taken]
+    if unknown:
+        names = ", ".join(unknown)
+        what = (f"{option} {names}: not a parameter of {scene_path.name}" if option else
+                f"{scene_path}: {names} is not a parameter of the scene")
+        raise UsageError(f"{what} (it uses no {', '.join('$' + k for k in unknown)}; its "
+                         f"parameters: {', '.join(sorted(taken)) or 'none'})")
+
+
 def declared_defaults(root: ET.Element, params: Mapping[str, object] | None) -> dict[str, str]:
     """The scene's ``<default>`` values with ``params`` on top."""
     out = {d.get("name"): d.get("value", "") for d in root.iter("default")}
@@ -331,31 +386,56 @@ def data_search_path(scene_path: str | os.PathLike) -> list[Path]:
     return folders
 
 
+#: The paper's environment map, which is not redistributable (``paper_sphere.xml``).
+GRACE_MAP = "grace_latlong.exr"
+
+
 def check_scene_data(scene_path: str | os.PathLike,
-                     params: Mapping[str, object] | None = None) -> None:
-    """Raise :class:`MissingDataError` (one line) when an emitter's image file of the scene
-    is on none of :func:`data_search_path`'s folders (e.g. ``paper_sphere.xml`` without
-    ``../shared/data/envmaps/grace_latlong.exr``)."""
+                     params: Mapping[str, object] | None = None,
+                     replaced: Iterable[str] = ()) -> None:
+    """Raise :class:`MissingDataError` (one line naming the file and the scene) when a
+    data file the scene refers to (``<string name="filename">``: an environment map, a
+    mesh, a texture's image) is on none of :func:`data_search_path`'s folders nor in the
+    current folder, or is not a regular file.
+
+    Parameters
+    ----------
+    scene_path : str or path-like
+        The scene file.
+    params : mapping, optional
+        Parameter values set on top of its ``<default>`` ones (``$name`` in a file name is
+        filled from them).
+    replaced : iterable of str
+        Ids of BSDFs that are replaced: their own files are not looked for.
+
+    Raises
+    ------
+    MissingDataError
+        For the first file missing. Only for the paper's Grace Cathedral map
+        (:data:`GRACE_MAP`) does the message say where the shared data folder goes.
+    """
     scene_path = Path(scene_path)
     root = parse_scene(scene_path).getroot()
     values = declared_defaults(root, params)
-    for em in root.iter("emitter"):
-        for el in em.iter("string"):
-            if el.get("name") != "filename":
-                continue
-            name = el.get("value", "")
-            if name.startswith("$"):
-                name = values.get(name[1:], name)
-            p = Path(name).expanduser()
-            if p.is_absolute() and p.is_file():
-                continue
-            if any((f / p).is_file() for f in data_search_path(scene_path)):
-                continue
+    skipped = {id(d) for e in root.iter("bsdf") if e.get("id") in set(replaced)
+               for d in e.iter()}
+    folders = data_search_path(scene_path)
+    for el in root.iter("string"):
+        if el.get("name") != "filename" or id(el) in skipped:
+            continue
+        name = _REFERENCE.sub(lambda m: values.get(m.group(1), m.group()), el.get("value", ""))
+        p = Path(name).expanduser()
+        if p.is_file() if p.is_absolute() else any((f / p).is_file()
+                                                   for f in (*folders, Path.cwd())):
+            continue
+        looked = str(p) if p.is_absolute() else ", ".join(str(f) for f in folders)
+        if p.name == GRACE_MAP:
             raise MissingDataError(
-                f"{scene_path.name}: its environment map {name} is not on this machine "
-                f"(looked in {', '.join(str(f) for f in data_search_path(scene_path))}); "
-                "the paper's Grace Cathedral map is not redistributable: put the shared data "
-                "folder at ../shared/data or point SPARSE_BRDF_DATA to it")
+                f"{scene_path}: its environment map {name} is not on this machine (looked "
+                f"in {looked}); the paper's Grace Cathedral map is not redistributable: put "
+                "the shared data folder at ../shared/data or point SPARSE_BRDF_DATA to it")
+        raise MissingDataError(f"{scene_path}: refers to {name}, which is not there (looked "
+                               f"in {looked}); copy it beside the scene or fix the path")
 
 
 @contextlib.contextmanager
