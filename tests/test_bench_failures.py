@@ -5,6 +5,7 @@ its reports; tables sort failed figures last."""
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import pytest
@@ -121,7 +122,60 @@ def test_a_failing_model_never_stops_the_bench_nor_its_reports(user_dir, capsys,
         material, model = key.split("|")
         assert f"| {material} | {model} | {error} |" in md
         assert f"failed: {error}" in md and f"failed: {error}" in page
+    # a model none of whose cells finished has no speed, and the report says it failed
+    data = json.loads((out / "results.json").read_text())
+    for model in {k.split("|")[1] for k in failed}:
+        if all(k in failed for k in cells if k.endswith(f"|{model}")):
+            assert data["speed"].get(model) is None
+            assert any(ln.startswith(f"| {model} |") and ln.split(" | ")[4] == "failed"
+                       for ln in md.splitlines())
     # a rerun runs the failed cells again, and again writes every report
     (out / "report.md").unlink()
     rc, _ = _bench(user_dir, models, n)
     assert rc == 0 and (out / "report.md").is_file()
+
+
+def _results(cells: dict, speed: dict) -> dict:
+    """A bench's results of one material in one scene, with ``cells`` as given:
+    ``{model: object-only SNR in dB, or None for a failed cell}``."""
+    out = {}
+    for model, snr in cells.items():
+        key = f"mitsuba/al-ggx-0.3|{model}"
+        if snr is None:
+            out[key] = {"material": "mitsuba/al-ggx-0.3", "model": model, "status": "failed",
+                        "error": "IndexError: no fit"}
+            continue
+        out[key] = {"material": "mitsuba/al-ggx-0.3", "model": model, "status": "finished",
+                    "fit_s": 0.1, "bytes": 100, "rae": 0.1, "cos_snr": snr + 5,
+                    "gamma_mse": 0.01,
+                    "renders": {"sphere": {"snr_object": snr, "snr_whole": snr + 3,
+                                           "flip": 0.1, "render_s": 0.2}}}
+    return {"schema": "x", "config": {"corpora": ["mitsuba"], "split": "test", "res": 16,
+                                      "spp": 2, "seed": 0, "noise_seed": 1,
+                                      "scenes": ["sphere.xml"]},
+            "cells": out, "curves": {}, "noise_floor": {}, "speed": speed,
+            "skipped_scenes": {}}
+
+
+def test_tables_sort_failed_figures_last_and_a_failed_model_has_no_speed(tmp_path):
+    from sparse_brdf.evaluation.html_report import write_html_report
+    from sparse_brdf.evaluation.report import summary_table, write_report
+
+    results = _results({"broken": None, "worse": 13.7, "better": 16.8, "exact": math.inf},
+                       {"broken": 3e6, "worse": 2e6, "better": 1e6, "exact": 5e5})
+    rows = summary_table(results, "sphere")
+    assert [r["model"] for r in rows] == ["exact", "better", "worse", "broken"]
+    assert math.isnan(rows[-1]["evals_per_s"]) and rows[1]["evals_per_s"] == 1e6
+    # without renders, by cos-weighted SNR, failed last
+    assert [r["model"] for r in summary_table(results)] == ["exact", "better", "worse",
+                                                             "broken"]
+    write_report(results, tmp_path)
+    md = (tmp_path / "report.md").read_text().splitlines()
+    table = [ln for ln in md if ln.startswith(("| better |", "| worse |", "| broken |",
+                                               "| exact |"))][:4]
+    assert [ln.split(" | ")[0] for ln in table] == ["| exact", "| better", "| worse",
+                                                     "| broken"]
+    assert table[-1].split(" | ")[4] == "failed" and "3e+06" not in "\n".join(md)
+    write_html_report(results, tmp_path)
+    page = (tmp_path / "report.html").read_text()
+    assert '<td data-v="">failed</td>' in page and "3e+06" not in page

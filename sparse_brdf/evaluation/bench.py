@@ -145,7 +145,11 @@ class Bench:
         mats = self.materials()
         self._train(models, mats)
         self._run_cells(ex or InProcess(), ens, models, mats)
-        missing = [mod for mod in models if mod.name not in self.results["speed"]]
+        finished = {c["model"] for c in self.results["cells"].values()
+                    if c.get("status") == "finished"}
+        # a model none of whose cells finished has no speed: it would rank what failed
+        missing = [mod for mod in models
+                   if mod.name not in self.results["speed"] and mod.name in finished]
         if self.cfg.speed and missing and mats:  # e.g. measurements deleted to redo them
             brdf = mats[0].load()
             for mod in missing:

@@ -116,7 +116,8 @@ def _model_table(results: dict, scene: str) -> str:
             "obj mean (dB)", "obj min (dB)", "whole mean (dB)", "whole min (dB)",
             "FLIP mean", "FLIP max"]
     rows = [[_cell(r["model"], ""), _cell(r["n"], "d"), _cell(r["failed"], "d"),
-             *(_cell(r.get(k, math.nan), f) for k, f in cols)]
+             *('<td data-v="">failed</td>' if k == "evals_per_s" and r["n"] == 0
+               else _cell(r.get(k, math.nan), f) for k, f in cols)]
             for r in summary_table(results, scene)]
     return _table(head, rows)
 

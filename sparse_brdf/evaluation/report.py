@@ -112,7 +112,9 @@ def summary_table(results: dict, scene: str | None = None,
                   corpus: str | None = None) -> list[dict]:
     """Per model: bytes, speed, RAE, and rendering SNR statistics of both forms in
     ``scene`` (Table 3), over every material or those of ``corpus``; rows sorted by
-    object-only mean SNR."""
+    object-only mean SNR (cos-weighted SNR without renders), best first, a model without
+    that figure (every cell failed) last. A model none of whose cells finished has no
+    evaluations per second (nan), whatever was measured."""
     by_model: dict[str, list[dict]] = {}
     for r in results["cells"].values():
         if corpus is None or r["material"].split("/", 1)[0] == corpus:
@@ -126,7 +128,7 @@ def summary_table(results: dict, scene: str | None = None,
                "rae": float(np.mean([c["rae"] for c in ok])) if ok else math.nan,
                "cos_snr": _mean_snr([c["cos_snr"] for c in ok]),
                "fit_s": float(np.mean([c["fit_s"] for c in ok])) if ok else math.nan,
-               "evals_per_s": _number(speed.get(model))}
+               "evals_per_s": _number(speed.get(model)) if ok else math.nan}
         renders = [c["renders"][scene] for c in ok if scene in (c.get("renders") or {})]
         if renders:
             for key, _ in FORMS:
@@ -137,8 +139,15 @@ def summary_table(results: dict, scene: str | None = None,
             row["flip_max"] = float(np.max(flips)) if flips else math.nan
             row["render_s"] = float(np.mean([x["render_s"] for x in renders]))
         rows.append(row)
-    rows.sort(key=lambda r: -r.get("snr_object_mean", r["cos_snr"]))
+    rows.sort(key=lambda r: nan_last(r.get("snr_object_mean", r["cos_snr"])))
     return rows
+
+
+def nan_last(value: float, higher: bool = True) -> tuple[bool, float]:
+    """A sort key that puts the best ``value`` first (the highest, or the lowest when not
+    ``higher``) and a missing one (None or nan: a failed figure) last."""
+    missing = value is None or math.isnan(value)
+    return (missing, 0.0 if missing else (-value if higher else value))
 
 
 def pareto(points: list[tuple[float, float]], higher_x: bool = False) -> list[int]:
@@ -311,6 +320,12 @@ def _f(x: float, fmt: str = ".1f") -> str:
         else "-"
 
 
+def _speed(row: dict) -> str:
+    """A summary row's evaluations per second: "failed" for a model none of whose cells
+    finished, "-" where none was measured."""
+    return "failed" if row["n"] == 0 else _f(row["evals_per_s"], ".3g")
+
+
 def _scene_section(results: dict, out: Path, scene: str) -> list[str]:
     """The report's section of one scene: noise floor, Tables 3, 4 and 2, charts, renders."""
     rows = summary_table(results, scene)
@@ -354,7 +369,7 @@ def _model_table(rows: list[dict], scene: str) -> list[str]:
     for r in rows:
         md.append(
             f"| {r['model']} | {r['n']} | {r['failed']} | {_f(r['bytes'], '.0f')} | "
-            f"{_f(r['evals_per_s'], '.3g')} | {_f(r['fit_s'], '.2f')} | {_f(r['rae'], '.4f')} | "
+            f"{_speed(r)} | {_f(r['fit_s'], '.2f')} | {_f(r['rae'], '.4f')} | "
             f"{_f(r['cos_snr'])} | {_f(r.get('snr_object_mean'))} | "
             f"{_f(r.get('snr_object_std'))} | {_f(r.get('snr_object_min'))} | "
             f"{_f(r.get('snr_object_max'))} | {_f(r.get('snr_whole_mean'))} | "
@@ -461,7 +476,7 @@ def write_report(results: dict, out: Path) -> Path:
                "|---|---|---|---|---|---|---|"]
         for r in summary_table(results):
             md.append(f"| {r['model']} | {r['n']} | {r['failed']} | {_f(r['bytes'], '.0f')} | "
-                      f"{_f(r['evals_per_s'], '.3g')} | {_f(r['rae'], '.4f')} | "
+                      f"{_speed(r)} | {_f(r['rae'], '.4f')} | "
                       f"{_f(r['cos_snr'])} |")
     if results.get("stability"):
         md += ["", "## Stability", "",
