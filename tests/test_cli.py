@@ -52,6 +52,55 @@ def test_errors_are_one_line_and_name_the_file(tmp_path, capsys):
     assert "truncated" in capsys.readouterr().err
 
 
+def test_info_on_a_sbrdf_shows_what_the_file_holds(tmp_path, capsys):
+    """``info FILE.sbrdf``: the file's version, ensemble, transform, colour basis,
+    coefficients per channel and in all, bytes and dictionaries, beside the decoded
+    statistics; ``--json`` has the same keys."""
+    from sparse_brdf.coding.fileformat import file_size, load_sbrdf, save_sbrdf
+    from sparse_brdf.paths import DEFAULT_ENSEMBLE_ID
+
+    sb = tmp_path / "cu.sbrdf"
+    assert main(["encode", "mitsuba:cu-ggx-0.12", "-o", str(sb), "--coeffs", "40"]) == 0
+    capsys.readouterr()
+    model = load_sbrdf(sb)
+    assert main(["info", str(sb), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert (info["version"], info["bytes"]) == (2, sb.stat().st_size)
+    assert info["codec"] in ("stored", "deflate", "lzma")
+    assert info["ensemble"] == model.ensemble_id == DEFAULT_ENSEMBLE_ID
+    assert info["ensemble_shipped"] is True
+    assert info["transform"] == model.transform and info["grid"] == [90, 90, 180]
+    assert info["basis"] == "opponent" and info["channels"][0] == "luminance"
+    assert info["coefficients"] == model.n_coeffs.tolist()
+    assert info["coefficients_total"] == sum(info["coefficients"]) > 0
+    assert info["dictionaries"] == model.dict_index.tolist()
+    assert info["valid_bins"] < info["total_bins"] and len(info["albedo"]) == 3  # decoded
+    # the text names the same keys, with the same values
+    assert main(["info", str(sb)]) == 0
+    lines = {ln.split()[0]: ln for ln in capsys.readouterr().out.splitlines()}
+    assert lines["version"].split()[1] == "2" and info["codec"] in lines["version"]
+    assert lines["bytes"].split()[1] == str(info["bytes"])
+    assert info["ensemble"] in lines["ensemble"] and "shipped" in lines["ensemble"]
+    assert info["transform"] in lines["transform"] and "opponent" in lines["basis"]
+    assert lines["coefficients"].split()[1] == str(info["coefficients_total"])
+    assert all(f"{ch} {n}" in lines["coefficients"]
+               for ch, n in zip(info["channels"], info["coefficients"], strict=True))
+    assert all(f"{ch} {d}" in lines["dictionaries"]
+               for ch, d in zip(info["channels"], info["dictionaries"], strict=True))
+    assert "valid" in lines and "R" in lines
+    # a version-1 file: no payload codec, 8 bytes per coefficient
+    old = save_sbrdf(tmp_path / "v1.sbrdf", model, version=1)
+    assert main(["info", str(old), "--json"]) == 0
+    v1 = json.loads(capsys.readouterr().out)
+    assert (v1["version"], v1["codec"]) == (1, None)
+    assert v1["bytes"] == old.stat().st_size == file_size(info["coefficients_total"],
+                                                          len(model.name.encode()))
+    assert v1["coefficients"] == info["coefficients"]
+    # a material that is not a file of coefficients has none of these keys
+    assert main(["info", "mitsuba:cu-ggx-0.12", "--json"]) == 0
+    assert "version" not in json.loads(capsys.readouterr().out)
+
+
 @pytest.mark.train
 def test_train_encode_decode_round_trip(tmp_path, capsys):
     ens = tmp_path / "e.npz"

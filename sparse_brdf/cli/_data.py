@@ -7,6 +7,7 @@ import argparse
 import json
 from pathlib import Path
 
+from ..coding.fileformat import describe
 from ..errors import one_line
 from ..sources.corpora import get_corpus, list_corpora
 from ..sources.load import load_brdf
@@ -29,18 +30,45 @@ def cmd_corpus_list(args: argparse.Namespace) -> int:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
-    """``info``: a material's shape, valid bins, value range and albedo."""
+    """``info``: a material's shape, valid bins, value range and albedo; for a ``.sbrdf``
+    file also what the file holds (version, ensemble, transform, basis, coefficients,
+    bytes, dictionaries)."""
+    held = describe(args.source) if str(args.source).lower().endswith(".sbrdf") else None
     info = load_brdf(args.source, symmetrize=args.symmetrize).summary()
+    if held is not None:
+        info = {**info, **held}
     if args.json:
         print(json.dumps(info, indent=2))
         return 0
-    print(f"name        {one_line(info['name'])}\nsource      {one_line(info['source'])}")
-    print(f"shape       {tuple(info['shape'])}")
-    print(f"valid bins  {info['valid_bins']} of {info['total_bins']}")
+    print(f"name         {one_line(info['name'])}\nsource       {one_line(info['source'])}")
+    if held is not None:
+        _print_held(held)
+    print(f"shape        {tuple(info['shape'])}")
+    print(f"valid bins   {info['valid_bins']} of {info['total_bins']}")
     for i, ch in enumerate("RGB"):
-        print(f"{ch}           min {info['min'][i]:.4g}  max {info['max'][i]:.4g}  "
+        print(f"{ch}            min {info['min'][i]:.4g}  max {info['max'][i]:.4g}  "
               f"mean {info['mean'][i]:.4g}  albedo {info['albedo'][i]:.3f}")
     return 0
+
+
+def _print_held(held: dict) -> None:
+    """What a ``.sbrdf`` file holds (:func:`~sparse_brdf.coding.fileformat.describe`), one
+    line per key, labelled with the ``--json`` keys."""
+    codec = f" ({held['codec']} payload)" if held["codec"] else ""
+    shipped = "shipped with this version" if held["ensemble_shipped"] else "not shipped"
+    per = ", ".join(f"{ch} {n}" for ch, n in zip(held["channels"], held["coefficients"],
+                                                   strict=True))
+    dicts = ", ".join(f"{ch} {d}" for ch, d in zip(held["channels"], held["dictionaries"],
+                                                    strict=True))
+    print(f"version      {held['version']}{codec}\n"
+          f"bytes        {held['bytes']}\n"
+          f"ensemble     {held['ensemble']} ({shipped})\n"
+          f"grid         {tuple(held['grid'])}\n"
+          f"transform    {held['transform']} (every channel)\n"
+          f"basis        {held['basis']} (channels {', '.join(held['channels'])})\n"
+          f"coefficients {held['coefficients_total']} ({per})\n"
+          f"dictionaries {dicts}")
+    print("decoded      the values the file decodes to, with its ensemble:")
 
 
 def cmd_convert(args: argparse.Namespace) -> int:
@@ -61,7 +89,8 @@ def add_data_commands(sub) -> None:
                     help="a corpus name (mitsuba, merl-demo, merl, rgl, abc, sgd) or a folder")
     cl.set_defaults(func=cmd_corpus_list)
 
-    i = sub.add_parser("info", help="shape, valid bins, value range and albedo of a BRDF")
+    i = sub.add_parser("info", help="shape, valid bins, value range and albedo of a BRDF; "
+                                    "for a .sbrdf also what the file holds")
     i.add_argument("source", help="BRDF source (see below)")
     i.add_argument("--json", action="store_true", help="print JSON")
     add_symmetrize(i)

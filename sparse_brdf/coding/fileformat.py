@@ -41,7 +41,7 @@ from ..fileio import atomic_write, require_file
 from ..params import check_choice
 from ..transforms import TRANSFORMS
 from .coefficients import SparseBRDF
-from .ensemble import Ensemble, resolve_ensemble
+from .ensemble import Ensemble, resolve_ensemble, shipped_ids
 
 MAGIC = b"SBRDF\r\n\x1a"
 #: The version :func:`to_bytes` and :func:`save_sbrdf` write unless told otherwise.
@@ -403,6 +403,49 @@ def load_sbrdf(path: str | os.PathLike, ensemble: Ensemble | None = None) -> Spa
         except Exception as exc:
             raise type(exc)(f"{path}: {exc}") from exc
     return model
+
+
+#: The coded channels of each colour basis, in file order.
+CHANNELS = {"rgb": ("R", "G", "B"), "opponent": ("luminance", "red-green", "yellow-blue")}
+
+
+def describe(path: str | os.PathLike) -> dict:
+    """What a ``.sbrdf`` file holds, read without decoding (``sparse-brdf info``).
+
+    Parameters
+    ----------
+    path : str or path-like
+        The file.
+
+    Returns
+    -------
+    dict
+        JSON-ready: ``version`` (1 or 2), ``codec`` (version 2's payload codec, one of
+        :data:`CODECS`; None for version 1), ``bytes`` (the file's size), ``ensemble``
+        (the id of the ensemble the coefficients refer to) and ``ensemble_shipped``
+        (whether this install ships it), ``grid`` ([n1, n2, n3]), ``transform`` (one for
+        every channel), ``basis`` (the colour basis) and ``channels`` (its coded
+        channels), then per channel ``coefficients`` and ``dictionaries`` (the index of
+        the ensemble's dictionary each channel uses), and ``coefficients_total``.
+
+    Raises
+    ------
+    FileNotFoundError, BRDFFileError
+        As :func:`load_sbrdf`.
+    """
+    path = require_file(path, ".sbrdf file")
+    data = path.read_bytes()
+    model = from_bytes(data, str(path))
+    version = _PREFIX.unpack_from(data)[1]
+    codec = CODECS[_HEAD2.unpack_from(data)[15]] if version == 2 else None
+    return {"version": int(version), "codec": codec, "bytes": len(data),
+            "ensemble": model.ensemble_id,
+            "ensemble_shipped": model.ensemble_id in shipped_ids(),
+            "grid": list(model.shape), "transform": model.transform, "basis": model.basis,
+            "channels": list(CHANNELS[model.basis]),
+            "coefficients": [int(n) for n in model.n_coeffs],
+            "coefficients_total": int(model.n_coeffs.sum()),
+            "dictionaries": [int(d) for d in model.dict_index]}
 
 
 def decode_file(path: str | os.PathLike, ensemble: Ensemble | None = None) -> BRDF:
