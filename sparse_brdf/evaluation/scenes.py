@@ -417,16 +417,15 @@ def check_scene_data(scene_path: str | os.PathLike,
     scene_path = Path(scene_path)
     root = parse_scene(scene_path).getroot()
     values = declared_defaults(root, params)
-    skipped = {id(d) for e in root.iter("bsdf") if e.get("id") in set(replaced)
-               for d in e.iter()}
-    folders = data_search_path(scene_path)
+    replaced = set(replaced)
+    skipped = {id(d) for e in root.iter("bsdf") if e.get("id") in replaced for d in e.iter()}
+    folders = [*data_search_path(scene_path), Path.cwd()]
     for el in root.iter("string"):
         if el.get("name") != "filename" or id(el) in skipped:
             continue
         name = _REFERENCE.sub(lambda m: values.get(m.group(1), m.group()), el.get("value", ""))
         p = Path(name).expanduser()
-        if p.is_file() if p.is_absolute() else any((f / p).is_file()
-                                                   for f in (*folders, Path.cwd())):
+        if p.is_file() if p.is_absolute() else any((f / p).is_file() for f in folders):
             continue
         looked = str(p) if p.is_absolute() else ", ".join(str(f) for f in folders)
         if p.name == GRACE_MAP:
