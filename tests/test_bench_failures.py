@@ -179,3 +179,75 @@ def test_tables_sort_failed_figures_last_and_a_failed_model_has_no_speed(tmp_pat
     write_html_report(results, tmp_path)
     page = (tmp_path / "report.html").read_text()
     assert '<td data-v="">failed</td>' in page and "3e+06" not in page
+
+
+def _run_file(path: Path, cells: dict, run: str, **config) -> Path:
+    """A results file of two materials in one scene: ``cells`` maps a model to its
+    object-only SNR per material (None: failed)."""
+    from sparse_brdf.evaluation.results_file import SCHEMA
+
+    out = {}
+    for model, snrs in cells.items():
+        for mat, snr in zip(("mitsuba/a", "mitsuba/b"), snrs, strict=True):
+            cell = {"material": mat, "model": model, "status": "finished", "bytes": 10,
+                    "renders": {"sphere": {"snr_object": snr, "snr_whole": snr,
+                                           "flip": 0.1}}}
+            if snr is None:
+                cell = {"material": mat, "model": model, "status": "failed",
+                        "error": "IndexError: no fit"}
+            out[f"{mat}|{model}"] = cell
+    cfg = {"corpora": ["mitsuba"], "split": "test", "max_materials": 2,
+           "scenes": ["sphere.xml"], "spp": 2, "res": 16, "seed": 0, "speed": True,
+           "speed_evals": 4096, **config}
+    path.write_text(json.dumps({"schema": SCHEMA, "run": run, "config": cfg, "provenance": {},
+                                "cells": out, "noise_floor": {},
+                                "speed": {m: 1e6 for m in cells}}))
+    return path
+
+
+def test_merge_ranks_over_materials_every_ranked_model_finished(tmp_path):
+    from sparse_brdf.evaluation.ranking import merge_results
+
+    # "partial" is best on the one material it finished, and must not rank above the rest
+    a = _run_file(tmp_path / "a.json", {"good": [20.0, 10.0], "partial": [30.0, None],
+                                        "broken": [None, None]}, "run-a")
+    b = _run_file(tmp_path / "b.json", {"other": [12.0, 12.0]}, "run-b")
+    merged = merge_results([a, b])
+    assert merged["materials"] == ["mitsuba/a", "mitsuba/b"]
+    assert [(r["rank"], r["model"], r["snr_object"]) for r in merged["rows"]] == [
+        (1, "good", 15.0), (2, "other", 12.0)]
+    assert [(r["model"], r["materials"], r["failed"]) for r in merged["unranked"]] == [
+        ("partial", 1, 1), ("broken", 0, 2)]
+    assert main(["bench-merge", str(a), str(b), "-o", str(tmp_path / "r")]) == 0
+    md = (tmp_path / "r" / "ranking.md").read_text()
+    assert "| partial | " + str(a) + " | 1 of 2 | 1 |" in md
+    assert "| broken | " + str(a) + " | 0 of 2 | 2 |" in md
+    assert "| 1 | good |" in md and "| 3 |" not in md
+    csv_rows = (tmp_path / "r" / "ranking.csv").read_text().splitlines()
+    assert csv_rows[1].startswith("1,good,") and csv_rows[3].startswith(",partial,")
+
+
+def test_merge_refuses_one_run_twice_and_other_speed_settings(tmp_path, capsys):
+    a = _run_file(tmp_path / "a.json", {"good": [20.0, 10.0]}, "run-a")
+    folder = tmp_path / "bench"
+    folder.mkdir()
+    (folder / "results.json").write_text(a.read_text())  # a copy of the same run
+    other = _run_file(tmp_path / "o.json", {"x": [1.0, 2.0]}, "run-o", speed_evals=8192)
+    nospeed = _run_file(tmp_path / "n.json", {"y": [1.0, 2.0]}, "run-n", speed=False,
+                        speed_evals=8192)
+    for files, message in (([a, a], "the same results file as"),
+                           ([a, folder], "the same run as"),
+                           ([a, other], "speed_evals = 8192"),
+                           ([a, nospeed], "speed = False")):
+        assert main(["bench-merge", *map(str, files), "-o", str(tmp_path / "out")]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and message in err, err
+        if "speed" in message:
+            assert "with 4096" in err or "with True" in err, err
+    assert not (tmp_path / "out").exists()
+    # a copy whose run id was lost is still known by its cells
+    data = json.loads(a.read_text())
+    del data["run"]
+    (folder / "results.json").write_text(json.dumps(data))
+    assert main(["bench-merge", str(a), str(folder), "-o", str(tmp_path / "out")]) == 2
+    assert "the same run as" in capsys.readouterr().err

@@ -116,7 +116,12 @@ def add_bench_commands(sub) -> None:
                                     "the same protocol (corpora, split, scenes, spp, res, "
                                     "seed), e.g. the standard suite's shipped models and "
                                     "your own model's run, from any machines, into one "
-                                    "ranked table: ranking.md and ranking.csv.")
+                                    "ranked table: ranking.md and ranking.csv. Models are "
+                                    "ranked over the materials every ranked model finished; "
+                                    "the others are listed apart with their count of "
+                                    "finished materials. One run given twice, or runs "
+                                    "whose speed settings (speed, speed_evals) differ, are "
+                                    "refused.")
     bm.add_argument("results", nargs="+", help="results.json files or bench output folders")
     bm.add_argument("--by", choices=tuple(RANK_BY), default=default_of(merge_results, "by"),
                     help="rank by the mean over the scenes of this figure (higher SNR, "

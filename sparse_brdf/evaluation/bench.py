@@ -29,6 +29,7 @@ import json
 import shutil
 import sys
 import time
+import uuid
 from dataclasses import asdict
 from pathlib import Path
 
@@ -96,12 +97,13 @@ class Bench:
         """Earlier results of this config (a resumed run), else a fresh record; results of
         another config, ensemble or encoder are discarded with the renders they cached."""
         p = self.out / "results.json"
-        fresh = {"schema": SCHEMA, "config": asdict(self.cfg),
+        fresh = {"schema": SCHEMA, "run": uuid.uuid4().hex, "config": asdict(self.cfg),
                  "provenance": self._provenance(), "cells": {}, "curves": {},
                  "noise_floor": {}, "speed": {}, "skipped_scenes": {}}
         if p.is_file():
             data = json.loads(p.read_text())
             if all(data.get(k) == fresh[k] for k in ("schema", "config", "provenance")):
+                data.setdefault("run", fresh["run"])  # a file from before run ids
                 return data
             if self.work.is_dir():  # cached renders and files of the old results
                 shutil.rmtree(self.work)

@@ -7,13 +7,17 @@ the same protocol: the config settings of
 row: its mean over its finished cells of each scene's object-only and whole-image SNR
 and HDR-FLIP, and the mean over the scenes; its bytes per material and evaluations per
 second (as measured on the machine its file names). Rows are ranked by one of
-:data:`RANK_BY`.
+:data:`RANK_BY`, over the materials that every ranked model finished: a model that did
+not finish every material of the protocol is listed apart, unranked, with its count of
+finished materials. The same run given twice is refused, and so are runs whose speeds
+were measured differently (:data:`~sparse_brdf.evaluation.results_file.SPEED_SETTINGS`).
 """
 
 from __future__ import annotations
 
 import csv
 import io
+import json
 import math
 import os
 from pathlib import Path
@@ -23,8 +27,8 @@ import numpy as np
 from ..errors import ConfigError
 from ..fileio import atomic_write
 from ..params import check_choice
-from .report import scenes_of
-from .results_file import PROTOCOL_SETTINGS, read_results
+from .report import nan_last, scenes_of
+from .results_file import PROTOCOL_SETTINGS, SPEED_SETTINGS, read_results
 
 __all__ = ["RANK_BY", "merge_results", "ranking_csv", "ranking_markdown", "write_ranking"]
 
@@ -53,8 +57,43 @@ def _check_same_protocol(runs: list[tuple[str, dict]]) -> None:
                                   "together")
 
 
+def _check_speed_settings(runs: list[tuple[str, dict]]) -> None:
+    """:class:`ConfigError` naming the first speed setting where two results files that
+    measured speeds differ (evaluations per second are compared across files)."""
+    first, base = runs[0]
+    for name, data in runs[1:]:
+        for key in SPEED_SETTINGS:
+            a, b = base["config"].get(key), data["config"].get(key)
+            if key != "speed" and not (base["config"].get("speed", True)
+                                       and data["config"].get("speed", True)):
+                continue  # a run that measured no speed: its other speed settings are moot
+            if a != b:
+                raise ConfigError(f"{name}: speeds measured with {key} = {b!r}, {first} with "
+                                  f"{a!r}: their evaluations per second are not ranked "
+                                  "together")
+
+
+def _check_distinct_runs(paths: list, runs: list[tuple[str, dict]]) -> None:
+    """:class:`ConfigError` when one results file, or one run, is given twice: its models
+    would be listed twice."""
+    seen: dict = {}
+    for p, (name, data) in zip(paths, runs, strict=True):
+        q = Path(p)
+        q = (q / "results.json" if q.is_dir() else q).resolve()
+        ids = [("file", q)]
+        if data.get("run"):
+            ids.append(("run", data["run"]))
+        if data["cells"]:
+            ids.append(("cells", json.dumps(data["cells"], sort_keys=True)))
+        for i in ids:
+            if i in seen:
+                what = "the same results file" if i[0] == "file" else "the same run"
+                raise ConfigError(f"{name}: {what} as {seen[i]}: give each run once")
+            seen[i] = name
+
+
 def _rows_of(label: str, data: dict, scenes: list[str]) -> list[dict]:
-    """One row per model of one results file."""
+    """One row per model of one results file; ``finished``: the materials it finished."""
     by_model: dict[str, list[dict]] = {}
     for cell in data["cells"].values():
         by_model.setdefault(cell["model"], []).append(cell)
@@ -62,8 +101,9 @@ def _rows_of(label: str, data: dict, scenes: list[str]) -> list[dict]:
     rows = []
     for model, cells in by_model.items():
         ok = [c for c in cells if c.get("status") == "finished"]
-        speed = data["speed"].get(model)
+        speed = data["speed"].get(model) if ok else None
         row = {"model": model, "source": label, "machine": env.get("platform", ""),
+               "finished": {c["material"] for c in ok},
                "materials": len(ok), "failed": len(cells) - len(ok),
                "bytes": _mean([c["bytes"] for c in ok]),
                "evals_per_s": math.nan if speed is None else float(speed)}
@@ -91,33 +131,39 @@ def merge_results(paths: list[str | os.PathLike], by: str = "snr_object") -> dic
     Returns
     -------
     dict
-        ``rows`` (ranked, each with ``rank``), ``scenes`` (every scene of the
-        protocol), ``by``, ``protocol`` (the settings shared) and ``sources``.
+        ``rows`` (ranked, each with ``rank``: the models that finished every material
+        of ``materials``), ``unranked`` (the others, each with ``materials``, its count
+        of finished materials, and ``failed``), ``materials`` (every material any file
+        holds a cell of, sorted), ``scenes`` (every scene of the protocol), ``by``,
+        ``protocol`` (the settings shared) and ``sources``.
 
     Raises
     ------
     ConfigError
-        A file that is not a bench's results, or results of different protocols.
+        A file that is not a bench's results, results of different protocols or speed
+        settings, or one file or run given twice.
     """
     check_choice("ranking", by, tuple(RANK_BY))
     if not paths:
         raise ConfigError("give at least one results file")
     runs = [(str(p), read_results(p)) for p in paths]
+    _check_distinct_runs(paths, runs)
     _check_same_protocol(runs)
+    _check_speed_settings(runs)
     scenes = list(dict.fromkeys(s for _, d in runs for s in scenes_of(d)))
+    materials = sorted({c["material"] for _, d in runs for c in d["cells"].values()})
     rows = [r for name, d in runs for r in _rows_of(name, d, scenes)]
-    higher = RANK_BY[by]
-
-    def order(r):
-        v = r[by]
-        return (math.isnan(v), -v if higher else v)
-
-    rows.sort(key=order)
-    for i, r in enumerate(rows, 1):
+    ranked = [r for r in rows if r["finished"] >= set(materials)]
+    unranked = sorted((r for r in rows if r not in ranked),
+                      key=lambda r: (-r["materials"], r["model"], r["source"]))
+    ranked.sort(key=lambda r: nan_last(r[by], RANK_BY[by]))
+    for i, r in enumerate(ranked, 1):
         r["rank"] = i
+    for r in rows:
+        del r["finished"]
     protocol = {k: runs[0][1]["config"].get(k) for k in PROTOCOL_SETTINGS}
-    return {"rows": rows, "scenes": scenes, "by": by, "protocol": protocol,
-            "sources": [name for name, _ in runs]}
+    return {"rows": ranked, "unranked": unranked, "materials": materials, "scenes": scenes,
+            "by": by, "protocol": protocol, "sources": [name for name, _ in runs]}
 
 
 def _fmt(x, fmt: str) -> str:
@@ -147,17 +193,31 @@ def ranking_markdown(merged: dict) -> str:
                  *(_fmt(r[k], _FORMATS[k]) for k in RANK_BY),
                  *(_fmt(r[f"{k}@{s}"], _FORMATS[k]) for s in merged["scenes"] for k in RANK_BY)]
         lines.append("| " + " | ".join(cells) + " |")
+    n = len(merged["materials"])
+    lines[2] += f" Ranked over the {n} materials every ranked model finished."
+    if merged["unranked"]:
+        lines += ["", "## Not ranked: did not finish every material", "",
+                  f"Their figures would be over fewer materials than the ranking's {n}, so "
+                  "they are not set beside it.", "",
+                  "| model | source | materials finished | failed |", "|---|---|---|---|"]
+        lines += [f"| {r['model']} | {r['source']} | {r['materials']} of {n} | {r['failed']} |"
+                  for r in merged["unranked"]]
     return "\n".join(lines) + "\n"
 
 
 def ranking_csv(merged: dict) -> str:
-    """The ranked table as CSV, one row per model, every figure in full precision."""
+    """The ranked table as CSV, one row per model, every figure in full precision; then
+    the unranked models with an empty rank, their counts of finished and failed
+    materials, and no figures."""
     keys = ["rank", "model", "source", "machine", "materials", "failed", "bytes",
             "evals_per_s", *RANK_BY, *(f"{k}@{s}" for s in merged["scenes"] for k in RANK_BY)]
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=keys, extrasaction="ignore", lineterminator="\n")
     w.writeheader()
     w.writerows(merged["rows"])
+    # the unranked models: an empty rank, their counts, no figures
+    w.writerows({k: r[k] for k in ("model", "source", "machine", "materials", "failed")}
+                for r in merged["unranked"])
     return buf.getvalue()
 
 

@@ -18,13 +18,16 @@ from pathlib import Path
 from ..errors import ConfigError
 from ..fileio import require_file
 
-__all__ = ["PROTOCOL_SETTINGS", "SCHEMA", "environment", "read_results"]
+__all__ = ["PROTOCOL_SETTINGS", "SCHEMA", "SPEED_SETTINGS", "environment", "read_results"]
 
 #: The version of the results.json schema written (docs/bench-guide.md).
 SCHEMA = "sparse-brdf-bench/1"
 #: The config settings that fix what a result measures: two results files are comparable
 #: (``bench-merge``) only when these agree.
 PROTOCOL_SETTINGS = ("corpora", "split", "max_materials", "scenes", "spp", "res", "seed")
+#: The config settings of the speed measurement: evaluations per second of two results
+#: files are compared (``bench-merge``) only when these agree.
+SPEED_SETTINGS = ("speed", "speed_evals")
 #: The top-level keys every results file of :data:`SCHEMA` holds.
 _REQUIRED = ("schema", "config", "provenance", "cells", "noise_floor", "speed")
 #: Largest results file read (a full bench's is a few MB).
