@@ -112,7 +112,7 @@ def test_a_failing_model_never_stops_the_bench_nor_its_reports(user_dir, capsys,
     assert "internal error" not in err and f"{len(failed)} of " in err
     for name in ("report.md", "report.html", "results.json", "results.csv"):
         assert (out / name).is_file(), name
-    cells = json.loads((out / "results.json").read_text())["cells"]
+    cells = _strict_json((out / "results.json").read_text())["cells"]
     got = {k: c["error"] for k, c in cells.items() if c["status"] == "failed"}
     assert got == failed
     assert all(c["status"] == "finished" for k, c in cells.items() if k not in failed)
@@ -251,3 +251,66 @@ def test_merge_refuses_one_run_twice_and_other_speed_settings(tmp_path, capsys):
     (folder / "results.json").write_text(json.dumps(data))
     assert main(["bench-merge", str(a), str(folder), "-o", str(tmp_path / "out")]) == 2
     assert "the same run as" in capsys.readouterr().err
+
+
+def _strict_json(text: str):
+    """``text`` parsed as strict JSON: Infinity, -Infinity and NaN refused."""
+    def refuse(name):
+        raise ValueError(f"not strict JSON: {name}")
+
+    return json.loads(text, parse_constant=refuse)
+
+
+def test_results_json_is_strict_and_keeps_its_infinities(tmp_path):
+    from sparse_brdf.evaluation.results_file import (
+        SCHEMA,
+        parse_results,
+        read_results,
+        results_text,
+    )
+
+    data = {"schema": SCHEMA, "config": {}, "provenance": {}, "noise_floor": {}, "speed": {},
+            "cells": {"mitsuba/a~b|tab/x": {"cos_snr": math.inf,
+                                             "renders": {"sphere": {"snr_object": -math.inf,
+                                                                    "snr_whole": 30.0,
+                                                                    "flip": math.nan}}}},
+            "curves": {"mitsuba/a": {"rae": [0.1, math.inf]}}}
+    text = results_text(data)
+    strict = _strict_json(text)
+    cell = strict["cells"]["mitsuba/a~b|tab/x"]
+    assert cell["cos_snr"] is None and cell["renders"]["sphere"]["snr_whole"] == 30.0
+    assert strict["non_finite"]["/cells/mitsuba~1a~0b|tab~1x/cos_snr"] == "inf"
+    back = parse_results(text)
+    cell = back["cells"]["mitsuba/a~b|tab/x"]
+    assert cell["cos_snr"] == math.inf and cell["renders"]["sphere"]["snr_object"] == -math.inf
+    assert math.isnan(cell["renders"]["sphere"]["flip"])
+    assert back["curves"]["mitsuba/a"]["rae"] == [0.1, math.inf] and "non_finite" not in back
+    # a file of the old schema, Infinity and all, reads as before
+    old = tmp_path / "old.json"
+    old.write_text(json.dumps({**data, "schema": "sparse-brdf-bench/1"}))
+    assert "Infinity" in old.read_text()
+    assert read_results(old)["cells"]["mitsuba/a~b|tab/x"]["cos_snr"] == math.inf
+
+
+def test_a_bench_resumes_an_old_results_file_and_rewrites_it_strict(tmp_path):
+    from sparse_brdf.evaluation.bench import Bench
+    from sparse_brdf.evaluation.bench_config import BenchConfig
+    from sparse_brdf.evaluation.results_file import SCHEMA
+
+    cfg = BenchConfig(corpora=["mitsuba"], max_materials=1, models=["tabulated"],
+                      render=False, stability=False, speed=False, out=str(tmp_path / "b"))
+    old = Bench(cfg, progress=False).results
+    old.pop("run")
+    old["schema"] = "sparse-brdf-bench/1"
+    old["cells"]["mitsuba/al-ggx-0.3|tabulated"] = {
+        "material": "mitsuba/al-ggx-0.3", "model": "tabulated", "status": "finished",
+        "fit_s": 0.1, "bytes": 10, "rae": 0.0, "cos_snr": math.inf, "gamma_mse": 0.0}
+    (tmp_path / "b").mkdir()
+    (tmp_path / "b" / "results.json").write_text(json.dumps(old))
+    bench = Bench(cfg, progress=False)
+    assert bench.results["cells"] == old["cells"] and bench.results["schema"] == SCHEMA
+    bench.run()  # nothing to run: the one cell is finished
+    strict = _strict_json((tmp_path / "b" / "results.json").read_text())
+    assert strict["schema"] == SCHEMA and len(strict["run"]) == 32
+    assert strict["cells"]["mitsuba/al-ggx-0.3|tabulated"]["cos_snr"] is None
+    assert Bench(cfg, progress=False).results["cells"] == old["cells"]

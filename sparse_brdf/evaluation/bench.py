@@ -63,7 +63,7 @@ from .html_report import write_html_report
 from .images import read_exr, write_exr
 from .render import SHARED_PATHS, noise_floor_snr, object_mask, render_scene
 from .report import failed_cells, write_report
-from .results_file import SCHEMA, environment
+from .results_file import READ_SCHEMAS, SCHEMA, environment, parse_results, results_text
 from .scenes import SceneSpec, check_scene_data, parse_scene_spec
 from .speed import evals_per_second
 from .stability import run_stability
@@ -101,8 +101,10 @@ class Bench:
                  "provenance": self._provenance(), "cells": {}, "curves": {},
                  "noise_floor": {}, "speed": {}, "skipped_scenes": {}}
         if p.is_file():
-            data = json.loads(p.read_text())
-            if all(data.get(k) == fresh[k] for k in ("schema", "config", "provenance")):
+            data = parse_results(p.read_text())
+            if data.get("schema") in READ_SCHEMAS and all(
+                    data.get(k) == fresh[k] for k in ("config", "provenance")):
+                data["schema"] = SCHEMA  # a version-1 file is rewritten as strict JSON
                 data.setdefault("run", fresh["run"])  # a file from before run ids
                 return data
             if self.work.is_dir():  # cached renders and files of the old results
@@ -111,7 +113,7 @@ class Bench:
 
     def _save(self) -> None:
         with atomic_write(self.out / "results.json", "w") as f:
-            json.dump(self.results, f, indent=1)
+            f.write(results_text(self.results))
 
     def materials(self) -> list:
         """The materials the bench evaluates (:func:`evaluated_materials`)."""
