@@ -15,6 +15,8 @@ of :func:`staged`.
 from __future__ import annotations
 
 import contextlib
+import json
+import math
 import os
 import secrets
 import signal
@@ -277,3 +279,56 @@ def _create_temporary(path: Path, suffix: str, output: Path) -> str:
             if not isinstance(exc, FileExistsError):
                 raise
     raise FileExistsError(f"{path}: no free temporary name beside it")
+
+
+def _strict(value, pointer: str, non_finite: dict):
+    """``value`` with every non-finite float replaced by None, each recorded in
+    ``non_finite`` as ``{JSON Pointer: "inf" | "-inf" | "nan"}``."""
+    if isinstance(value, float) and not math.isfinite(value):
+        non_finite[pointer] = "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
+        return None
+    if isinstance(value, dict):  # RFC 6901 escapes "~" and "/" in a key
+        return {k: _strict(v, f"{pointer}/{str(k).replace('~', '~0').replace('/', '~1')}",
+                           non_finite) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_strict(v, f"{pointer}/{i}", non_finite) for i, v in enumerate(value)]
+    return value
+
+
+def strict_json(data: dict) -> str:
+    """``data`` as strict JSON text (RFC 8259, which ``JSON.parse`` and ``jq`` read),
+    indented, losing no number.
+
+    Parameters
+    ----------
+    data : dict
+        Any JSON-able mapping whose numbers may be infinite or nan.
+
+    Returns
+    -------
+    str
+        JSON where every non-finite number is ``null`` and the top-level ``non_finite``
+        maps each one's JSON Pointer (``/cells/KEY/cos_snr``) to ``"inf"``, ``"-inf"``
+        or ``"nan"``; :func:`parse_strict_json` puts them back.
+    """
+    non_finite: dict[str, str] = {}
+    body = _strict({k: v for k, v in data.items() if k != "non_finite"}, "", non_finite)
+    return json.dumps({**body, "non_finite": non_finite}, indent=1, allow_nan=False)
+
+
+def parse_strict_json(text: str):
+    """The data of :func:`strict_json`'s ``text``, the numbers its ``non_finite`` lists
+    put back and ``non_finite`` dropped; JSON without it (``Infinity`` and ``NaN`` too)
+    reads as :func:`json.loads` reads it. Raises :class:`json.JSONDecodeError` on text
+    that is not JSON."""
+    data = json.loads(text)
+    nf = data.pop("non_finite", None) if isinstance(data, dict) else None
+    for pointer, what in (nf or {}).items():
+        *path, last = [t.replace("~1", "/").replace("~0", "~") for t in pointer.split("/")[1:]]
+        node = data
+        with contextlib.suppress(KeyError, IndexError, ValueError, TypeError):
+            for t in path:  # a pointer to nothing leaves the null
+                node = node[int(t)] if isinstance(node, list) else node[t]
+            if isinstance(node, list) or last in node:
+                node[int(last) if isinstance(node, list) else last] = float(what)
+    return data

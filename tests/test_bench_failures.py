@@ -262,12 +262,8 @@ def _strict_json(text: str):
 
 
 def test_results_json_is_strict_and_keeps_its_infinities(tmp_path):
-    from sparse_brdf.evaluation.results_file import (
-        SCHEMA,
-        parse_results,
-        read_results,
-        results_text,
-    )
+    from sparse_brdf.evaluation.results_file import SCHEMA, read_results
+    from sparse_brdf.fileio import parse_strict_json, strict_json
 
     data = {"schema": SCHEMA, "config": {}, "provenance": {}, "noise_floor": {}, "speed": {},
             "cells": {"mitsuba/a~b|tab/x": {"cos_snr": math.inf,
@@ -275,12 +271,12 @@ def test_results_json_is_strict_and_keeps_its_infinities(tmp_path):
                                                                     "snr_whole": 30.0,
                                                                     "flip": math.nan}}}},
             "curves": {"mitsuba/a": {"rae": [0.1, math.inf]}}}
-    text = results_text(data)
+    text = strict_json(data)
     strict = _strict_json(text)
     cell = strict["cells"]["mitsuba/a~b|tab/x"]
     assert cell["cos_snr"] is None and cell["renders"]["sphere"]["snr_whole"] == 30.0
     assert strict["non_finite"]["/cells/mitsuba~1a~0b|tab~1x/cos_snr"] == "inf"
-    back = parse_results(text)
+    back = parse_strict_json(text)
     cell = back["cells"]["mitsuba/a~b|tab/x"]
     assert cell["cos_snr"] == math.inf and cell["renders"]["sphere"]["snr_object"] == -math.inf
     assert math.isnan(cell["renders"]["sphere"]["flip"])

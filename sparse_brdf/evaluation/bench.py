@@ -46,7 +46,7 @@ from ..errors import (
     MissingDataError,
     one_line,
 )
-from ..fileio import atomic_write
+from ..fileio import atomic_write, parse_strict_json, strict_json
 from ..metrics import cosine_weighted_snr, gamma_mse, hdr_flip, rae, snr_forms
 from ..parallel import Executor, InProcess
 from ..sources.merl import write_merl
@@ -63,7 +63,7 @@ from .html_report import write_html_report
 from .images import read_exr, write_exr
 from .render import SHARED_PATHS, noise_floor_snr, object_mask, render_scene
 from .report import failed_cells, write_report
-from .results_file import READ_SCHEMAS, SCHEMA, environment, parse_results, results_text
+from .results_file import READ_SCHEMAS, SCHEMA, environment
 from .scenes import SceneSpec, check_scene_data, parse_scene_spec
 from .speed import evals_per_second
 from .stability import run_stability
@@ -101,7 +101,7 @@ class Bench:
                  "provenance": self._provenance(), "cells": {}, "curves": {},
                  "noise_floor": {}, "speed": {}, "skipped_scenes": {}}
         if p.is_file():
-            data = parse_results(p.read_text())
+            data = parse_strict_json(p.read_text())
             if data.get("schema") in READ_SCHEMAS and all(
                     data.get(k) == fresh[k] for k in ("config", "provenance")):
                 data["schema"] = SCHEMA  # a version-1 file is rewritten as strict JSON
@@ -113,7 +113,7 @@ class Bench:
 
     def _save(self) -> None:
         with atomic_write(self.out / "results.json", "w") as f:
-            f.write(results_text(self.results))
+            f.write(strict_json(self.results))
 
     def materials(self) -> list:
         """The materials the bench evaluates (:func:`evaluated_materials`)."""

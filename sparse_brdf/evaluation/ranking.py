@@ -46,30 +46,18 @@ def _mean(xs) -> float:
 
 
 def _check_same_protocol(runs: list[tuple[str, dict]]) -> None:
-    """:class:`ConfigError` naming the first setting where two results files differ."""
+    """:class:`ConfigError` naming the first setting where two results files differ: a
+    protocol setting, or a speed setting between two files that both measured speeds."""
     first, base = runs[0]
     for name, data in runs[1:]:
-        for key in PROTOCOL_SETTINGS:
+        timed = base["config"].get("speed", True) and data["config"].get("speed", True)
+        for key in PROTOCOL_SETTINGS + SPEED_SETTINGS[:1 + bool(timed)]:
             a, b = base["config"].get(key), data["config"].get(key)
             if a != b:
-                raise ConfigError(f"{name}: measured with {key} = {b!r}, {first} with "
-                                  f"{a!r}: results of different protocols are not ranked "
-                                  "together")
-
-
-def _check_speed_settings(runs: list[tuple[str, dict]]) -> None:
-    """:class:`ConfigError` naming the first speed setting where two results files that
-    measured speeds differ (evaluations per second are compared across files)."""
-    first, base = runs[0]
-    for name, data in runs[1:]:
-        for key in SPEED_SETTINGS:
-            a, b = base["config"].get(key), data["config"].get(key)
-            if key != "speed" and not (base["config"].get("speed", True)
-                                       and data["config"].get("speed", True)):
-                continue  # a run that measured no speed: its other speed settings are moot
-            if a != b:
-                raise ConfigError(f"{name}: speeds measured with {key} = {b!r}, {first} with "
-                                  f"{a!r}: their evaluations per second are not ranked "
+                what = ("speeds measured", "evaluations per second") \
+                    if key in SPEED_SETTINGS else ("measured", "results")
+                raise ConfigError(f"{name}: {what[0]} with {key} = {b!r}, {first} with "
+                                  f"{a!r}: {what[1]} of different protocols are not ranked "
                                   "together")
 
 
@@ -149,7 +137,6 @@ def merge_results(paths: list[str | os.PathLike], by: str = "snr_object") -> dic
     runs = [(str(p), read_results(p)) for p in paths]
     _check_distinct_runs(paths, runs)
     _check_same_protocol(runs)
-    _check_speed_settings(runs)
     scenes = list(dict.fromkeys(s for _, d in runs for s in scenes_of(d)))
     materials = sorted({c["material"] for _, d in runs for c in d["cells"].values()})
     rows = [r for name, d in runs for r in _rows_of(name, d, scenes)]

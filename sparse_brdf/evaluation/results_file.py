@@ -1,7 +1,8 @@
 """A bench's ``results.json``: its schema's version, and reading one back with checks.
 
 The schema is documented in ``docs/bench-guide.md`` ("results.json"); :data:`SCHEMA`
-names its version and changes whenever a field changes meaning or goes. A bench resumes
+names its version and changes whenever a field changes meaning or goes. The file is
+strict JSON (:func:`~sparse_brdf.fileio.strict_json`: non-finite numbers as null). A bench resumes
 only results of its own schema, config and provenance; :func:`read_results` is how any
 other reader (``sparse-brdf bench-merge``) gets one, checked.
 """
@@ -9,7 +10,6 @@ other reader (``sparse-brdf bench-merge``) gets one, checked.
 from __future__ import annotations
 
 import json
-import math
 import os
 import platform
 from datetime import UTC, datetime
@@ -17,10 +17,10 @@ from importlib import metadata
 from pathlib import Path
 
 from ..errors import ConfigError
-from ..fileio import require_file
+from ..fileio import parse_strict_json, require_file
 
 __all__ = ["PROTOCOL_SETTINGS", "READ_SCHEMAS", "SCHEMA", "SPEED_SETTINGS", "environment",
-           "parse_results", "read_results", "results_text"]
+           "read_results"]
 
 #: The version of the results.json schema written (docs/bench-guide.md). Version 2 is
 #: strict JSON: a non-finite number is written null and listed in ``non_finite``.
@@ -37,75 +37,6 @@ SPEED_SETTINGS = ("speed", "speed_evals")
 _REQUIRED = ("schema", "config", "provenance", "cells", "noise_floor", "speed")
 #: Largest results file read (a full bench's is a few MB).
 _MAX_BYTES = 1 << 30
-
-
-def _pointer_part(key: str) -> str:
-    """One JSON Pointer reference token (RFC 6901): ``~`` and ``/`` escaped."""
-    return str(key).replace("~", "~0").replace("/", "~1")
-
-
-def _strict(value, pointer: str, non_finite: dict):
-    """``value`` with every non-finite float replaced by None, recorded in
-    ``non_finite`` as ``{pointer: "inf" | "-inf" | "nan"}``."""
-    if isinstance(value, float) and not math.isfinite(value):
-        non_finite[pointer] = "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
-        return None
-    if isinstance(value, dict):
-        return {k: _strict(v, f"{pointer}/{_pointer_part(k)}", non_finite)
-                for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_strict(v, f"{pointer}/{i}", non_finite) for i, v in enumerate(value)]
-    return value
-
-
-def results_text(data: dict) -> str:
-    """A bench's results as the text of ``results.json``: strict JSON (RFC 8259), which
-    ``JSON.parse`` and ``jq`` read.
-
-    Parameters
-    ----------
-    data : dict
-        The results, whose figures may be infinite (an SNR of a render identical to the
-        reference) or nan.
-
-    Returns
-    -------
-    str
-        Indented JSON where every non-finite number is ``null``, and the top-level
-        ``non_finite`` maps each one's JSON Pointer (``/cells/KEY/renders/SCENE/snr_object``)
-        to ``"inf"``, ``"-inf"`` or ``"nan"``; :func:`parse_results` restores them.
-    """
-    non_finite: dict[str, str] = {}
-    body = _strict({k: v for k, v in data.items() if k != "non_finite"}, "", non_finite)
-    return json.dumps({**body, "non_finite": non_finite}, indent=1, allow_nan=False)
-
-
-def parse_results(text: str) -> dict:
-    """Results from the text of a ``results.json``, the non-finite numbers of
-    ``non_finite`` put back (a version-1 file's ``Infinity`` and ``NaN`` are read as they
-    are); ``non_finite`` itself is dropped.
-
-    Raises
-    ------
-    json.JSONDecodeError
-        Not JSON.
-    """
-    data = json.loads(text)
-    if not isinstance(data, dict):
-        return data
-    for pointer, what in (data.pop("non_finite", None) or {}).items():
-        *path, last = [t.replace("~1", "/").replace("~0", "~") for t in pointer.split("/")[1:]]
-        node = data
-        try:
-            for t in path:
-                node = node[int(t)] if isinstance(node, list) else node[t]
-            if isinstance(node, list):
-                node[int(last)] = float(what)
-            elif last in node:
-                node[last] = float(what)
-        except (KeyError, IndexError, ValueError, TypeError):
-            continue  # a pointer to nothing: the null stays
-    return data
 
 
 def _package_version() -> str:
@@ -144,7 +75,7 @@ def read_results(path: str | os.PathLike) -> dict:
     if p.stat().st_size > _MAX_BYTES:
         raise ConfigError(f"{p}: {p.stat().st_size} bytes: too large for a bench results file")
     try:
-        data = parse_results(p.read_bytes().decode("utf-8"))
+        data = parse_strict_json(p.read_bytes().decode("utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{p}: not a JSON file: {exc}") from None
     if not isinstance(data, dict) or "cells" not in data or "config" not in data:
