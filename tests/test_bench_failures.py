@@ -310,3 +310,17 @@ def test_a_bench_resumes_an_old_results_file_and_rewrites_it_strict(tmp_path):
     assert strict["schema"] == SCHEMA and len(strict["run"]) == 32
     assert strict["cells"]["mitsuba/al-ggx-0.3|tabulated"]["cos_snr"] is None
     assert Bench(cfg, progress=False).results["cells"] == old["cells"]
+
+
+@pytest.mark.render
+def test_decoded_tables_are_deleted_unless_kept(user_dir, capsys):
+    rc, out = _bench(user_dir, ["naive", "failmodels:Fails"], 1)
+    assert rc == 0, capsys.readouterr().err
+    work = out / "work"
+    assert (work / "sphere" / "mitsuba__al-ggx-0.3__naive.exr").is_file()  # renders stay
+    assert not list(work.rglob("*.binary"))
+    (out / "results.json").unlink()  # run again from scratch, keeping the tables
+    rc, out = _bench(user_dir, ["naive", "failmodels:Fails"], 1, "--keep-work")
+    assert rc == 0, capsys.readouterr().err
+    assert sorted(p.name for p in (out / "work").rglob("*.binary")) == [
+        "mitsuba__al-ggx-0.3__naive.binary", "mitsuba__al-ggx-0.3__reference.binary"]

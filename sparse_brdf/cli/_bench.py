@@ -47,7 +47,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
               f"{', '.join(plan['scenes']) or 'none'}{skipped}")
         return 0
     with executor(args.workers, args.scheduler) as ex:
-        Bench(cfg).run(ex)
+        Bench(cfg, keep_work=args.keep_work).run(ex)
     print(f"wrote {cfg.out}/report.md, report.html, results.csv, results.json")
     return 0
 
@@ -104,6 +104,11 @@ def add_bench_commands(sub) -> None:
                         "...) or module:Class[:KEY=VALUE,...], a class of your own imported "
                         "from the Python path or the current directory "
                         "(docs/bench-guide.md; default: the config's models)")
+    b.add_argument("--keep-work", action="store_true",
+                   help="keep the decoded tables (work/*.binary, about 35 MB per material "
+                        "and model) after each cell; renders, HDR-FLIP maps and .sbrdf files "
+                        "are kept either way (default: off, each cell's tables are deleted "
+                        "once it is done)")
     b.add_argument("--check", action="store_true",
                    help="check the config (settings, models, corpora, training materials, "
                         "scenes) and exit without running it")

@@ -71,10 +71,11 @@ from .stability import run_stability
 __all__ = ["Bench"]
 
 class Bench:
-    """Runs a :class:`BenchConfig`; results accumulate in ``self.results``."""
+    """Runs a :class:`BenchConfig`; results accumulate in ``self.results``. Decoded tables
+    (``work/*.binary``, 35 MB each) are deleted once used unless ``keep_work``."""
 
-    def __init__(self, cfg: BenchConfig, progress: bool = True):
-        self.cfg = cfg
+    def __init__(self, cfg: BenchConfig, progress: bool = True, keep_work: bool = False):
+        self.cfg, self.keep_work = cfg, keep_work
         self.out = Path(cfg.out)
         self.work = self.out / "work"
         self.progress = progress
@@ -149,6 +150,8 @@ class Bench:
         mats = self.materials()
         self._train(models, mats)
         self._run_cells(ex or InProcess(), ens, models, mats)
+        for table in [] if self.keep_work else self.work.glob("*__reference.binary"):
+            table.unlink(missing_ok=True)  # written again if a later run needs it
         finished = {c["model"] for c in self.results["cells"].values()
                     if c.get("status") == "finished"}
         # a model none of whose cells finished has no speed: it would rank what failed
@@ -355,20 +358,24 @@ class Bench:
             if self.cfg.render and self.scenes:
                 base = self.work / f"{file_stem(key)}__{model.name}"
                 if "model" in info:
-                    path = str(save_sbrdf(base.with_suffix(".sbrdf"), info["model"],
+                    path = str(save_sbrdf(base.parent / f"{base.name}.sbrdf", info["model"],
                                           info.get("version", VERSION)))
                 else:
-                    path = str(write_merl(base.with_suffix(".binary"),
+                    path = str(write_merl(base.parent / f"{base.name}.binary",
                                           BRDF(rec, brdf.valid, brdf.name)))
                 ref_file = self._reference_file(key, brdf)
                 row["renders"] = {}
-                for scene in self.scenes:
-                    ref, _ = self._render(scene, key, ref_file, self.cfg.seed, "reference")
-                    img, secs = self._render(scene, key, path, self.cfg.seed, model.name)
-                    row["renders"][scene] = {**snr_forms(ref, img, self._mask(scene)).as_dict(),
-                                             "flip": self._flip(scene, key, model.name, ref,
-                                                                img),
-                                             "render_s": secs}
+                try:
+                    for scene in self.scenes:
+                        ref, _ = self._render(scene, key, ref_file, self.cfg.seed, "reference")
+                        img, secs = self._render(scene, key, path, self.cfg.seed, model.name)
+                        row["renders"][scene] = {
+                            **snr_forms(ref, img, self._mask(scene)).as_dict(),
+                            "flip": self._flip(scene, key, model.name, ref, img),
+                            "render_s": secs}
+                finally:  # the decoded table: 35 MB, rendered now, cached as renders
+                    if not self.keep_work and path.endswith(".binary"):
+                        Path(path).unlink(missing_ok=True)
             if self.cell_speed:
                 self._speed(model, compact)
             row["status"] = "finished"
