@@ -27,14 +27,14 @@ from ._options import (
 
 def cmd_train(args: argparse.Namespace) -> int:
     """``train``: an ensemble trained on corpora, saved as ``.npz``."""
-    materials = []
-    for name in args.corpus:
-        materials += get_corpus(name).split(args.split)
+    check_outputs([(args.output, ENSEMBLE_NPZ, "-o")], [args.extend])
     shape = check_grid(args.grid, "--grid")
     if max(args.taus) > math.prod(shape):
         raise UsageError(f"--taus {max(args.taus)}: a tensor of that grid has only "
                          f"{math.prod(shape)} coefficients")
-    check_outputs([(args.output, ENSEMBLE_NPZ, "-o")], [args.extend])
+    materials = []
+    for name in args.corpus:
+        materials += get_corpus(name).split(args.split)
     t0 = time.perf_counter()
     data = training_data(materials, args.transform, shape, basis=args.basis,
                          symmetrize=args.symmetrize)
