@@ -16,6 +16,8 @@ import pytest
 from sparse_brdf.evaluation.bench import Bench
 from sparse_brdf.evaluation.bench_config import BenchConfig
 
+pytestmark = pytest.mark.render  # the module's fixture runs a bench
+
 
 def _chromium() -> str | None:
     """A Chromium to run headless: $SPARSE_BRDF_CHROMIUM, else chromium on the PATH."""
