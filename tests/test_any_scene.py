@@ -324,3 +324,62 @@ def test_readme_own_scene_example_runs(tmp_path, monkeypatch):
     flags = env["leaf"].bsdf().flags()
     assert mi.has_flag(flags, mi.BSDFFlags.BackSide) and mi.has_flag(flags,
                                                                      mi.BSDFFlags.FrontSide)
+
+
+INCLUDE = SCENE.parent / "include" / "main.xml"
+
+
+@pytest.mark.render
+def test_included_files_are_read_as_mitsuba_reads_them(tmp_path, capsys):
+    """``tests/data/include/main.xml`` takes its shapes, BSDFs and the parameters res and
+    max_depth from included files (an include inside an include, relative to its own
+    file): the ids, ``$``-parameters and data files found there are the scene's, and the
+    scene rendered with nothing replaced is Mitsuba's own render of the file."""
+    import mitsuba as mi
+
+    from sparse_brdf.mitsuba_env import set_variant
+
+    out = tmp_path / "x.exr"
+    code, text, err = run(capsys, "render", INCLUDE, "-o", out, "--material",
+                          f"paint={PAINT}", "--res", 8, "--spp", 1, "-D", "max_depth=2")
+    assert code == 0, err
+    assert read_exr(out).shape == (8, 8, 3) and "8x8" in text  # $res of parts/shapes.xml
+    # the scene as it is: exactly what Mitsuba renders from the file itself
+    set_variant("llvm_ad_rgb")
+    theirs = mi.render(mi.load_file(str(INCLUDE), res=8, max_depth=2, spp=2), spp=2)
+    theirs = np.array(theirs, dtype=np.float32)
+    ours = render_scene(INCLUDE, None, spp=2, res=8, params={"max_depth": 2})
+    assert np.array_equal(ours, theirs) and ours.mean() > 0.01
+    # -D max_depth reaches the integrator that an included default sets: one bounce
+    # less is darker where the wall lights the ball
+    deeper = render_scene(INCLUDE, None, spp=2, res=8, params={"max_depth": 3})
+    assert deeper.sum() > ours.sum()
+    # the replaced BSDF is the included one: the ball turns from diffuse to plastic
+    swapped = render_scene(INCLUDE, {"paint": PAINT}, spp=2, res=8,
+                           params={"max_depth": 2})
+    assert not np.array_equal(swapped, ours)
+    ball = object_mask(INCLUDE, res=8, materials=["paint"])
+    change = np.abs(swapped - ours).sum(-1)
+    assert 0 < ball.sum() < 64 and change[ball].mean() > 3 * change[~ball].mean()
+    # the ids of every file are listed; a parameter of none is refused naming them
+    fails(capsys, "render", INCLUDE, "-o", out, "--material", f"nothere={PAINT}",
+          names=["--material nothere", "paint, wall"])
+    fails(capsys, "render", INCLUDE, "-o", out, "-D", "width=3",
+          names=["-D width", "max_depth, res, spp"])
+
+
+def test_include_mistakes_are_one_line_naming_the_including_file(tmp_path, capsys):
+    """A missing included file, an included file that is not XML, and includes in a
+    cycle: one line naming the including file, before any work."""
+    out = tmp_path / "x.exr"
+    main_xml = tmp_path / "main.xml"
+    main_xml.write_text('<scene version="3.0.0"><include filename="parts/a.xml"/></scene>')
+    fails(capsys, "render", main_xml, "-o", out, names=[str(main_xml), "parts/a.xml",
+                                                        "not there"])
+    (tmp_path / "parts").mkdir()
+    (tmp_path / "parts" / "a.xml").write_text('<scene><include filename="b.xml"/></scene>')
+    (tmp_path / "parts" / "b.xml").write_text("<scene><bsdf")
+    fails(capsys, "render", main_xml, "-o", out, names=["b.xml", "not a valid scene XML"])
+    (tmp_path / "parts" / "b.xml").write_text('<scene><include filename="a.xml"/></scene>')
+    fails(capsys, "render", main_xml, "-o", out, names=["b.xml", "a.xml", "cycle"])
+    assert not out.exists()

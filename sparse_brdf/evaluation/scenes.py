@@ -22,11 +22,11 @@ from ..errors import (
     InputFileError,
     MissingDataError,
     MissingFileError,
-    SceneError,
     SparseBRDFError,
     UnknownNameError,
     UsageError,
 )
+from ..mitsuba_env import read_scene_xml
 from ..params import SEED, Interval
 from ..paths import SCENES_DIR, shared_envmaps_dir
 
@@ -198,13 +198,10 @@ def _without_traceback(msg: str) -> str:
 
 
 def parse_scene(scene_path: str | os.PathLike) -> ET.ElementTree:
-    """A scene's XML tree; :class:`SceneError` naming the file if it is malformed."""
-    try:
-        return ET.parse(scene_path)
-    except ET.ParseError as exc:
-        raise SceneError(f"{scene_path}: not a valid scene XML file: {exc}") from exc
-    except UnicodeDecodeError as exc:
-        raise SceneError(f"{scene_path}: not a valid scene XML file ({exc.reason})") from exc
+    """A scene's XML tree, its ``<include>`` elements replaced by what they include, as
+    Mitsuba reads them (:func:`sparse_brdf.mitsuba_env.read_scene_xml`): the tree is
+    the scene Mitsuba loads, and written out it loads the same way."""
+    return read_scene_xml(scene_path)
 
 
 def _abs_source(value: str | os.PathLike, base: Path) -> str:
