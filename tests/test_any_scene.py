@@ -383,3 +383,41 @@ def test_include_mistakes_are_one_line_naming_the_including_file(tmp_path, capsy
     (tmp_path / "parts" / "b.xml").write_text('<scene><include filename="a.xml"/></scene>')
     fails(capsys, "render", main_xml, "-o", out, names=["b.xml", "a.xml", "cycle"])
     assert not out.exists()
+
+
+TWO_BOXES = SCENE.parent / "two_boxes.xml"
+
+
+@pytest.mark.render
+def test_one_bsdf_on_many_meshes_is_the_object(tmp_path, capsys):
+    """``tests/data/two_boxes.xml``: two cubes share the BSDF ``box`` and carry no ids, so
+    Mitsuba merges them into one mesh; the object is still both boxes, in ``object_mask``,
+    ``render --mask`` and ``snr --scene --material box``."""
+    mask = object_mask(TWO_BOXES, materials=["box"])
+    assert mask.shape == (16, 16) and 20 < mask.sum() < 0.4 * mask.size
+    cols = np.flatnonzero(mask.any(0))  # a box left of the centre and one right of it
+    assert cols.min() < 8 and cols.max() >= 8 and mask[:, :8].any() and mask[:, 8:].any()
+    # one ray per pixel: every hit is a box or a wall, never both
+    boxes, walls = (object_mask(TWO_BOXES, materials=m, subsamples=1)
+                    for m in (["box"], ["white", "red"]))
+    assert boxes.any() and not (boxes & walls).any()
+    assert np.array_equal(boxes | walls, object_mask(TWO_BOXES, subsamples=1))
+    a, b, m = tmp_path / "a.exr", tmp_path / "b.exr", tmp_path / "m.exr"
+    common = ["--material", f"box={PAINT}", "--spp", 2, "--sampling", "cosine"]
+    code, out, err = run(capsys, "render", TWO_BOXES, "-o", a, "--mask", m, *common)
+    assert code == 0, err
+    assert np.array_equal(read_mask(m), mask) and f"{int(mask.sum())} of 256" in out
+    assert run(capsys, "render", TWO_BOXES, "-o", b, "--seed", 1, *common)[0] == 0
+    code, out, err = run(capsys, "snr", a, b, "--scene", TWO_BOXES, "--material", "box",
+                         "--json")
+    assert code == 0, err
+    assert json.loads(out)["object_pixels"] == int(mask.sum())
+    # one box's BSDF a wrapper without an id around the shared one: still both boxes
+    text = TWO_BOXES.read_text()
+    last = text.rindex('<ref id="box"/>')
+    wrapped = tmp_path / "wrapped.xml"
+    wrapped.write_text(text[:last] + '<bsdf type="twosided"><ref id="box"/></bsdf>'
+                       + text[last + len('<ref id="box"/>'):])
+    assert np.array_equal(object_mask(wrapped, materials=["box"]), mask)
+    # a wrapper with the id (as the two-sided Cornell box's walls): its shapes
+    assert object_mask(SCENE.parent / "back_face.xml", materials=["red"]).all()

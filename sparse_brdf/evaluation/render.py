@@ -279,26 +279,30 @@ def render_scene(
     return out
 
 
-#: Prefix of the ids given to shapes without one, to find them in the loaded scene.
-_SHAPE_ID = "__object_"
+#: Prefix of the ids given to shapes' own BSDFs without one, to find them when loaded.
+_BSDF_ID = "__object_bsdf_"
 
 
-def _carrying_shapes(root: ET.Element, materials: Iterable[str]) -> list[ET.Element]:
-    """The ``<shape>`` elements that carry one of the BSDFs ``materials`` (ids): directly,
-    by reference, or inside a BSDF that wraps it (``twosided``, ``blendbsdf``)."""
-    carrying = set(materials)
-    grown = True
-    while grown:  # a wrapper with an id carries what it wraps
-        grown = False
-        for el in root.iter("bsdf"):
-            eid = el.get("id")
-            if eid and eid not in carrying and any(
-                    d is not el and d.tag in ("bsdf", "ref") and d.get("id") in carrying
-                    for d in el.iter()):
-                carrying.add(eid)
-                grown = True
-    return [s for s in root.iter("shape")
-            if any(d.tag in ("bsdf", "ref") and d.get("id") in carrying for d in s.iter())]
+def _carried_bsdfs(root: ET.Element, materials: Iterable[str]) -> set[str]:
+    """The ids of the BSDFs that shapes shade with (a shape's own ``<bsdf>`` or
+    ``<ref>``) which are, or wrap (``twosided``, ``blendbsdf``), one of the BSDFs
+    ``materials`` (ids); a shape's own BSDF without an id is given one. Mitsuba keeps a
+    BSDF's id when it merges the meshes that share it (dropping theirs)."""
+    carrying, size = set(materials), -1
+    while size != len(carrying):  # a wrapper with an id carries what it wraps
+        size = len(carrying)
+        carrying |= {el.get("id") for el in root.iter("bsdf") if el.get("id") and any(
+            d is not el and d.tag in ("bsdf", "ref") and d.get("id") in carrying
+            for d in el.iter())}
+    out = set()
+    for i, shape in enumerate(root.iter("shape")):
+        own = next((c for c in shape if c.tag == "bsdf" or c.tag == "ref"
+                    and c.get("id") in carrying), None)
+        if own is not None and any(d.tag in ("bsdf", "ref") and d.get("id") in carrying
+                                   for d in own.iter()):
+            own.set("id", own.get("id") or f"{_BSDF_ID}{i}")
+            out.add(own.get("id"))
+    return out
 
 
 def object_mask(
@@ -329,10 +333,7 @@ def object_mask(
 
     def tag(root: ET.Element) -> None:
         check_bsdf_ids(scene_path, wanted, root=root)
-        for i, shape in enumerate(_carrying_shapes(root, wanted)):
-            if not shape.get("id"):
-                shape.set("id", f"{_SHAPE_ID}{i}")
-            ids.add(shape.get("id"))
+        ids.update(_carried_bsdfs(root, wanted))
 
     scene = load_scene(scene_path, None, spp=1, res=res, variant=variant, params=params,
                        _edit=None if wanted is None else tag)
@@ -348,8 +349,8 @@ def object_mask(
     hit = pi.is_valid()
     if wanted is not None:
         on = dr.zeros(mi.Bool, dr.width(hit))
-        for shape in scene.shapes():
-            if shape.id() in ids:
+        for shape in scene.shapes():  # by its BSDF: merged meshes have no ids
+            if shape.bsdf() is not None and shape.bsdf().id() in ids:
                 on |= pi.shape == mi.ShapePtr(shape)
         hit = hit & on
     dr.eval(hit)
