@@ -19,6 +19,16 @@ from .params import check_choice
 
 #: The CPU vectorised variant the project renders with.
 DEFAULT_VARIANT = "llvm_ad_rgb"
+#: The variants of Mitsuba 3.9's wheel that run on the CPU (every one tested, also from
+#: the command line, ``render --variant``), and those that need an NVIDIA GPU (untested).
+CPU_VARIANTS: tuple[str, ...] = (
+    "scalar_rgb", "scalar_spectral", "scalar_spectral_polarized", "llvm_ad_rgb",
+    "llvm_ad_mono", "llvm_ad_mono_polarized", "llvm_ad_spectral",
+    "llvm_ad_spectral_polarized")
+CUDA_VARIANTS: tuple[str, ...] = tuple(v.replace("llvm", "cuda") for v in CPU_VARIANTS
+                                       if v.startswith("llvm"))
+#: Every variant a render may ask for.
+VARIANTS: tuple[str, ...] = CPU_VARIANTS + CUDA_VARIANTS
 _MIN_LLVM = 16
 
 #: The environment variable that makes Dr.Jit's LLVM backend compile for another CPU
@@ -126,13 +136,18 @@ def set_llvm_target(spec: str) -> tuple[str, int]:
 
 
 def set_variant(variant: str = DEFAULT_VARIANT) -> str:
-    """Set the Mitsuba variant (checking LLVM for llvm_* variants) and return its name.
+    """Set the Mitsuba variant (one of :data:`VARIANTS`; checking LLVM for llvm_*
+    variants) and return its name.
 
     For an llvm_* variant, ``$SPARSE_BRDF_LLVM_TARGET`` (when set) chooses the CPU its
     kernels are compiled for (:func:`set_llvm_target`).
     """
     import mitsuba as mi  # lazy: Mitsuba is slow to import (see the module doc)
 
+    check_choice("variant", variant, VARIANTS)
+    if variant not in mi.variants():
+        raise MitsubaSetupError(f"variant {variant}: not in this Mitsuba build (it has "
+                                f"{', '.join(mi.variants())})")
     if variant.startswith("llvm"):
         mi.set_variant(variant)
         check_llvm()
@@ -155,6 +170,21 @@ def variant(name: str = DEFAULT_VARIANT) -> Iterator[str]:
     finally:
         if before is not None and before != name:
             mi.set_variant(before)
+
+
+@contextlib.contextmanager
+def files_found_in(folders: list[Path]) -> Iterator[None]:
+    """Let Mitsuba look relative file names up in ``folders`` (in order, before its own
+    search path) within the block."""
+    import mitsuba as mi  # lazy: Mitsuba is slow to import (see the module doc)
+
+    saved = mi.FileResolver(mi.file_resolver())
+    for folder in reversed(folders):
+        mi.file_resolver().prepend(str(folder))
+    try:
+        yield
+    finally:
+        mi.set_file_resolver(saved)
 
 
 def read_scene_xml(scene_path: str | os.PathLike) -> ET.ElementTree:

@@ -19,6 +19,7 @@ from sparse_brdf.errors import MissingDataError, UsageError
 from sparse_brdf.evaluation.images import preview, read_exr, read_mask
 from sparse_brdf.evaluation.render import film_size, load_scene, object_mask, render_scene
 from sparse_brdf.evaluation.scenes import check_scene_data, scene_xml
+from sparse_brdf.mitsuba_env import CPU_VARIANTS
 
 SCENE = Path(__file__).resolve().parent / "data" / "still_life.xml"
 PAINT = "mitsuba:plastic-red-ggx-0.3"
@@ -421,3 +422,39 @@ def test_one_bsdf_on_many_meshes_is_the_object(tmp_path, capsys):
     assert np.array_equal(object_mask(wrapped, materials=["box"]), mask)
     # a wrapper with the id (as the two-sided Cornell box's walls): its shapes
     assert object_mask(SCENE.parent / "back_face.xml", materials=["red"]).all()
+
+
+@pytest.mark.render
+@pytest.mark.parametrize("variant", CPU_VARIANTS)
+def test_every_cpu_variant_renders_from_the_command_line_and_python(variant, tmp_path,
+                                                                     capsys):
+    """``render --variant V`` and ``render_scene(variant=V)``: a spectral variant's image
+    is RGB (Mitsuba's film converts it), a mono variant's one channel (Y in an EXR, a
+    greyscale PNG)."""
+    import OpenEXR
+
+    scene = SCENE.parent / "back_face.xml"
+    mono = "mono" in variant
+    img = render_scene(scene, {"red": PAINT}, spp=1, res=8, variant=variant)
+    assert img.shape == (8, 8, 1 if mono else 3) and np.isfinite(img).all()
+    assert img.mean() > 0.01 and (mono or img[..., 0].mean() > 2 * img[..., 2].mean())
+    exr, png = tmp_path / "a.exr", tmp_path / "a.png"
+    for out in (exr, png):
+        code, text, err = run(capsys, "render", scene, "-o", out, "--variant", variant,
+                              "--material", f"red={PAINT}", "--res", 8, "--spp", 1)
+        assert code == 0 and variant in text, err
+    with OpenEXR.File(str(exr)) as f:
+        assert sorted(f.channels()) == (["Y"] if mono else ["RGB"])
+        written = np.asarray(f.channels()["Y" if mono else "RGB"].pixels)
+    # the same render (scalar polarized ones vary in the last bit from run to run)
+    np.testing.assert_allclose(written, img[..., 0] if mono else img, rtol=1e-5, atol=1e-7)
+    with Image.open(png) as im:
+        assert im.mode == ("L" if mono else "RGB") and im.size == (8, 8)
+
+
+def test_an_unknown_variant_is_refused(tmp_path, capsys):
+    fails(capsys, "render", SCENE, "-o", tmp_path / "a.exr", "--variant", "scalar_mono",
+          names=["--variant", "scalar_mono"])
+    with pytest.raises(UsageError, match="variant.*rgb_ad_llvm"):
+        render_scene(SCENE, None, spp=1, variant="rgb_ad_llvm")
+    assert list(tmp_path.iterdir()) == []

@@ -30,6 +30,7 @@ from ..evaluation.scenes import (
 )
 from ..fileio import staged
 from ..metrics import FLIP, OBJECT_ONLY, WHOLE_IMAGE, hdr_flip, snr_forms
+from ..mitsuba_env import VARIANTS
 from ..params import Interval
 from ._options import IMAGE, MASK, RENDER, check_outputs, default_of, typed
 
@@ -50,7 +51,8 @@ def cmd_render(args: argparse.Namespace) -> int:
     defines = parse_defaults(args.define, "-D")
     check_parameters(scene, defines, "-D")
     img = render_scene(scene, materials, spp=args.spp, seed=args.seed, res=args.res,
-                       params=defines, sparse_options=opts, sampling=args.sampling)
+                       params=defines, sparse_options=opts, sampling=args.sampling,
+                       variant=args.variant)
     mask = None
     if args.mask:
         mask = object_mask(scene, res=(img.shape[1], img.shape[0]), params=defines,
@@ -61,7 +63,8 @@ def cmd_render(args: argparse.Namespace) -> int:
         if mask is not None:
             write_mask(tmp[1], mask)
     print(f"wrote {args.output} ({img.shape[1]}x{img.shape[0]}, {args.spp} spp, "
-          f"{args.sampling} sampling, {seconds:.2f} s)")
+          f"{args.sampling} sampling, {args.variant}"
+          f"{', one channel' if img.shape[2] == 1 else ''}, {seconds:.2f} s)")
     if mask is not None:
         print(f"wrote {args.mask} (object mask: pixels whose camera rays first hit a shape "
               f"of {', '.join(materials)}; {int(mask.sum())} of {mask.size})")
@@ -210,6 +213,12 @@ def add_render(sub) -> None:
                         "unless its tables would be too large")
     r.add_argument("--ensemble", help="ensemble .npz for .sbrdf materials "
                    "(default: the shipped one each file names)")
+    r.add_argument("--variant", default=default_of(render_scene, "variant"),
+                   choices=VARIANTS, metavar="VARIANT",
+                   help="Mitsuba's variant (%(choices)s; the CUDA ones need an NVIDIA "
+                        "GPU). A spectral variant's image is RGB, converted by Mitsuba's "
+                        "film; a mono variant's is one channel: Y in an .exr, a greyscale "
+                        ".png/.jpg")
     r.add_argument("--mask", metavar="MASK.exr",
                    help="also write the object mask (.exr or .npy; 1 where camera rays first "
                         "hit a shape of a replaced material), for `sparse-brdf snr --mask` "

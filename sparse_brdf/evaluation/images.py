@@ -24,19 +24,28 @@ from ..fileio import atomic_path, atomic_write, output_name, require_file
 # ------------------------------------------------------------------------------- EXR
 
 
+def _pixels(path: Path, img: np.ndarray) -> np.ndarray:
+    """``img`` as float32 (H, W, 3), or (H, W, 1) (a mono variant's render); else an
+    :class:`ImageFileError` naming ``path``."""
+    arr = np.ascontiguousarray(np.asarray(img, dtype=np.float32))
+    if arr.ndim != 3 or arr.shape[2] not in (1, 3):
+        raise ImageFileError(f"{path}: expected an image of shape (H, W, 3), or (H, W, 1) "
+                             f"in a mono variant, got {arr.shape}")
+    return arr
+
+
 def write_exr(path: str | os.PathLike, img: np.ndarray) -> Path:
-    """Write a linear float32 RGB image (H, W, 3) as an EXR file, atomically;
+    """Write a linear float32 RGB image (H, W, 3), or a mono one (H, W, 1) as its one
+    channel ``Y`` (as Mitsuba writes it), as an EXR file, atomically;
     :class:`OutputError` naming ``path`` if the system refuses (a full disk, a file size
     limit), with nothing left behind."""
     path = Path(path)
-    arr = np.ascontiguousarray(np.asarray(img, dtype=np.float32))
-    if arr.ndim != 3 or arr.shape[2] != 3:
-        raise ImageFileError(f"{path}: expected an image of shape (H, W, 3), got "
-                             f"{arr.shape}")
+    arr = _pixels(path, img)
     import OpenEXR  # lazy: only image commands need it, every command imports this module
 
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    with atomic_path(path, suffix=".exr") as tmp, OpenEXR.File(header, {"RGB": arr}) as f:
+    channels = {"RGB": arr} if arr.shape[2] == 3 else {"Y": arr[..., 0]}
+    with atomic_path(path, suffix=".exr") as tmp, OpenEXR.File(header, channels) as f:
         try:
             f.write(str(tmp))
         except RuntimeError as exc:  # OpenEXR's I/O errors (ENOSPC, EFBIG, ...)
@@ -76,22 +85,22 @@ def write_image(path: str | os.PathLike, img: np.ndarray, exposure: float = 0.0)
     """Write a linear RGB image (H, W, 3) by its suffix, atomically: ``.exr`` as linear
     float32 (``exposure`` unused), ``.png``/``.jpg``/``.jpeg`` as an 8-bit sRGB preview
     (:func:`preview`, ``exposure`` in stops); another suffix is an
-    :class:`~sparse_brdf.errors.OutputError`."""
+    :class:`~sparse_brdf.errors.OutputError`. A mono image (H, W, 1) is written as one
+    channel: ``Y`` in an EXR, a greyscale preview."""
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix == ".exr":
         return write_exr(path, img)
     if suffix not in IMAGE_SUFFIXES:
         raise OutputError(f"{path}: an image is written as {', '.join(IMAGE_SUFFIXES)}")
-    arr = np.asarray(img)
-    if arr.ndim != 3 or arr.shape[2] != 3:
-        raise ImageFileError(f"{path}: expected an image of shape (H, W, 3), got "
-                             f"{arr.shape}")
+    arr = preview(_pixels(path, img), exposure)
     from PIL import Image  # lazy: only previews need it (Pillow comes with matplotlib)
 
     fmt = "PNG" if suffix == ".png" else "JPEG"
+    grey = arr.shape[2] == 1
     with atomic_write(path, "wb") as f:
-        Image.fromarray(preview(arr, exposure), "RGB").save(f, format=fmt, quality=95)
+        Image.fromarray(arr[..., 0] if grey else arr, "L" if grey else "RGB").save(
+            f, format=fmt, quality=95)
     return path
 
 

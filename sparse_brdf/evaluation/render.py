@@ -11,10 +11,9 @@ on its first sensor's sampler and the resolution on its film (aspect ratio kept)
 :func:`object_mask` gives the pixels of the object-only SNR: those whose camera rays first
 hit a shape carrying one of the replaced materials. Images are written by suffix
 (:mod:`sparse_brdf.evaluation.images`: ``.exr`` linear, ``.png``/``.jpg`` an sRGB
-preview). Errors raised
-inside a render surface as "drjit.custom ... (see above)"; :class:`RenderError` carries
-the real message from the ``__cause__`` chain (``docs/method.md``, "Rendering with
-Mitsuba").
+preview). Errors raised inside a render surface as "drjit.custom ... (see above)";
+:class:`RenderError` carries the real message from the ``__cause__`` chain
+(``docs/method.md``, "Rendering with Mitsuba").
 
 Mitsuba, Dr.Jit and :mod:`mitsuba_plugin` are imported inside the functions that render,
 so that ``import sparse_brdf`` and ``sparse-brdf --help`` never load them.
@@ -242,8 +241,10 @@ def render_scene(
     tabulated_options: Mapping[str, object] | None = None,
     sampling: str | None = None,
 ) -> np.ndarray:
-    """Render ``scene_path`` (any Mitsuba 3 scene file) and return a linear float32 image
-    of shape (H, W, 3).
+    """Render ``scene_path`` (any Mitsuba 3 scene file) in Mitsuba's ``variant`` (one of
+    :data:`~sparse_brdf.mitsuba_env.VARIANTS`) and return a linear float32 image of shape
+    (H, W, 3): RGB, a spectral variant's converted by Mitsuba's film; (H, W, 1) in the
+    mono ones.
 
     ``materials`` maps BSDF ids to BRDF sources: a ``.sbrdf`` file becomes
     ``sparse_brdf``, anything else ``tabulated_brdf`` (MERL ``.binary``, ``.h5``,
@@ -268,8 +269,8 @@ def render_scene(
         out = np.array(img, dtype=np.float32)
     except Exception as exc:  # noqa: BLE001 - re-raised with the cause's message
         raise RenderError(f"{scene_path}: rendering failed: {cause_message(exc)}") from exc
-    if out.ndim != 3 or out.shape[2] < 3:
-        raise RenderError(f"{scene_path}: expected an RGB image, got shape {out.shape}")
+    if out.ndim != 3 or out.shape[2] < 3 and out.shape[2] != 1:  # mono variants: 1
+        raise RenderError(f"{scene_path}: expected an image, got shape {out.shape}")
     out = np.ascontiguousarray(out[..., :3])
     bad = int(out.size - np.count_nonzero(np.isfinite(out)))
     if bad:  # e.g. a material whose values overflow float32 where the camera sees it

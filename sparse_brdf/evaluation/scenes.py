@@ -14,7 +14,7 @@ import contextlib
 import os
 import re
 import xml.etree.ElementTree as ET
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import NamedTuple
 
@@ -26,7 +26,7 @@ from ..errors import (
     UnknownNameError,
     UsageError,
 )
-from ..mitsuba_env import read_scene_xml
+from ..mitsuba_env import files_found_in, read_scene_xml
 from ..params import SEED, Interval
 from ..paths import SCENES_DIR, shared_envmaps_dir
 
@@ -197,11 +197,8 @@ def _without_traceback(msg: str) -> str:
     return re.sub(r"^At string \(line \d+, col \d+\):\s*", "", head).strip()
 
 
-def parse_scene(scene_path: str | os.PathLike) -> ET.ElementTree:
-    """A scene's XML tree, its ``<include>`` elements replaced by what they include, as
-    Mitsuba reads them (:func:`sparse_brdf.mitsuba_env.read_scene_xml`): the tree is
-    the scene Mitsuba loads, and written out it loads the same way."""
-    return read_scene_xml(scene_path)
+#: A scene's XML tree, its ``<include>``s inlined as Mitsuba reads them (the one reader).
+parse_scene = read_scene_xml
 
 
 def _abs_source(value: str | os.PathLike, base: Path) -> str:
@@ -434,16 +431,7 @@ def check_scene_data(scene_path: str | os.PathLike,
                                f"in {looked}); copy it beside the scene or fix the path")
 
 
-@contextlib.contextmanager
-def scene_dir_resolver(scene_path: Path) -> Iterator[None]:
+def scene_dir_resolver(scene_path: Path) -> contextlib.AbstractContextManager:
     """Let Mitsuba resolve the scene's relative paths (envmaps/...) from
     :func:`data_search_path`."""
-    import mitsuba as mi  # lazy: Mitsuba is slow to import (see the module doc)
-
-    saved = mi.FileResolver(mi.file_resolver())
-    for folder in reversed(data_search_path(scene_path)):
-        mi.file_resolver().prepend(str(folder))
-    try:
-        yield
-    finally:
-        mi.set_file_resolver(saved)
+    return files_found_in(data_search_path(scene_path))
