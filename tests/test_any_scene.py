@@ -458,3 +458,68 @@ def test_an_unknown_variant_is_refused(tmp_path, capsys):
     with pytest.raises(UsageError, match="variant.*rgb_ad_llvm"):
         render_scene(SCENE, None, spp=1, variant="rgb_ad_llvm")
     assert list(tmp_path.iterdir()) == []
+
+
+def _scene_with_the_plugin(folder: Path, name: str = "scene.xml") -> Path:
+    """still_life.xml in ``folder`` with its paint a ``sparse_brdf`` BSDF reading
+    gold.sbrdf beside it (written once per folder)."""
+    if not (folder / "gold.sbrdf").exists():
+        assert main(["encode", PAINT, "-o", str(folder / "gold.sbrdf"), "--coeffs", "16"]) == 0
+    old = '<bsdf type="roughplastic" id="paint">'
+    text = SCENE.read_text()
+    assert old in text
+    scene = folder / name
+    scene.write_text(text.replace(old, '<bsdf type="sparse_brdf" id="paint">\n'
+                                  '        <string name="filename" value="gold.sbrdf"/>\n'
+                                  '    </bsdf>\n    <bsdf type="roughplastic" id="unused">'))
+    return scene
+
+
+@pytest.mark.render
+def test_render_takes_mitsubas_command_line(tmp_path, capsys, monkeypatch):
+    """``sparse-brdf render`` in place of ``mitsuba``: the scenes first, several in one
+    call, each written beside its scene or into the ``-o`` folder as SCENE.exr; ``-D
+    spp=N`` as Mitsuba takes it; ``-m VARIANT``; a scene whose BSDF is ``sparse_brdf``,
+    which Mitsuba's own command cannot load."""
+    import shutil
+    import subprocess
+    import sys
+
+    a = _scene_with_the_plugin(tmp_path, "a.xml")
+    (tmp_path / "sub").mkdir()
+    b = _scene_with_the_plugin(tmp_path / "sub", "b.xml")
+    mitsuba = shutil.which("mitsuba", path=str(Path(sys.executable).parent))
+    if mitsuba:  # Mitsuba's own command knows no sparse_brdf
+        done = subprocess.run([mitsuba, str(a)], capture_output=True, text=True, timeout=120,
+                              cwd=tmp_path)
+        said = done.stdout + done.stderr
+        assert done.returncode != 0 and "sparse_brdf" in said and "not found" in said
+    code, out, err = run(capsys, "render", a, b, "-D", "spp=1", "--res", 24, "-m",
+                         "scalar_rgb")
+    assert code == 0, err
+    for image in (tmp_path / "a.exr", tmp_path / "sub" / "b.exr"):
+        assert read_exr(image).shape == (16, 24, 3) and f"wrote {image}" in out
+    assert "1 spp" in out and "scalar_rgb" in out
+    code, out, err = run(capsys, "render", a, b, "-o", f"{tmp_path}/out/", "--spp", 1,
+                         "--res", 24)
+    assert code == 0, err
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["a.exr", "b.exr"]
+    # the image is the scene's as the plugin renders it (-D spp=1 is --spp 1)
+    one = render_scene(a, None, spp=1, res=24)
+    assert np.array_equal(read_exr(tmp_path / "out" / "a.exr"), one) and one.mean() > 0
+    # a shipped scene given by name is written to the current folder
+    monkeypatch.chdir(tmp_path / "out")
+    assert run(capsys, "render", "sphere", "--spp", 1, "--res", 8)[0] == 0
+    assert (tmp_path / "out" / "sphere.exr").is_file()
+    # mistakes: one line, before any work
+    before = sorted(p.name for p in tmp_path.rglob("*"))
+    fails(capsys, "render", a, b, "-o", tmp_path / "one.exr",
+          names=["-o", "one.exr", "2 scenes", "folder"])
+    fails(capsys, "render", a, "-D", "spp=2", "--spp", 3, names=["-D spp=2", "--spp 3"])
+    fails(capsys, "render", a, "-D", "spp=0", names=["-D spp"])
+    fails(capsys, "render", a, a, "-o", f"{tmp_path}/out2/", names=["a.exr", "two scenes"])
+    fails(capsys, "render", a, b, "--material", f"paint={PAINT}", "--mask",
+          tmp_path / "m.exr", names=["--mask", "2 scenes"])
+    fails(capsys, "render", a, SCENE.parent / "back_face.xml", "--material",
+          f"paint={PAINT}", names=["--material paint", "back_face.xml"])
+    assert sorted(p.name for p in tmp_path.rglob("*")) == before

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 from pathlib import Path
 
@@ -36,39 +37,90 @@ from ._options import IMAGE, MASK, RENDER, check_outputs, default_of, typed
 
 
 def cmd_render(args: argparse.Namespace) -> int:
-    """``render``: a scene with materials replaced, and its object mask on request."""
+    """``render``: scenes with materials replaced, and an object mask on request; taken
+    as Mitsuba's own ``mitsuba`` command takes them (several scenes, ``-o``, ``-D``)."""
     opts = {"decoder": args.decoder}
     if args.ensemble:
         opts["ensemble"] = args.ensemble
     t0 = time.perf_counter()
-    scene, materials = find_scene(args.scene), parse_overrides(args.material)
-    check_bsdf_ids(scene, materials, "--material")
+    scenes, materials = [find_scene(s) for s in args.scene], parse_overrides(args.material)
+    for scene in scenes:
+        check_bsdf_ids(scene, materials, "--material")
     if args.mask and not materials:
         raise UsageError("--mask: the object is the shapes of the replaced materials; give "
                          "--material ID=FILE")
-    check_outputs([(args.output, IMAGE, "-o"), (args.mask, MASK, "--mask")],
-                   [scene, *materials.values(), args.ensemble])
-    defines = parse_defaults(args.define, "-D")
-    check_parameters(scene, defines, "-D")
-    img = render_scene(scene, materials, spp=args.spp, seed=args.seed, res=args.res,
-                       params=defines, sparse_options=opts, sampling=args.sampling,
-                       variant=args.variant)
+    if args.mask and len(scenes) > 1:
+        raise UsageError(f"--mask {args.mask}: one mask for {len(scenes)} scenes; render "
+                         "each scene with its own --mask")
+    outputs = _outputs(args.output, args.scene, scenes)
+    check_outputs([*((o, IMAGE, "-o") for o in outputs), (args.mask, MASK, "--mask")],
+                  [*scenes, *materials.values(), args.ensemble])
+    defines = _settings_from_defines(args)
+    for scene in scenes:
+        check_parameters(scene, defines, "-D")
+    images = [render_scene(scene, materials, spp=args.spp, seed=args.seed, res=args.res,
+                           params=defines, sparse_options=opts, sampling=args.sampling,
+                           variant=args.variant) for scene in scenes]
     mask = None
     if args.mask:
-        mask = object_mask(scene, res=(img.shape[1], img.shape[0]), params=defines,
-                           materials=list(materials))
+        mask = object_mask(scenes[0], res=(images[0].shape[1], images[0].shape[0]),
+                           params=defines, materials=list(materials))
     seconds = time.perf_counter() - t0
-    with staged([args.output, *([args.mask] if args.mask else [])]) as tmp:
-        write_image(tmp[0], img, args.exposure)
+    with staged([*outputs, *([args.mask] if args.mask else [])]) as tmp:
+        for path, img in zip(tmp[:len(images)], images, strict=True):
+            write_image(path, img, args.exposure)
         if mask is not None:
-            write_mask(tmp[1], mask)
-    print(f"wrote {args.output} ({img.shape[1]}x{img.shape[0]}, {args.spp} spp, "
-          f"{args.sampling} sampling, {args.variant}"
-          f"{', one channel' if img.shape[2] == 1 else ''}, {seconds:.2f} s)")
+            write_mask(tmp[-1], mask)
+    for out, img in zip(outputs, images, strict=True):
+        print(f"wrote {out} ({img.shape[1]}x{img.shape[0]}, {args.spp} spp, "
+              f"{args.sampling} sampling, {args.variant}"
+              f"{', one channel' if img.shape[2] == 1 else ''}, {seconds:.2f} s)")
     if mask is not None:
         print(f"wrote {args.mask} (object mask: pixels whose camera rays first hit a shape "
               f"of {', '.join(materials)}; {int(mask.sum())} of {mask.size})")
     return 0
+
+
+def _outputs(output: str | None, given: list[str], scenes: list[Path]) -> list[Path]:
+    """Each scene's image, where Mitsuba's command writes it: ``-o FILE`` (one scene);
+    ``-o DIR`` (an existing folder, or a name ending with a separator) as DIR/SCENE.exr;
+    without ``-o``, SCENE.exr beside the scene file (a shipped scene's, given by name,
+    in the current folder)."""
+    folder = output is not None and (Path(output).is_dir() or output.endswith(("/", os.sep)))
+    if output is not None and not folder:
+        if len(scenes) > 1:
+            raise UsageError(f"-o {output}: one file for {len(scenes)} scenes; give a folder "
+                             "(-o DIR/: each image is DIR/SCENE.exr), or no -o (each beside "
+                             "its scene)")
+        return [Path(output)]
+    out = [(Path(output) if folder else scene.parent if Path(name).is_file() else Path())
+           / f"{scene.stem}.exr" for name, scene in zip(given, scenes, strict=True)]
+    twice = sorted({str(o) for o in out if out.count(o) > 1})
+    if twice:
+        raise UsageError(f"{twice[0]}: two scenes of one name would both be written there; "
+                         "render them one at a time with -o")
+    return out
+
+
+def _settings_from_defines(args: argparse.Namespace) -> dict[str, str]:
+    """``-D`` as Mitsuba's command takes it: ``-D spp=N``, ``seed=N`` and ``res=N`` set
+    what ``--spp``, ``--seed`` and ``--res`` set (on ``args``; one given both ways with
+    two values is refused); the rest are the scene's parameters (name -> value)."""
+    rest = []
+    for item in args.define:
+        key, eq, value = (t.strip() for t in item.partition("="))
+        if not eq or key not in RENDER:
+            rest.append(item)
+            continue
+        try:
+            number = typed(RENDER[key])(value)
+        except argparse.ArgumentTypeError as exc:
+            raise UsageError(f"-D {key}: {exc}") from None
+        if getattr(args, key) not in (number, default_of(render_scene, key)):
+            raise UsageError(f"-D {key}={value}: --{key} {getattr(args, key)} given too; "
+                             "give one")
+        setattr(args, key, number)
+    return parse_defaults(rest, "-D")
 
 
 def _read_image(path: str, like: tuple[str, object] | None = None):
@@ -167,8 +219,16 @@ def add_render(sub) -> None:
         description="Render any Mitsuba 3 scene file with some of its BSDFs (by id) replaced "
                     "by measured materials. spp, seed and the resolution fill the scene's "
                     "$spp, $seed and $res where it declares them, and are set on its "
-                    "sampler and film otherwise; a scene's other parameters are set with -D.",
-        epilog="examples:\n  sparse-brdf convert mitsuba:au-ggx-0.08 gold.binary\n"
+                    "sampler and film otherwise; a scene's other parameters are set with -D. "
+                    "It takes Mitsuba's own command line (scenes first, -o, -D KEY=VALUE, "
+                    "-m VARIANT): `sparse-brdf render scene.xml` renders what `mitsuba "
+                    "scene.xml` would, and also scenes whose BSDFs are of type sparse_brdf, "
+                    "tabulated_brdf or neural_brdf, for which `mitsuba` says \"Plugin not "
+                    "found\" (the plugins register from Python).",
+        epilog="examples:\n  sparse-brdf render scene.xml other.xml -D spp=16 -o out/   "
+               "# as `mitsuba scene.xml other.xml ...`, whose plugin lookup knows no "
+               "sparse_brdf\n"
+               "  sparse-brdf convert mitsuba:au-ggx-0.08 gold.binary\n"
                "  sparse-brdf encode gold.binary -o gold.sbrdf\n"
                "  sparse-brdf render sphere -o ref.exr --material material=gold.binary "
                f"--sampling {SHARED_PATHS}\n"
@@ -177,18 +237,23 @@ def add_render(sub) -> None:
                "  sparse-brdf snr ref.exr model.exr --mask mask.exr\n"
                "  sparse-brdf render sphere -o look.png --material material=gold.sbrdf "
                "--exposure 1")
-    r.add_argument("scene", help="scene XML: any Mitsuba 3 scene file, or the name of a "
-                                 "shipped scene (sphere, spheres, sphere_light, paper_sphere)")
-    r.add_argument("-o", "--output", required=True,
+    r.add_argument("scene", nargs="+",
+                   help="scene XML: any Mitsuba 3 scene file, or the name of a shipped scene "
+                        "(sphere, spheres, sphere_light, paper_sphere); several are rendered "
+                        "one after the other, as Mitsuba's `mitsuba` command does")
+    r.add_argument("-o", "--output",
                    help="output image: .exr (linear HDR, float32) or .png/.jpg (an 8-bit "
-                        "sRGB preview, see --exposure)")
+                        "sRGB preview, see --exposure); or a folder (an existing one, or "
+                        "DIR/) that gets SCENE.exr per scene (default: SCENE.exr beside each "
+                        "scene file, a shipped scene's in the current folder)")
     r.add_argument("--material", action="append", default=[], metavar="ID=FILE",
                    help="replace BSDF ID: a .sbrdf selects sparse_brdf, any other BRDF "
                         "source tabulated_brdf (repeatable; default: none, the scene as it "
                         "is)")
     r.add_argument("-D", "--define", action="append", default=[], metavar="KEY=VALUE",
-                   help="set a parameter the scene uses as $KEY, e.g. -D envrot=90 "
-                        "(repeatable; default: the scene's values)")
+                   help="set a parameter the scene uses as $KEY, e.g. -D envrot=90; "
+                        "-D spp=N, seed=N, res=N are --spp, --seed, --res (repeatable; "
+                        "default: the scene's values)")
     r.add_argument("--spp", type=typed(RENDER["spp"]), default=default_of(render_scene, "spp"),
                    help="samples per pixel")
     r.add_argument("--seed", type=typed(RENDER["seed"]), default=default_of(render_scene, "seed"),
@@ -213,7 +278,7 @@ def add_render(sub) -> None:
                         "unless its tables would be too large")
     r.add_argument("--ensemble", help="ensemble .npz for .sbrdf materials "
                    "(default: the shipped one each file names)")
-    r.add_argument("--variant", default=default_of(render_scene, "variant"),
+    r.add_argument("-m", "--variant", default=default_of(render_scene, "variant"),
                    choices=VARIANTS, metavar="VARIANT",
                    help="Mitsuba's variant (%(choices)s; the CUDA ones need an NVIDIA "
                         "GPU). A spectral variant's image is RGB, converted by Mitsuba's "
