@@ -3,7 +3,7 @@
     .venv/bin/python benchmarks/bench_eval.py [--material SOURCE] [--corpus NAME]
         [--n 1048576] [--repeats 5] [--rounds 3] [--pca-train 30] [--json PATH]
 
-Times :func:`sparse_brdf.evaluation.speed.evals_per_second` on one material for: the
+Times :func:`sparse_brdf.benchmark.speed.evals_per_second` on one material for: the
 full table (``tabulated_brdf`` plugin), the sparse model at 32 / 128 / 262 coefficients
 per channel (``sparse_brdf`` plugin, grouped and strict decoders; the shipped ensemble),
 and the baselines through their own Dr.Jit evaluators (``mitsuba_plugin.evaluators``):
@@ -32,11 +32,11 @@ import warnings
 import numpy as np
 from harness import header, machine, parser, write_json
 
+from sparse_brdf.benchmark.speed import evals_per_second
 from sparse_brdf.coding.ensemble import Ensemble
 from sparse_brdf.compared.baselines import PCAModel, TabulatedModel
 from sparse_brdf.compared.sparse_model import SparseModel
 from sparse_brdf.compared.specs import make_model
-from sparse_brdf.evaluation.speed import evals_per_second
 from sparse_brdf.paths import shared_data_dir
 from sparse_brdf.sources.corpora import get_corpus
 from sparse_brdf.sources.load import load_brdf

@@ -28,10 +28,10 @@ import numpy as np
 from harness import header, machine, write_json
 from render_timing import default_material, render_cases, scene_args, swap_material, timed_render
 
+from sparse_brdf.benchmark.speed import eval_rate
 from sparse_brdf.coding.encode import encode
 from sparse_brdf.coding.ensemble import Ensemble
 from sparse_brdf.coding.fileformat import save_sbrdf
-from sparse_brdf.evaluation.speed import eval_rate
 from sparse_brdf.fileio import atomic_write
 from sparse_brdf.mitsuba_env import set_variant
 from sparse_brdf.paths import SCENES_DIR

@@ -7,7 +7,7 @@ peers``), with each model's evaluations per second measured in one process.
 Means (and minima) of the rendering SNR per corpus, scene and form, over the cells whose
 metrics and renders are complete (the cell's ``renders`` columns), whatever the cell's
 status says (a cell whose speed step failed after its renders still counts). The speed
-axis: ``evaluation.speed.evals_per_second`` of every model on one material, all in this
+axis: ``benchmark.speed.evals_per_second`` of every model on one material, all in this
 process one after another (Neural-BRDF trained for one epoch: its cost per lookup does not
 depend on its weights; PCA on 5 training materials: its evaluator's cost does not depend
 on them either).
@@ -24,9 +24,9 @@ import numpy as np
 from harness import header, parser, write_json
 
 from sparse_brdf import get_corpus, load_brdf
+from sparse_brdf.benchmark.report import speed_accuracy_chart
+from sparse_brdf.benchmark.speed import evals_per_second
 from sparse_brdf.compared.specs import make_model
-from sparse_brdf.evaluation.report import speed_accuracy_chart
-from sparse_brdf.evaluation.speed import evals_per_second
 
 SCENES = ("paper_sphere", "sphere")
 FORMS = ("snr_object", "snr_whole")

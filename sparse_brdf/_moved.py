@@ -69,7 +69,6 @@ MOVED_NAMES: dict[str, tuple[str, ...]] = {
     "sparse_brdf.decoders.layouts": ("sparse_brdf.decoders.buffers",),
     "sparse_brdf.evaluation.render": ("sparse_brdf.evaluation.scenes",
                                       "sparse_brdf.evaluation.images"),
-    "sparse_brdf.evaluation.bench": ("sparse_brdf.evaluation.bench_config",),
     "sparse_brdf.fitting.fit_images": ("sparse_brdf.fitting._steps",),
 }
 

@@ -30,12 +30,12 @@ from pathlib import Path
 
 import numpy as np
 
+from .benchmark.bench import Bench
+from .benchmark.bench_config import BenchConfig
+from .benchmark.report import noise_floor_means, scenes_of, summary_table
 from .coding.encode import DEFAULT_N_COEFFS, encode
 from .coding.ensemble import Ensemble
 from .coding.fileformat import save_sbrdf
-from .evaluation.bench import Bench
-from .evaluation.bench_config import BenchConfig
-from .evaluation.report import noise_floor_means, scenes_of, summary_table
 from .fileio import atomic_path, atomic_write
 from .metrics import OBJECT_ONLY, WHOLE_IMAGE, cosine_weighted_snr, rae
 from .sources.corpora import get_corpus

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from sparse_brdf.acquisition import defaults as acquisition
+from sparse_brdf.benchmark import acquisition_bench as ab
+from sparse_brdf.benchmark.acquisition_report import curve, goals
 from sparse_brdf.cli import main
 from sparse_brdf.errors import ConfigError
-from sparse_brdf.evaluation import acquisition_bench as ab
-from sparse_brdf.evaluation.acquisition_report import curve, goals
 
 
 def _write(tmp_path, text: str, name: str = "acq.toml"):

@@ -21,7 +21,7 @@ from sparse_brdf.coding.ensemble import shipped_ids
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("sparse_brdf", "mitsuba_plugin")
 # Modules of sparse_brdf allowed to import the Mitsuba plugin: the render helpers.
-PLUGIN_USERS = {"sparse_brdf.evaluation.render", "sparse_brdf.evaluation.speed"}
+PLUGIN_USERS = {"sparse_brdf.evaluation.render", "sparse_brdf.benchmark.speed"}
 # Imports that may sit inside a function, with a comment saying why (heavy or optional).
 LAZY_OK = ("mitsuba", "drjit", "mitsuba_plugin", "matplotlib", "tqdm", "dask", "distributed",
            "OpenEXR", "Imath", "h5py", "scipy", "tensorly", "threadpoolctl", "flip_evaluator",
@@ -114,7 +114,7 @@ def test_no_import_cycles():
 # which groups each group may import ("Rules"). "core" is the top-level modules; "top" the
 # command line and the demo (and the package's __init__).
 SUBPACKAGES = ("coding", "training", "acquisition", "compared", "decoders", "fitting",
-               "sources", "evaluation")
+               "sources", "evaluation", "benchmark")
 ALLOWED = {
     "core": {"core"},
     "coding": {"core", "coding"},
@@ -123,11 +123,12 @@ ALLOWED = {
     "sources": {"core", "sources", "coding"},
     "compared": {"core", "coding", "compared"},
     "acquisition": {"core", "coding", "compared", "sources", "acquisition"},
-    "evaluation": {"core", "coding", "decoders", "sources", "compared", "acquisition",
-                   "training", "evaluation", "mitsuba_plugin"},
+    "evaluation": {"core", "decoders", "evaluation", "mitsuba_plugin"},
+    "benchmark": {"core", "coding", "decoders", "sources", "compared", "acquisition",
+                  "training", "evaluation", "benchmark", "mitsuba_plugin"},
     "fitting": {"core", "coding", "decoders", "sources", "evaluation", "fitting"},
     "top": {"core", "coding", "decoders", "training", "sources", "compared", "acquisition",
-            "evaluation", "fitting", "top"},
+            "evaluation", "benchmark", "fitting", "top"},
     "mitsuba_plugin": {"core", "coding", "decoders", "sources", "mitsuba_plugin"},
 }
 

@@ -6,16 +6,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sparse_brdf.coding.encode import ENCODE_OPTIONS
-from sparse_brdf.compared.specs import make_model
-from sparse_brdf.errors import MissingDataError
-from sparse_brdf.evaluation.acquisition_bench import KIND as ACQUISITION
-from sparse_brdf.evaluation.acquisition_bench import (
+from sparse_brdf.benchmark.acquisition_bench import KIND as ACQUISITION
+from sparse_brdf.benchmark.acquisition_bench import (
     AcquisitionConfig,
     check_acquisition_config,
 )
-from sparse_brdf.evaluation.bench import Bench
-from sparse_brdf.evaluation.bench_config import (
+from sparse_brdf.benchmark.bench import Bench
+from sparse_brdf.benchmark.bench_config import (
     BenchConfig,
     check_config,
     config_kind,
@@ -23,7 +20,10 @@ from sparse_brdf.evaluation.bench_config import (
     find_config,
     learners_training_set,
 )
-from sparse_brdf.evaluation.report import pareto
+from sparse_brdf.benchmark.report import pareto
+from sparse_brdf.coding.encode import ENCODE_OPTIONS
+from sparse_brdf.compared.specs import make_model
+from sparse_brdf.errors import MissingDataError
 from sparse_brdf.evaluation.scenes import parse_scene_spec
 from sparse_brdf.fileio import parse_strict_json
 
@@ -132,7 +132,7 @@ def test_bench_renders_coefficient_files_with_its_own_ensemble(tmp_path, monkeyp
     """A bench configured with an ensemble file hands it to the sparse plugin (the plugin
     would otherwise decode with the shipped ensemble and refuse the files); both plugins
     sample cosine-weighted whatever their default, and the scene's parameters are set."""
-    import sparse_brdf.evaluation.bench as bench_mod
+    import sparse_brdf.benchmark.bench as bench_mod
 
     seen = []
 

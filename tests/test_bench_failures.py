@@ -158,8 +158,8 @@ def _results(cells: dict, speed: dict) -> dict:
 
 
 def test_tables_sort_failed_figures_last_and_a_failed_model_has_no_speed(tmp_path):
-    from sparse_brdf.evaluation.html_report import write_html_report
-    from sparse_brdf.evaluation.report import summary_table, write_report
+    from sparse_brdf.benchmark.html_report import write_html_report
+    from sparse_brdf.benchmark.report import summary_table, write_report
 
     results = _results({"broken": None, "worse": 13.7, "better": 16.8, "exact": math.inf},
                        {"broken": 3e6, "worse": 2e6, "better": 1e6, "exact": 5e5})
@@ -184,7 +184,7 @@ def test_tables_sort_failed_figures_last_and_a_failed_model_has_no_speed(tmp_pat
 def _run_file(path: Path, cells: dict, run: str, **config) -> Path:
     """A results file of two materials in one scene: ``cells`` maps a model to its
     object-only SNR per material (None: failed)."""
-    from sparse_brdf.evaluation.results_file import SCHEMA
+    from sparse_brdf.benchmark.results_file import SCHEMA
 
     out = {}
     for model, snrs in cells.items():
@@ -206,7 +206,7 @@ def _run_file(path: Path, cells: dict, run: str, **config) -> Path:
 
 
 def test_merge_ranks_over_materials_every_ranked_model_finished(tmp_path):
-    from sparse_brdf.evaluation.ranking import merge_results
+    from sparse_brdf.benchmark.ranking import merge_results
 
     # "partial" is best on the one material it finished, and must not rank above the rest
     a = _run_file(tmp_path / "a.json", {"good": [20.0, 10.0], "partial": [30.0, None],
@@ -262,7 +262,7 @@ def _strict_json(text: str):
 
 
 def test_results_json_is_strict_and_keeps_its_infinities(tmp_path):
-    from sparse_brdf.evaluation.results_file import SCHEMA, read_results
+    from sparse_brdf.benchmark.results_file import SCHEMA, read_results
     from sparse_brdf.fileio import parse_strict_json, strict_json
 
     data = {"schema": SCHEMA, "config": {}, "provenance": {}, "noise_floor": {}, "speed": {},
@@ -289,9 +289,9 @@ def test_results_json_is_strict_and_keeps_its_infinities(tmp_path):
 
 
 def test_a_bench_resumes_an_old_results_file_and_rewrites_it_strict(tmp_path):
-    from sparse_brdf.evaluation.bench import Bench
-    from sparse_brdf.evaluation.bench_config import BenchConfig
-    from sparse_brdf.evaluation.results_file import SCHEMA
+    from sparse_brdf.benchmark.bench import Bench
+    from sparse_brdf.benchmark.bench_config import BenchConfig
+    from sparse_brdf.benchmark.results_file import SCHEMA
 
     cfg = BenchConfig(corpora=["mitsuba"], max_materials=1, models=["tabulated"],
                       render=False, stability=False, speed=False, out=str(tmp_path / "b"))

@@ -1,5 +1,5 @@
 """The baselines' own Dr.Jit evaluators (mitsuba_plugin.evaluators) and the speed axis
-(sparse_brdf.evaluation.speed)."""
+(sparse_brdf.benchmark.speed)."""
 
 from __future__ import annotations
 
@@ -36,7 +36,7 @@ from mitsuba_plugin.evaluators import (  # noqa: E402
     evaluator_for,
     make_evaluator,
 )
-from sparse_brdf.evaluation.speed import evals_per_second  # noqa: E402
+from sparse_brdf.benchmark.speed import evals_per_second  # noqa: E402
 from sparse_brdf.mitsuba_env import set_variant  # noqa: E402
 
 pytestmark = pytest.mark.numerics

@@ -18,11 +18,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from conftest import SMALL, run_cli
+from sparse_brdf.benchmark.bench_config import BenchConfig
 from sparse_brdf.brdf import BRDF
 from sparse_brdf.cli import main
 from sparse_brdf.coords import geometric_valid
 from sparse_brdf.errors import BRDFFileError, ConfigError, ImageFileError, InputFileError
-from sparse_brdf.evaluation.bench_config import BenchConfig
 from sparse_brdf.evaluation.images import read_exr, write_exr
 from sparse_brdf.sources.merl import read_merl, write_merl
 from sparse_brdf.sources.nbrdf import read_nbrdf_weights, tabulate_nbrdf

@@ -13,8 +13,8 @@ import subprocess
 import numpy as np
 import pytest
 
-from sparse_brdf.evaluation.bench import Bench
-from sparse_brdf.evaluation.bench_config import BenchConfig
+from sparse_brdf.benchmark.bench import Bench
+from sparse_brdf.benchmark.bench_config import BenchConfig
 
 pytestmark = pytest.mark.render  # the module's fixture runs a bench
 

@@ -102,16 +102,12 @@ def test_a_name_that_moved_out_of_a_module_still_imports_from_it(name):
         module.no_such_name  # noqa: B018
 
 
-def test_the_command_lines_imports_from_render_and_bench_still_work():
+def test_the_command_lines_imports_from_render_still_work():
     with pytest.warns(DeprecationWarning, match="sparse_brdf.evaluation.images.read_exr"):
         from sparse_brdf.evaluation.render import read_exr
-    with pytest.warns(DeprecationWarning, match="bench_config.check_config"):
-        from sparse_brdf.evaluation.bench import BenchConfig, check_config
-    from sparse_brdf.evaluation import bench_config
     from sparse_brdf.evaluation.images import read_exr as new_read
 
-    assert read_exr is new_read and check_config is bench_config.check_config
-    assert BenchConfig is bench_config.BenchConfig  # used by bench itself: no warning
+    assert read_exr is new_read
 
 
 def test_an_unknown_old_name_is_still_an_import_error():

@@ -235,7 +235,7 @@ def test_evaluator_speed_axis_and_one_kernel(llvm, teacher):
     import drjit as dr
 
     from mitsuba_plugin.evaluators import evaluator_for
-    from sparse_brdf.evaluation.speed import evals_per_second
+    from sparse_brdf.benchmark.speed import evals_per_second
 
     _, brdf = teacher
     model = NBRDFModel(epochs=1, n_samples=1000, progress=False)

@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 
 from sparse_brdf import ComparedModel, CompressedBRDF
+from sparse_brdf.benchmark.bench import Bench
+from sparse_brdf.benchmark.bench_config import BenchConfig, check_config
+from sparse_brdf.benchmark.ranking import merge_results
+from sparse_brdf.benchmark.results_file import SCHEMA, read_results
 from sparse_brdf.cli import main
 from sparse_brdf.compared.protocol import check_compressed, check_model, table_of
 from sparse_brdf.compared.specs import KINDS, make_model, parse_spec
-from sparse_brdf.evaluation.bench import Bench
-from sparse_brdf.evaluation.bench_config import BenchConfig, check_config
-from sparse_brdf.evaluation.ranking import merge_results
-from sparse_brdf.evaluation.results_file import SCHEMA, read_results
 from sparse_brdf.sources.load import load_brdf
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -15,6 +15,7 @@ import pytest
 from sparse_brdf import cli
 from sparse_brdf.acquisition.files import plan
 from sparse_brdf.acquisition.recovery import encode_samples
+from sparse_brdf.benchmark.ranking import merge_results
 from sparse_brdf.cli.files import encode_samples_file
 from sparse_brdf.coding import encode as encode_module
 from sparse_brdf.coding.budget import check_budget, encode_to_bytes
@@ -25,7 +26,6 @@ from sparse_brdf.compared.sparse_model import SparseModel
 from sparse_brdf.coords import GRID_SIDE, MERL_SHAPE, check_grid
 from sparse_brdf.decoders.layouts import DECODERS, LOBES, PLUGIN_DEFAULTS
 from sparse_brdf.errors import ConfigError, UsageError
-from sparse_brdf.evaluation.ranking import merge_results
 from sparse_brdf.evaluation.render import render_scene
 from sparse_brdf.evaluation.scenes import RENDER_PARAMETERS
 from sparse_brdf.fitting.fit_images import fit_images

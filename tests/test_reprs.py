@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from conftest import SMALL
+from sparse_brdf.benchmark.bench_config import BenchConfig
 from sparse_brdf.brdf import BRDF
 from sparse_brdf.coding.encode import encode
 from sparse_brdf.coding.ensemble import Ensemble
 from sparse_brdf.compared.specs import make_model
-from sparse_brdf.evaluation.bench_config import BenchConfig
 from sparse_brdf.sources.load import load_brdf
 
 LIMIT = 300

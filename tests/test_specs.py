@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import pytest
 
+from sparse_brdf.benchmark.bench_config import BenchConfig
 from sparse_brdf.compared import specs
 from sparse_brdf.compared.baselines import (
     CPDModel,
@@ -16,7 +17,6 @@ from sparse_brdf.compared.baselines import (
 from sparse_brdf.compared.sparse_model import SparseModel
 from sparse_brdf.compared.specs import KINDS, make_model, parse_spec
 from sparse_brdf.errors import ConfigError, UsageError
-from sparse_brdf.evaluation.bench_config import BenchConfig
 
 GOOD = {
     "sparse:262": ("sparse", "sparse-262"),

@@ -3,10 +3,10 @@
 import numpy as np
 
 from conftest import SMALL
+from sparse_brdf.benchmark.stability import CASES, run_stability, stability_markdown
 from sparse_brdf.compared.baselines import NaiveModel
 from sparse_brdf.compared.compact import BRDFModel, Compact
 from sparse_brdf.compared.sparse_model import SparseModel
-from sparse_brdf.evaluation.stability import CASES, run_stability, stability_markdown
 from sparse_brdf.sources.load import load_brdf
 
 

@@ -24,12 +24,12 @@ from pathlib import Path
 
 import numpy as np
 
+from sparse_brdf.benchmark.speed import eval_rate
 from sparse_brdf.coding.encode import encode
 from sparse_brdf.coding.ensemble import Ensemble
 from sparse_brdf.coding.fileformat import save_sbrdf
 from sparse_brdf.evaluation.render import SHARED_PATHS, render_scene
 from sparse_brdf.evaluation.scenes import find_scene
-from sparse_brdf.evaluation.speed import eval_rate
 from sparse_brdf.sources.load import load_brdf
 
 

@@ -26,10 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
+from sparse_brdf.benchmark.bench import Bench
+from sparse_brdf.benchmark.bench_config import BenchConfig
 from sparse_brdf.cli.files import encode_batch
 from sparse_brdf.coding.ensemble import resolve_ensemble
-from sparse_brdf.evaluation.bench import Bench
-from sparse_brdf.evaluation.bench_config import BenchConfig
 from sparse_brdf.parallel import executor
 from sparse_brdf.paths import shared_data_dir
 from sparse_brdf.sources.corpora import get_corpus

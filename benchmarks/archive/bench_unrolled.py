@@ -32,11 +32,11 @@ from pathlib import Path
 
 import numpy as np
 
+from sparse_brdf.benchmark.speed import eval_rate, random_directions
 from sparse_brdf.coding.encode import encode
 from sparse_brdf.coding.ensemble import Ensemble
 from sparse_brdf.coding.fileformat import save_sbrdf
 from sparse_brdf.decoders.layouts import channel_terms
-from sparse_brdf.evaluation.speed import eval_rate, random_directions
 from sparse_brdf.mitsuba_env import set_variant
 from sparse_brdf.sources.load import load_brdf
 

@@ -5,17 +5,17 @@ from __future__ import annotations
 
 import argparse
 
-from ..compared.specs import parse_spec
-from ..errors import UsageError
-from ..evaluation.acquisition_bench import KIND as ACQUISITION
-from ..evaluation.acquisition_bench import (
+from ..benchmark.acquisition_bench import KIND as ACQUISITION
+from ..benchmark.acquisition_bench import (
     AcquisitionBench,
     AcquisitionConfig,
     check_acquisition_config,
 )
-from ..evaluation.bench import Bench, BenchConfig
-from ..evaluation.bench_config import check_config, config_kind, shipped_configs
-from ..evaluation.ranking import RANK_BY, merge_results, write_ranking
+from ..benchmark.bench import Bench, BenchConfig
+from ..benchmark.bench_config import check_config, config_kind, shipped_configs
+from ..benchmark.ranking import RANK_BY, merge_results, write_ranking
+from ..compared.specs import parse_spec
+from ..errors import UsageError
 from ..parallel import executor
 from ._options import add_where, default_of
 

@@ -28,7 +28,7 @@ it too (:class:`~sparse_brdf.compared.compact.BRDFModel` and every model of
 - optionally ``drjit_evaluator()``: an object whose ``eval(wi, wo)`` takes Dr.Jit
   ``mi.Vector3f`` direction pairs (local frame) and returns ``mi.Color3f`` BRDF values,
   in the current Mitsuba variant; the bench times it for the speed axis (evaluations per
-  second, :mod:`sparse_brdf.evaluation.speed`). Without it the model has no speed figure.
+  second, :mod:`sparse_brdf.benchmark.speed`). Without it the model has no speed figure.
 
 :func:`check_model` tells whether an object follows the protocol.
 """

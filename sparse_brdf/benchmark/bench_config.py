@@ -25,11 +25,11 @@ from ..errors import (
     UsageError,
     short,
 )
+from ..evaluation.scenes import RENDER_PARAMETERS, check_scene_data, parse_scene_spec
 from ..fileio import require_file
 from ..params import Interval, check
 from ..paths import CONFIGS_DIR
 from ..sources.corpora import SPLITS, get_corpus
-from .scenes import RENDER_PARAMETERS, check_scene_data, parse_scene_spec
 
 __all__ = ["BenchConfig", "check_config", "config_kind", "read_config", "shipped_configs"]
 
@@ -155,7 +155,7 @@ def read_config(name: str | os.PathLike) -> tuple[Path, dict]:
 def config_kind(name: str | os.PathLike) -> str:
     """What a config benches: its ``bench`` setting, ``"models"`` (the default: models side
     by side, :class:`BenchConfig`) or ``"acquisition"`` (encoding from samples,
-    :class:`~sparse_brdf.evaluation.acquisition_bench.AcquisitionConfig`)."""
+    :class:`~sparse_brdf.benchmark.acquisition_bench.AcquisitionConfig`)."""
     kind = read_config(name)[1].get("bench", "models")
     return kind if isinstance(kind, str) else repr(kind)
 #: The settings' values (a list setting: each of its items), declared as

@@ -3,14 +3,14 @@
 Results from different machines, runs and models (e.g. the shipped models' ``standard``
 run and a user's own model run with ``--model``) are set side by side when they measured
 the same protocol: the config settings of
-:data:`~sparse_brdf.evaluation.results_file.PROTOCOL_SETTINGS` agree. Each model is one
+:data:`~sparse_brdf.benchmark.results_file.PROTOCOL_SETTINGS` agree. Each model is one
 row: its mean over its finished cells of each scene's object-only and whole-image SNR
 and HDR-FLIP, and the mean over the scenes; its bytes per material and evaluations per
 second (as measured on the machine its file names). Rows are ranked by one of
 :data:`RANK_BY`, over the materials that every ranked model finished: a model that did
 not finish every material of the protocol is listed apart, unranked, with its count of
 finished materials. The same run given twice is refused, and so are runs whose speeds
-were measured differently (:data:`~sparse_brdf.evaluation.results_file.SPEED_SETTINGS`).
+were measured differently (:data:`~sparse_brdf.benchmark.results_file.SPEED_SETTINGS`).
 """
 
 from __future__ import annotations

@@ -36,10 +36,10 @@ from ..coding.fileformat import save_sbrdf
 from ..compared.compact import Compact
 from ..coords import geometric_valid
 from ..decoders.layouts import DECODERS
+from ..evaluation.render import SHARED_PATHS
 from ..mitsuba_env import variant as use_variant
 from ..params import check_choice
 from ..sources.merl import write_merl
-from .render import SHARED_PATHS
 
 #: Model kinds :func:`evals_per_second` times (the part of ``Compact.model`` before ``-``).
 KINDS = ("tabulated", "sparse", "naive", "cpd", "tucker", "pca", "nbrdf")

@@ -1,7 +1,7 @@
 """The evaluation harness: models side by side on the same scenes, sampler and seed.
 
 ``sparse-brdf bench [CONFIG.toml]`` runs a suite and writes ``results.csv``,
-``results.json`` (a versioned schema, :mod:`~sparse_brdf.evaluation.results_file`),
+``results.json`` (a versioned schema, :mod:`~sparse_brdf.benchmark.results_file`),
 ``report.md`` with PNG figures and the self-contained ``report.html`` into the output
 folder. Finished
 cells (material x model) are kept in ``results.json`` and skipped on a re-run, so an
@@ -35,7 +35,6 @@ from pathlib import Path
 
 import numpy as np
 
-from .._moved import moved_names
 from ..brdf import BRDF
 from ..coding.encode import ENCODE_OPTIONS, error_curve
 from ..coding.ensemble import resolve_ensemble
@@ -46,6 +45,9 @@ from ..errors import (
     MissingDataError,
     one_line,
 )
+from ..evaluation.images import read_exr, write_exr
+from ..evaluation.render import SHARED_PATHS, noise_floor_snr, object_mask, render_scene
+from ..evaluation.scenes import SceneSpec, check_scene_data, parse_scene_spec
 from ..fileio import atomic_write, parse_strict_json, strict_json
 from ..metrics import cosine_weighted_snr, gamma_mse, hdr_flip, rae, snr_forms
 from ..parallel import Executor, InProcess
@@ -60,11 +62,8 @@ from .bench_config import (
     material_key,
 )
 from .html_report import write_html_report
-from .images import read_exr, write_exr
-from .render import SHARED_PATHS, noise_floor_snr, object_mask, render_scene
 from .report import failed_cells, write_report
 from .results_file import READ_SCHEMAS, SCHEMA, environment
-from .scenes import SceneSpec, check_scene_data, parse_scene_spec
 from .speed import evals_per_second
 from .stability import run_stability
 
@@ -396,8 +395,3 @@ def _cell_task(item: tuple, bench: Bench) -> dict:
     """One cell (material, model), for any executor."""
     m, model = item
     return bench._cell(material_key(m), bench._load(m), model)
-
-
-# Names that moved to modules of their own (sparse_brdf._moved.MOVED_NAMES) still import
-# from here for one release, with a DeprecationWarning.
-__getattr__ = moved_names(__name__)

@@ -29,9 +29,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ..evaluation.images import read_exr
 from ..fileio import atomic_write
 from ..metrics import OBJECT_ONLY, WHOLE_IMAGE
-from .images import read_exr
 from .report import failed_cells, flip_map_path, scenes_of, summary_table, tone
 
 __all__ = ["write_html_report"]

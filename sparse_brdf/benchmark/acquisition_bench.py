@@ -39,6 +39,9 @@ from ..coding.encode import DEFAULT_N_COEFFS, encode
 from ..coding.ensemble import resolve_ensemble
 from ..coding.fileformat import VERSION, save_sbrdf
 from ..errors import ConfigError, SparseBRDFError, one_line
+from ..evaluation.images import read_exr, write_exr
+from ..evaluation.render import SHARED_PATHS, object_mask, render_scene
+from ..evaluation.scenes import RENDER_PARAMETERS, check_scene_data, find_scene
 from ..fileio import atomic_write
 from ..metrics import cosine_weighted_snr, snr_forms
 from ..params import Choice, Interval
@@ -46,9 +49,6 @@ from ..sources.corpora import SPLITS, get_corpus
 from ..sources.merl import write_merl
 from .acquisition_report import write_acquisition_report
 from .bench_config import check_setting, read_config
-from .images import read_exr, write_exr
-from .render import SHARED_PATHS, object_mask, render_scene
-from .scenes import RENDER_PARAMETERS, check_scene_data, find_scene
 
 #: The config's ``bench`` setting that selects this bench.
 KIND = "acquisition"

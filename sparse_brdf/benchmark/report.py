@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 
 from ..coding.encode import DEFAULT_N_COEFFS, pick_transform
+from ..evaluation.images import read_exr
 from ..fileio import atomic_path, atomic_write
 from ..metrics import OBJECT_ONLY, WHOLE_IMAGE
 from ..transforms import TRANSFORMS
-from .images import read_exr
 from .stability import stability_markdown
 
 FORMS = (("snr_object", OBJECT_ONLY), ("snr_whole", WHOLE_IMAGE))

@@ -1,0 +1,15 @@
+"""The bench: models compared on materials and scenes, and its reports.
+
+- ``bench``: the resumable material x model x scene harness; ``bench_config``: its
+  configurations and their checks.
+- ``report``, ``html_report``: its tables, charts, CSV and HTML page; ``results_file``:
+  the results schema; ``ranking``: several results files in one table.
+- ``speed``: evaluation throughput; ``stability``: inputs where models fail.
+- ``acquisition_bench``, ``acquisition_report``: fits from N samples, rendered against
+  the full table.
+
+The renders themselves come from :mod:`sparse_brdf.evaluation`.
+"""
+
+__all__ = ["acquisition_bench", "acquisition_report", "bench", "bench_config",
+           "html_report", "ranking", "report", "results_file", "speed", "stability"]
