@@ -91,3 +91,103 @@ def test_the_link_patterns_catch_what_they_should():
     assert NAMED.findall("in `docs/results.md`, and docs/records/history.md.") == [
         "docs/results.md", "docs/records/history.md"]
     assert NAMED.findall("sparse_brdf/docs/x and mydocs/y") == []
+
+
+# Python names in code: `sparse_brdf.a.b`, `sb.name` (after `import sparse_brdf as sb`),
+# `from sparse_brdf.a import b, c`
+DOTTED = re.compile(r"(?<![\w.])((?:sparse_brdf|mitsuba_plugin|sb)(?:\.[A-Za-z_]\w*)+)")
+FROM_IMPORT = re.compile(r"from\s+((?:sparse_brdf|mitsuba_plugin)(?:\.\w+)*)\s+import\s+"
+                         r"\(?\s*([\w ,\n]+)")
+CODE = re.compile(r"```.*?```|`[^`\n]+`", re.S)
+
+
+def _python_names(text: str) -> set[str]:
+    """The package's dotted names that the code spans and blocks of ``text`` mention."""
+    code = "\n".join(CODE.findall(text))
+    found = {n.replace("sb.", "sparse_brdf.", 1) if n.startswith("sb.") else n
+             for n in DOTTED.findall(code)}
+    for module, items in FROM_IMPORT.findall(code):
+        found |= {f"{module}.{item.split()[0]}" for item in items.split(",") if item.strip()}
+    return found
+
+
+def _row_pointers(text: str) -> set[str]:
+    """In the table rows that start with a module's name (`sparse_brdf.a.b.f(...)`), the
+    bare names of later code spans (`g`), as the reader takes them: ``sparse_brdf.a.b.g``,
+    or of the module of the latest dotted name before them."""
+    found = set()
+    for row in text.splitlines():
+        if not row.startswith("| `sparse_brdf."):
+            continue
+        module = None
+        for span in re.findall(r"`([^`]+)`", row):
+            if dotted := DOTTED.match(span):
+                module = dotted.group(1).rsplit(".", 1)[0]
+            elif module and re.fullmatch(r"[A-Za-z_]\w*", span):
+                found.add(f"{module}.{span}")
+    return found
+
+
+def _resolve(name: str) -> str | None:
+    """None when ``name`` (a module, or attributes of one) imports without a warning;
+    else why not: an old path, a missing name or the warnings it gives."""
+    import importlib
+    import warnings
+
+    from sparse_brdf._moved import MOVED, OLD_PACKAGES
+
+    parts = name.split(".")
+    prefixes = [".".join(parts[:i]) for i in range(1, len(parts) + 1)]
+    if any(p in MOVED or p in OLD_PACKAGES for p in prefixes):
+        return "an old module path (sparse_brdf._moved.MOVED)"
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        obj = importlib.import_module(parts[0])
+        for i, attr in enumerate(parts[1:], 2):
+            try:
+                obj = (importlib.import_module(prefixes[i - 1]) if hasattr(obj, "__path__")
+                       and not hasattr(obj, attr) else getattr(obj, attr))
+            except (ImportError, AttributeError):
+                return f"no {attr} in {prefixes[i - 2]}"
+    warned = [str(w.message) for w in caught if issubclass(w.category, DeprecationWarning)]
+    return "; ".join(warned) or None
+
+
+def test_the_readme_names_only_current_python_names():
+    """Every `sparse_brdf.x.y` and `from sparse_brdf.x import y` of the README imports
+    without a DeprecationWarning: no pointer to a name that moved."""
+    readme = (ROOT / "README.md").read_text()
+    names = _python_names(readme) | _row_pointers(readme)
+    assert {"sparse_brdf.evaluation.render.render_scene", "sparse_brdf.evaluation.images.read_exr",
+            "sparse_brdf.evaluation.images.write_image", "sparse_brdf.load_brdf"} <= names
+    assert {n: why for n in sorted(names) if (why := _resolve(n))} == {}
+
+
+def test_the_guides_name_old_python_names_only_as_old():
+    """In docs/, a name that moved appears only where the paragraph says it is deprecated
+    (docs/architecture.md's account of the old paths)."""
+    stale = []
+    for md in sorted(DOCS.glob("*.md")):
+        for para in md.read_text().split("\n\n"):
+            if "deprecat" in para.lower():
+                continue
+            stale += [f"{md.name}: {n}: {why}" for n in sorted(_python_names(para))
+                      if (why := _resolve(n))]
+    assert stale == []
+
+
+def test_the_name_check_catches_moved_and_missing_names():
+    assert _python_names("`sb.encode(b)` and ```\nfrom sparse_brdf.evaluation.render "
+                         "import (write_exr,\n    render_scene as r)\n```") == {
+        "sparse_brdf.encode", "sparse_brdf.evaluation.render",
+        "sparse_brdf.evaluation.render.write_exr", "sparse_brdf.evaluation.render.render_scene"}
+    assert _python_names("prose sparse_brdf.encode, not code") == set()
+    assert _row_pointers("| `sparse_brdf.evaluation.render.render_scene(s)` | renders; "
+                         "`write_exr`/`read_exr`, `sparse_brdf.coords.MERL_SHAPE`, `x=1` |\n"
+                         "| `load(x)` | `y` |") == {
+        "sparse_brdf.evaluation.render.write_exr", "sparse_brdf.evaluation.render.read_exr"}
+    assert "sparse_brdf.evaluation.images.write_exr" in _resolve(
+        "sparse_brdf.evaluation.render.write_exr")
+    assert "old module path" in _resolve("sparse_brdf.model.encode")
+    assert _resolve("sparse_brdf.no_such_name") == "no no_such_name in sparse_brdf"
+    assert _resolve("sparse_brdf.coding.ensemble.Ensemble.default") is None
