@@ -10,11 +10,9 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import os
-import xml.etree.ElementTree as ET
 from collections.abc import Iterator
-from pathlib import Path
 
-from .errors import MissingDataError, MitsubaSetupError, SceneError
+from .errors import MitsubaSetupError
 from .params import check_choice
 
 #: The CPU vectorised variant the project renders with.
@@ -170,93 +168,3 @@ def variant(name: str = DEFAULT_VARIANT) -> Iterator[str]:
     finally:
         if before is not None and before != name:
             mi.set_variant(before)
-
-
-@contextlib.contextmanager
-def files_found_in(folders: list[Path]) -> Iterator[None]:
-    """Let Mitsuba look relative file names up in ``folders`` (in order, before its own
-    search path) within the block."""
-    import mitsuba as mi  # lazy: Mitsuba is slow to import (see the module doc)
-
-    saved = mi.FileResolver(mi.file_resolver())
-    for folder in reversed(folders):
-        mi.file_resolver().prepend(str(folder))
-    try:
-        yield
-    finally:
-        mi.set_file_resolver(saved)
-
-
-def read_scene_xml(scene_path: str | os.PathLike) -> ET.ElementTree:
-    """A scene's XML tree, its ``<include>`` elements replaced by what they include.
-
-    Mitsuba reads an ``<include filename="..."/>`` as the children of the included file's
-    ``<scene>``, put where the include stands (its ids, ``<default>`` parameters and
-    ``$`` references among the scene's own, in document order); a relative name is looked
-    up in the including file's folder first, then in the scene's (so an included file
-    includes others relative to itself). The included files' data files (meshes, maps)
-    are looked up as the scene's own are, from the scene's folder, as Mitsuba does. The
-    tree returned is therefore the scene Mitsuba loads, and written out
-    (``mi.load_string``) it loads the same way.
-
-    Raises
-    ------
-    SceneError
-        The file or an included one is malformed, or includes itself (directly or not).
-    MissingDataError
-        An included file is not there (the message names the including file).
-    """
-    path = Path(scene_path)
-    tree = _parse_xml(path)
-    _inline_includes(tree.getroot(), path, path.parent, ())
-    return tree
-
-
-def _parse_xml(path: Path) -> ET.ElementTree:
-    try:
-        return ET.parse(path)
-    except ET.ParseError as exc:
-        raise SceneError(f"{path}: not a valid scene XML file: {exc}") from exc
-    except UnicodeDecodeError as exc:
-        raise SceneError(f"{path}: not a valid scene XML file ({exc.reason})") from exc
-
-
-#: How deep includes may nest (Mitsuba's parser refuses deeper nesting as well).
-_MAX_INCLUDE_DEPTH = 32
-
-
-def _inline_includes(elem: ET.Element, path: Path, scene_dir: Path,
-                     chain: tuple[Path, ...]) -> None:
-    """Replace, under ``elem`` (of file ``path``), every ``<include>`` by the children of
-    the included file's root, recursively (see :func:`read_scene_xml`)."""
-    chain = (*chain, path.resolve())
-    for i, child in reversed(list(enumerate(elem))):
-        if child.tag != "include":
-            _inline_includes(child, path, scene_dir, chain[:-1])
-            continue
-        name = child.get("filename", "")
-        if not name:
-            raise SceneError(f"{path}: an <include> without a filename")
-        target = _included_file(path, name, scene_dir)
-        if target.resolve() in chain or len(chain) >= _MAX_INCLUDE_DEPTH:
-            raise SceneError(f"{path}: <include filename={name!r}> includes "
-                             f"{target.name} again (a cycle of includes)")
-        root = _parse_xml(target).getroot()
-        _inline_includes(root, target, scene_dir, chain)
-        elem.remove(child)
-        for j, inner in enumerate(list(root) if root.tag == "scene" else [root]):
-            elem.insert(i + j, inner)
-
-
-def _included_file(path: Path, name: str, scene_dir: Path) -> Path:
-    """The file ``<include filename=name>`` of file ``path`` names: in ``path``'s
-    folder, then the scene's, then the current folder."""
-    p = Path(name).expanduser()
-    folders = [] if p.is_absolute() else list(dict.fromkeys(
-        [path.parent, scene_dir, Path.cwd()]))
-    for cand in [p] if p.is_absolute() else [f / p for f in folders]:
-        if cand.is_file():
-            return cand
-    looked = str(p) if p.is_absolute() else ", ".join(str(f) for f in folders)
-    raise MissingDataError(f"{path}: includes {name}, which is not there (looked in "
-                           f"{looked})")
