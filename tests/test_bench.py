@@ -20,6 +20,7 @@ from sparse_brdf.benchmark.bench_config import (
     find_config,
     learners_training_set,
 )
+from sparse_brdf.benchmark.provenance import environment_provenance
 from sparse_brdf.benchmark.report import pareto
 from sparse_brdf.coding.encode import ENCODE_OPTIONS
 from sparse_brdf.compared.specs import make_model
@@ -190,7 +191,15 @@ def test_results_of_another_ensemble_or_encoder_are_not_reused(tmp_path, small_e
     assert again.results["cells"] == {} and not b.work.exists()
     assert again.results["provenance"] == {"ensemble": small_ensemble.id,
                                            "encoder_defaults": dict(ENCODE_OPTIONS),
-                                           "sbrdf_version": 2}
+                                           "sbrdf_version": 2,
+                                           "environment": environment_provenance()}
+    # another Mitsuba (or Dr.Jit, or machine) renders the references anew
+    again._save()
+    data = json.loads((b.out / "results.json").read_text())
+    data["cells"] = {"merl/x|sparse-262": {"status": "finished"}}
+    data["provenance"]["environment"]["mitsuba"] = "0.0.1"
+    (b.out / "results.json").write_text(json.dumps(data))
+    assert Bench(cfg, progress=False).results["cells"] == {}
 
 
 @pytest.mark.parametrize("name", sorted(p.stem for p in

@@ -291,6 +291,7 @@ def test_results_json_is_strict_and_keeps_its_infinities(tmp_path):
 def test_a_bench_resumes_an_old_results_file_and_rewrites_it_strict(tmp_path):
     from sparse_brdf.benchmark.bench import Bench
     from sparse_brdf.benchmark.bench_config import BenchConfig
+    from sparse_brdf.benchmark.provenance import cell_provenance
     from sparse_brdf.benchmark.results_file import SCHEMA
 
     cfg = BenchConfig(corpora=["mitsuba"], max_materials=1, models=["tabulated"],
@@ -300,7 +301,8 @@ def test_a_bench_resumes_an_old_results_file_and_rewrites_it_strict(tmp_path):
     old["schema"] = "sparse-brdf-bench/1"
     old["cells"]["mitsuba/al-ggx-0.3|tabulated"] = {
         "material": "mitsuba/al-ggx-0.3", "model": "tabulated", "status": "finished",
-        "fit_s": 0.1, "bytes": 10, "rae": 0.0, "cos_snr": math.inf, "gamma_mse": 0.0}
+        "fit_s": 0.1, "bytes": 10, "rae": 0.0, "cos_snr": math.inf, "gamma_mse": 0.0,
+        "provenance": cell_provenance("tabulated")}  # as this version would record it
     (tmp_path / "b").mkdir()
     (tmp_path / "b" / "results.json").write_text(json.dumps(old))
     bench = Bench(cfg, progress=False)

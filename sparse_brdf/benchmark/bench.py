@@ -62,6 +62,7 @@ from .bench_config import (
     material_key,
 )
 from .html_report import write_html_report
+from .provenance import cell_provenance, environment_provenance, stale_cells
 from .report import failed_cells, write_report
 from .results_file import READ_SCHEMAS, SCHEMA, environment
 from .speed import evals_per_second
@@ -83,29 +84,33 @@ class Bench:
         self.scenes: dict[str, SceneSpec] = {}  # scene key -> spec, the scenes that can run
         self._masks: dict[str, np.ndarray] = {}
         self.cell_speed = True  # measure each model's speed in its first cell
+        self._cell_provenance: dict[str, dict] = {}  # model name -> its cells' (run())
         self._loaded: tuple = (None, None)  # the last material loaded (key, BRDF)
 
     # ------------------------------------------------------------------ bookkeeping
     def _provenance(self) -> dict:
-        """What the results depend on beyond the config: the ensemble the sparse models use,
-        the encoder's defaults and the .sbrdf version written (all changed between
-        versions)."""
+        """What every result depends on beyond the config: the ensemble the sparse models
+        use, the encoder's defaults, the .sbrdf version written (all changed between
+        versions), the renderer's versions and the machine (the reference renders)."""
         return {"ensemble": self.ensemble.id,
-                "encoder_defaults": dict(ENCODE_OPTIONS), "sbrdf_version": VERSION}
+                "encoder_defaults": dict(ENCODE_OPTIONS), "sbrdf_version": VERSION,
+                "environment": environment_provenance()}
 
     def _load_results(self) -> dict:
         """Earlier results of this config (a resumed run), else a fresh record; results of
-        another config, ensemble or encoder are discarded with the renders they cached."""
+        another config (its models aside: each cell has its own provenance), ensemble,
+        encoder, renderer or machine are discarded with the renders they cached."""
         p = self.out / "results.json"
         fresh = {"schema": SCHEMA, "run": uuid.uuid4().hex, "config": asdict(self.cfg),
                  "provenance": self._provenance(), "cells": {}, "curves": {},
                  "noise_floor": {}, "speed": {}, "skipped_scenes": {}}
         if p.is_file():
             data = parse_strict_json(p.read_text())
-            if data.get("schema") in READ_SCHEMAS and all(
-                    data.get(k) == fresh[k] for k in ("config", "provenance")):
+            if data.get("schema") in READ_SCHEMAS and _settings(data.get("config")) == \
+                    _settings(fresh["config"]) and data.get("provenance") == fresh["provenance"]:
                 data["schema"] = SCHEMA  # a version-1 file is rewritten as strict JSON
                 data.setdefault("run", fresh["run"])  # a file from before run ids
+                data["config"] = fresh["config"]  # its models may have changed
                 return data
             if self.work.is_dir():  # cached renders and files of the old results
                 shutil.rmtree(self.work)
@@ -146,7 +151,10 @@ class Bench:
             self._resolve_scenes()
         ens = self.ensemble
         models = make_models(self.cfg.models, ens if self.cfg.ensemble else None)
+        self._cell_provenance = {m.name: cell_provenance(spec)
+                                 for spec, m in zip(self.cfg.models, models, strict=True)}
         mats = self.materials()
+        self._drop_stale_cells(len(models) * len(mats))
         self._train(models, mats)
         self._run_cells(ex or InProcess(), ens, models, mats)
         for table in [] if self.keep_work else self.work.glob("*__reference.binary"):
@@ -186,6 +194,27 @@ class Bench:
                   f"{first['material']}: {one_line(first['error'])})", file=sys.stderr)
         return self.results
 
+    def _drop_stale_cells(self, n_cells: int) -> None:
+        """Drop the recorded cells whose provenance changed (:func:`stale_cells`), with
+        their cached renders and their models' speeds; say on stdout how many cells are
+        kept, when there were any."""
+        cells = self.results["cells"]
+        if not cells:
+            return
+        stale, kept = stale_cells(cells, self._cell_provenance)
+        changed = {cells[key]["model"] for key in stale} & set(self._cell_provenance)
+        n_changed = sum(cells[key]["model"] in changed for key in stale)
+        for key in stale:
+            stem = f"{file_stem(key.split('|')[0])}__{cells.pop(key)['model']}"
+            for scene in self.work.glob("*/"):
+                for suffix in (".exr", ".json", ".flip.npy"):
+                    (scene / f"{stem}{suffix}").unlink(missing_ok=True)  # cached outputs
+        for name in list(self.results["speed"]):
+            if name in changed or name not in self._cell_provenance:
+                del self.results["speed"][name]
+        print(f"bench: kept {kept} of {n_cells} cells, {n_cells - kept} to compute "
+              f"({n_changed} recorded with another model source, options or environment)")
+
     def _run_cells(self, ex: Executor, ens, models, mats) -> None:
         """Each material's error curve and reference renders, then every cell, on ``ex``;
         each result is saved as it arrives (so an interrupted bench resumes)."""
@@ -212,6 +241,7 @@ class Bench:
             for i, row in ex.as_completed(_cell_task, [(m, shipped[mod.name]) for m, mod in todo],
                                           bench):
                 m, mod = todo[i]
+                row["provenance"] = self._cell_provenance[mod.name]
                 self.results["cells"][f"{material_key(m)}|{mod.name}"] = row
                 self._save()
                 bar.update(1)
@@ -383,6 +413,12 @@ class Bench:
             row["error"] = f"{type(exc).__name__}: {one_line(exc)}"
         return row
 
+
+
+def _settings(config) -> dict | None:
+    """A results file's config without its models (each cell has its own provenance)."""
+    return {k: v for k, v in config.items() if k != "models"} if isinstance(config, dict) \
+        else None
 
 
 def _material_task(m, bench: Bench, ens) -> tuple[dict, dict]:

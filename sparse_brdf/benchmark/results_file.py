@@ -20,7 +20,7 @@ from ..errors import ConfigError
 from ..fileio import parse_strict_json, require_file
 
 __all__ = ["PROTOCOL_SETTINGS", "READ_SCHEMAS", "SCHEMA", "SPEED_SETTINGS", "environment",
-           "read_results"]
+           "package_version", "read_results"]
 
 #: The version of the results.json schema written (docs/bench-guide.md). Version 2 is
 #: strict JSON: a non-finite number is written null and listed in ``non_finite``.
@@ -39,7 +39,7 @@ _REQUIRED = ("schema", "config", "provenance", "cells", "noise_floor", "speed")
 _MAX_BYTES = 1 << 30
 
 
-def _package_version() -> str:
+def package_version() -> str:
     """The installed package's version ("unknown" when run from an uninstalled tree)."""
     try:
         return metadata.version("sparse-brdf")
@@ -53,7 +53,7 @@ def environment() -> dict:
     ``date`` (UTC, ISO 8601)."""
     return {"platform": platform.platform(), "machine": platform.machine(),
             "cpus": os.cpu_count(), "python": platform.python_version(),
-            "sparse_brdf": _package_version(),
+            "sparse_brdf": package_version(),
             "date": datetime.now(UTC).isoformat(timespec="seconds")}
 
 
