@@ -166,7 +166,13 @@ def test_hdr_flip_averages_over_the_mask_only():
     (-np.ones((48, 64, 3), np.float32), "negative"),
     (np.ones((48, 60, 3), np.float32), "shapes differ"),
 ])
-def test_hdr_flip_refuses_what_it_cannot_score(bad, match):
+def test_hdr_flip_refuses_what_it_cannot_score(bad, match, monkeypatch):
+    import flip_evaluator
+
+    def flip_not_reached(*args, **kwargs):  # FLIP ends the process on a black reference
+        raise AssertionError("hdr_flip handed FLIP what it cannot score")
+
+    monkeypatch.setattr(flip_evaluator, "evaluate", flip_not_reached)
     img = _studio_like_image()
     ref = bad if bad.shape == img.shape else np.ones((48, 60, 3), np.float32)
     with pytest.raises(ImageFileError, match=match):
