@@ -65,7 +65,7 @@ from .html_report import write_html_report
 from .provenance import cell_provenance, environment_provenance, stale_cells
 from .report import failed_cells, write_report
 from .results_file import READ_SCHEMAS, SCHEMA, environment
-from .speed import evals_per_second
+from .speed import measure_speed
 from .stability import run_stability
 
 __all__ = ["Bench"]
@@ -103,7 +103,8 @@ class Bench:
         p = self.out / "results.json"
         fresh = {"schema": SCHEMA, "run": uuid.uuid4().hex, "config": asdict(self.cfg),
                  "provenance": self._provenance(), "cells": {}, "curves": {},
-                 "noise_floor": {}, "speed": {}, "skipped_scenes": {}}
+                 "noise_floor": {}, "speed": {}, "speed_spread": {},
+                 "skipped_scenes": {}}
         if p.is_file():
             data = parse_strict_json(p.read_text())
             if data.get("schema") in READ_SCHEMAS and _settings(data.get("config")) == \
@@ -212,6 +213,7 @@ class Bench:
         for name in list(self.results["speed"]):
             if name in changed or name not in self._cell_provenance:
                 del self.results["speed"][name]
+                self.results.get("speed_spread", {}).pop(name, None)
         print(f"bench: kept {kept} of {n_cells} cells, {n_cells - kept} to compute "
               f"({n_changed} recorded with another model source, options or environment)")
 
@@ -354,15 +356,18 @@ class Bench:
         return floors
 
     def _speed(self, model: ComparedModel, compact) -> None:
-        """Evaluations per second of ``model``'s own evaluator, measured once per model;
-        None for an outside model without a Dr.Jit evaluator (``drjit_evaluator()``)."""
+        """Evaluations per second of ``model``'s own evaluator, measured once per model
+        (the median of repeated timings; their min and max in ``speed_spread``); None for
+        an outside model without a Dr.Jit evaluator (``drjit_evaluator()``)."""
         if not self.cfg.speed or model.name in self.results["speed"]:
             return
         if not (isinstance(compact, Compact) or hasattr(compact, "drjit_evaluator")):
             self.results["speed"][model.name] = None
             return
-        self.results["speed"][model.name] = evals_per_second(
-            compact, n=self.cfg.speed_evals, ensemble=getattr(model, "ensemble", None))
+        rate = measure_speed(compact, n=self.cfg.speed_evals,
+                             ensemble=getattr(model, "ensemble", None))
+        self.results["speed"][model.name] = rate.median
+        self.results.setdefault("speed_spread", {})[model.name] = rate.spread()
 
     def _cell(self, key: str, brdf, model: ComparedModel) -> dict:
         row = {"material": key, "model": model.name}

@@ -32,7 +32,14 @@ import numpy as np
 from ..evaluation.images import read_exr
 from ..fileio import atomic_write
 from ..metrics import OBJECT_ONLY, WHOLE_IMAGE
-from .report import failed_cells, flip_map_path, scenes_of, summary_table, tone
+from .report import (
+    failed_cells,
+    flip_map_path,
+    scenes_of,
+    speed_settings,
+    summary_table,
+    tone,
+)
 
 __all__ = ["write_html_report"]
 
@@ -109,17 +116,19 @@ def _table(head: list[str], rows: list[list[str]]) -> str:
 
 
 def _model_table(results: dict, scene: str) -> str:
-    cols = [("bytes", ".0f"), ("evals_per_s", ".3g"), ("rae", ".4f"), ("cos_snr", ".1f"),
+    cols = [("bytes", ".0f"), ("evals_per_s", ".3g"), ("evals_min", ".3g"),
+            ("evals_max", ".3g"), ("rae", ".4f"), ("cos_snr", ".1f"),
             ("snr_object_mean", ".1f"), ("snr_object_min", ".1f"), ("snr_whole_mean", ".1f"),
-            ("snr_whole_min", ".1f"), ("flip_mean", ".3f"), ("flip_max", ".3f")]
-    head = ["model", "materials", "failed", "bytes", "evals/s", "RAE", "cos-SNR (dB)",
-            "obj mean (dB)", "obj min (dB)", "whole mean (dB)", "whole min (dB)",
-            "FLIP mean", "FLIP max"]
+            ("snr_whole_min", ".1f"), ("flip_mean", ".3f"), ("flip_max", ".3f"),
+            ("render_s", ".2f")]
+    head = ["model", "materials", "failed", "bytes", "evals/s", "evals/s min",
+            "evals/s max", "RAE", "cos-SNR (dB)", "obj mean (dB)", "obj min (dB)",
+            "whole mean (dB)", "whole min (dB)", "FLIP mean", "FLIP max", "render (s)"]
     rows = [[_cell(r["model"], ""), _cell(r["n"], "d"), _cell(r["failed"], "d"),
-             *('<td data-v="">failed</td>' if k == "evals_per_s" and r["n"] == 0
+             *('<td data-v="">failed</td>' if k.startswith("evals") and r["n"] == 0
                else _cell(r.get(k, math.nan), f) for k, f in cols)]
             for r in summary_table(results, scene)]
-    return _table(head, rows)
+    return f"<p>{html.escape(speed_settings(results))}</p>" + _table(head, rows)
 
 
 def _material_table(results: dict, scene: str) -> str:
@@ -130,11 +139,12 @@ def _material_table(results: dict, scene: str) -> str:
                      _cell(s.get("snr_object", math.nan), ".1f"),
                      _cell(s.get("snr_whole", math.nan), ".1f"),
                      _cell(math.nan if s.get("flip") is None else s["flip"], ".3f"),
+                     _cell(s.get("render_s", math.nan), ".2f"),
                      _cell(c.get("rae", math.nan), ".4f"),
                      _cell(f"{c['status']}: {c['error']}" if c.get("error") else c["status"],
                            "")])
-    return _table(["material", "model", "SNR obj (dB)", "SNR whole (dB)", "HDR-FLIP", "RAE",
-                   "status"], rows)
+    return _table(["material", "model", "SNR obj (dB)", "SNR whole (dB)", "HDR-FLIP",
+                   "render (s)", "RAE", "status"], rows)
 
 
 def _viewer(scene: str, index: int) -> str:

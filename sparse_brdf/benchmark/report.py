@@ -18,6 +18,7 @@ from ..evaluation.images import read_exr
 from ..fileio import atomic_path, atomic_write
 from ..metrics import OBJECT_ONLY, WHOLE_IMAGE
 from ..transforms import TRANSFORMS
+from .speed import SETTLE
 from .stability import stability_markdown
 
 FORMS = (("snr_object", OBJECT_ONLY), ("snr_whole", WHOLE_IMAGE))
@@ -119,7 +120,7 @@ def summary_table(results: dict, scene: str | None = None,
     for r in results["cells"].values():
         if corpus is None or r["material"].split("/", 1)[0] == corpus:
             by_model.setdefault(r["model"], []).append(r)
-    speed = results.get("speed", {})
+    speed, spread = results.get("speed", {}), results.get("speed_spread", {})
     rows = []
     for model, cells in by_model.items():
         ok = [c for c in cells if c.get("status") == "finished"]
@@ -128,7 +129,9 @@ def summary_table(results: dict, scene: str | None = None,
                "rae": float(np.mean([c["rae"] for c in ok])) if ok else math.nan,
                "cos_snr": _mean_snr([c["cos_snr"] for c in ok]),
                "fit_s": float(np.mean([c["fit_s"] for c in ok])) if ok else math.nan,
-               "evals_per_s": _number(speed.get(model)) if ok else math.nan}
+               "evals_per_s": _number(speed.get(model)) if ok else math.nan,
+               "evals_min": _number(spread.get(model, {}).get("min")) if ok else math.nan,
+               "evals_max": _number(spread.get(model, {}).get("max")) if ok else math.nan}
         renders = [c["renders"][scene] for c in ok if scene in (c.get("renders") or {})]
         if renders:
             for key, _ in FORMS:
@@ -321,16 +324,38 @@ def _f(x: float, fmt: str = ".1f") -> str:
 
 
 def _speed(row: dict) -> str:
-    """A summary row's evaluations per second: "failed" for a model none of whose cells
-    finished, "-" where none was measured."""
-    return "failed" if row["n"] == 0 else _f(row["evals_per_s"], ".3g")
+    """A summary row's evaluations per second, the median with the timings' min and max
+    in brackets: "failed" for a model none of whose cells finished, "-" where none was
+    measured."""
+    if row["n"] == 0:
+        return "failed"
+    spread = (f" ({_f(row['evals_min'], '.3g')} to {_f(row['evals_max'], '.3g')})"
+              if math.isfinite(row.get("evals_min", math.nan)) else "")
+    return _f(row["evals_per_s"], ".3g") + spread
+
+
+def speed_settings(results: dict) -> str:
+    """How the speeds were measured, as the reports state it: the direction pairs per
+    call, the timed calls and the median's settling (or that none was measured)."""
+    cfg = results["config"]
+    if not cfg.get("speed", True):
+        return "evals/s: not measured (speed = false)."
+    n = int(cfg.get("speed_evals", 1 << 20))
+    pairs = f"2^{n.bit_length() - 1}" if n & (n - 1) == 0 else f"{n:,}"
+    counts = [s["repeats"] for s in results.get("speed_spread", {}).values() if s]
+    calls = (f"{min(counts)} to {max(counts)} timed calls" if counts and min(counts) !=
+             max(counts) else f"{counts[0]} timed calls" if counts else "repeated calls")
+    return (f"evals/s: the model's own evaluator on {pairs} random direction pairs per "
+            f"call, the median of {calls} (more until one noisy call could not move it by "
+            f"more than {SETTLE:.0%}), the slowest and fastest call in brackets.")
 
 
 def _scene_section(results: dict, out: Path, scene: str) -> list[str]:
     """The report's section of one scene: noise floor, Tables 3, 4 and 2, charts, renders."""
     rows = summary_table(results, scene)
     md = [f"## Scene `{scene}`", "", *_noise_floor_paragraph(results, scene),
-          *_model_table(rows, scene), *_corpus_table(results, rows, scene)]
+          *_model_table(rows, scene, speed_settings(results)),
+          *_corpus_table(results, rows, scene)]
     chart = out / f"speed_accuracy-{scene}.png"
     if speed_accuracy_chart(rows, chart, f" in {scene}"):
         md += ["", f"![speed and size against accuracy in {scene}]({chart.name})"]
@@ -354,18 +379,18 @@ def _noise_floor_paragraph(results: dict, scene: str) -> list[str]:
             "seed and sampling, so the noise cancels in the SNRs below.", ""]
 
 
-def _model_table(rows: list[dict], scene: str) -> list[str]:
+def _model_table(rows: list[dict], scene: str, settings: str) -> list[str]:
     """Table 3: rendering SNR statistics per model in ``scene``."""
     md = [f"### Rendering SNR per model (Table 3), `{scene}`", "",
           f"SNR in dB; *obj* = {OBJECT_ONLY} (pixels whose camera rays hit the object), "
           f"*whole* = {WHOLE_IMAGE} (every pixel, background included: the paper's form). "
-          "evals/s: the model's own evaluator on 2^20 random direction pairs. FLIP: "
+          f"{settings} FLIP: "
           "HDR-FLIP over the object's pixels, mean and worst material (0 is identical; "
-          "lower is better).", "",
+          "lower is better). render (s): mean seconds of a model's render.", "",
           "| model | materials | failed | bytes | evals/s | fit (s) | RAE | cos-SNR | "
           "obj mean | obj std | obj min | obj max | whole mean | whole min | whole max | "
-          "FLIP mean | FLIP max |",
-          "|---" * 17 + "|"]
+          "FLIP mean | FLIP max | render (s) |",
+          "|---" * 18 + "|"]
     for r in rows:
         md.append(
             f"| {r['model']} | {r['n']} | {r['failed']} | {_f(r['bytes'], '.0f')} | "
@@ -374,7 +399,8 @@ def _model_table(rows: list[dict], scene: str) -> list[str]:
             f"{_f(r.get('snr_object_std'))} | {_f(r.get('snr_object_min'))} | "
             f"{_f(r.get('snr_object_max'))} | {_f(r.get('snr_whole_mean'))} | "
             f"{_f(r.get('snr_whole_min'))} | {_f(r.get('snr_whole_max'))} | "
-            f"{_f(r.get('flip_mean'), '.3f')} | {_f(r.get('flip_max'), '.3f')} |")
+            f"{_f(r.get('flip_mean'), '.3f')} | {_f(r.get('flip_max'), '.3f')} | "
+            f"{_f(r.get('render_s'), '.2f')} |")
     return md
 
 
@@ -402,13 +428,13 @@ def _corpus_table(results: dict, rows: list[dict], scene: str) -> list[str]:
 def _material_table(results: dict, scene: str) -> list[str]:
     """Table 4: every cell's SNRs in ``scene``."""
     md = ["", f"### Per material (Table 4), `{scene}`", "",
-          "| material | model | SNR obj (dB) | SNR whole (dB) | HDR-FLIP | RAE | status |",
-          "|---|---|---|---|---|---|---|"]
+          "| material | model | SNR obj (dB) | SNR whole (dB) | HDR-FLIP | render (s) | RAE | "
+          "status |", "|---" * 8 + "|"]
     for r in sorted(results["cells"].values(), key=lambda r: (r["material"], r["model"])):
         s = (r.get("renders") or {}).get(scene, {})
         md.append(f"| {r['material']} | {r['model']} | {_f(s.get('snr_object'))} | "
                   f"{_f(s.get('snr_whole'))} | {_f(s.get('flip'), '.3f')} | "
-                  f"{_f(r.get('rae'), '.4f')} | {r['status']}"
+                  f"{_f(s.get('render_s'), '.2f')} | {_f(r.get('rae'), '.4f')} | {r['status']}"
                   f"{': ' + _md_text(r['error']) if r.get('error') else ''} |")
     return md
 
@@ -471,7 +497,7 @@ def write_report(results: dict, out: Path) -> Path:
     for scene in scenes_of(results):
         md += _scene_section(results, out, scene)
     if not scenes_of(results):
-        md += ["## BRDF-space metrics (no renders)", "",
+        md += ["## BRDF-space metrics (no renders)", "", speed_settings(results), "",
                "| model | materials | failed | bytes | evals/s | RAE | cos-SNR (dB) |",
                "|---|---|---|---|---|---|---|"]
         for r in summary_table(results):

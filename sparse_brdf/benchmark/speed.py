@@ -26,6 +26,7 @@ import math
 import tempfile
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -64,31 +65,95 @@ def random_directions(n: int, rng: np.random.Generator):
     return si, mi.Vector3f(v[1].T.astype(np.float32))
 
 
+#: How far one noisy timing may move a median rate: each neighbour of the median (in
+#: sorted order) lies within this fraction of it before timing stops.
+SETTLE = 0.10
+#: Most timed calls of one measurement (it stops earlier once settled).
+MAX_REPEATS = 41
+
+
+@dataclass(frozen=True)
+class Rate:
+    """Evaluations per second of one measurement: the ``median`` of the timed calls' rates,
+    their ``min`` and ``max``, the calls timed (``repeats``), the pairs per call (``n``)
+    and whether the median ``settled`` (:func:`settled`) before :data:`MAX_REPEATS`."""
+
+    median: float
+    min: float
+    max: float
+    repeats: int
+    n: int
+    settled: bool
+
+    def spread(self) -> dict:
+        """``min``, ``max``, ``repeats``, ``n`` and ``settled``, as results record them."""
+        return {"min": self.min, "max": self.max, "repeats": self.repeats, "n": self.n,
+                "settled": self.settled}
+
+
+def settled(rates, tolerance: float = SETTLE) -> bool:
+    """Whether no single timing can move the median of ``rates`` (an odd count) by more
+    than ``tolerance``: whatever one value becomes, the median becomes one of its
+    neighbours in sorted order, so both must lie within ``tolerance`` of it."""
+    r = np.sort(np.asarray(rates, float))
+    if len(r) < 3 or len(r) % 2 == 0:
+        return False
+    k = len(r) // 2
+    return bool(r[k + 1] - r[k] <= tolerance * r[k] and r[k] - r[k - 1] <= tolerance * r[k])
+
+
+def timed_rate(call: Callable[[], Callable[[], object]], n: int, repeats: int = 5,
+               clock: Callable[[], float] = time.perf_counter,
+               max_repeats: int = MAX_REPEATS) -> Rate:
+    """Time ``call`` until its median rate has settled (see :func:`settled`).
+
+    ``call()`` prepares one call (untimed) and returns the work to time; the first one
+    warms up (compiles) and is not timed. At least ``repeats`` calls are timed, then more
+    until their count is odd and the median settled, at most ``max_repeats``.
+    ``clock`` is the timer (seconds), to be replaced in tests. Rates are ``n`` over each
+    call's seconds.
+    """
+    call()()  # warm-up: the first call compiles
+    rates: list[float] = []
+    while len(rates) < max_repeats:
+        work = call()
+        t0 = clock()
+        work()
+        rates.append(n / max(clock() - t0, 1e-12))
+        if len(rates) >= repeats and settled(rates):
+            break
+    return Rate(float(np.median(rates)), min(rates), max(rates), len(rates), n,
+                settled(rates))
+
+
 def time_evaluations(evaluate: Callable, n: int = 1 << 20, repeats: int = 5,
-                     seed: int = 0) -> float:
+                     seed: int = 0) -> Rate:
     """Evaluations per second of ``evaluate(si, wo)`` (which returns Dr.Jit arrays).
 
-    Each of ``repeats + 1`` calls gets ``n`` fresh random pairs from
-    :func:`random_directions` (so Dr.Jit cannot reuse an earlier result), made and
-    evaluated before the clock starts. A call is timed from the Python call (tracing
-    included) until its kernel has run (``dr.eval`` then ``dr.sync_thread``). The first
-    call compiles and is not timed. Returns ``n / median(seconds per call)``.
+    Each call gets ``n`` fresh random pairs from :func:`random_directions` (so Dr.Jit
+    cannot reuse an earlier result), made and evaluated before the clock starts. A call
+    is timed from the Python call (tracing included) until its kernel has run
+    (``dr.eval`` then ``dr.sync_thread``). The first call compiles and is not timed; at
+    least ``repeats`` are, and more until one noisy call could not move the median by
+    more than :data:`SETTLE` (:func:`timed_rate`).
     """
     import drjit as dr  # lazy: Dr.Jit is slow to import (see the module doc)
 
     n, repeats = _check_counts(n, repeats)
     rng = np.random.default_rng(seed)
-    times = []
-    for r in range(repeats + 1):
+
+    def call():
         si, wo = random_directions(n, rng)
         dr.eval(si, wo)
         dr.sync_thread()
-        t0 = time.perf_counter()
-        dr.eval(evaluate(si, wo))
-        dr.sync_thread()
-        if r:  # the first call compiles
-            times.append(time.perf_counter() - t0)
-    return n / float(np.median(times))
+
+        def work():
+            dr.eval(evaluate(si, wo))
+            dr.sync_thread()
+
+        return work
+
+    return timed_rate(call, n, repeats)
 
 
 def eval_rate(bsdf, n: int = 1 << 20, repeats: int = 5, seed: int = 0) -> float:
@@ -97,13 +162,22 @@ def eval_rate(bsdf, n: int = 1 << 20, repeats: int = 5, seed: int = 0) -> float:
     import mitsuba as mi  # lazy: Mitsuba is slow to import (see the module doc)
 
     ctx = mi.BSDFContext()
-    return time_evaluations(lambda si, wo: bsdf.eval(ctx, si, wo), n, repeats, seed)
+    return time_evaluations(lambda si, wo: bsdf.eval(ctx, si, wo), n, repeats, seed).median
 
 
 def evals_per_second(model, n: int = 1 << 20, repeats: int = 5, ensemble=None, *,
                      decoder: str = "grouped", variant: str = "llvm_ad_rgb",
                      seed: int = 0) -> float:
-    """Evaluations per second of ``model`` with its own evaluator (see the module doc).
+    """Evaluations per second of ``model`` with its own evaluator (see the module doc):
+    the median of :func:`measure_speed`."""
+    return measure_speed(model, n, repeats, ensemble, decoder=decoder, variant=variant,
+                         seed=seed).median
+
+
+def measure_speed(model, n: int = 1 << 20, repeats: int = 5, ensemble=None, *,
+                  decoder: str = "grouped", variant: str = "llvm_ad_rgb",
+                  seed: int = 0) -> Rate:
+    """Evaluations per second of ``model`` with its own evaluator, with their spread.
 
     Parameters
     ----------
@@ -115,7 +189,9 @@ def evals_per_second(model, n: int = 1 << 20, repeats: int = 5, ensemble=None, *
     n : int, default 2**20
         Random upper-hemisphere direction pairs per timed call.
     repeats : int, default 5
-        Timed calls (after one untimed call that compiles the kernel).
+        Fewest timed calls (after one untimed call that compiles the kernel); more are
+        timed until one noisy call could not move the median by more than
+        :data:`SETTLE`, at most :data:`MAX_REPEATS`.
     ensemble : Ensemble, optional
         Sparse models only: the ensemble the model was encoded with (default: the
         shipped one).
@@ -128,9 +204,9 @@ def evals_per_second(model, n: int = 1 << 20, repeats: int = 5, ensemble=None, *
 
     Returns
     -------
-    float
-        Evaluations (one RGB value of one direction pair) per second of wall time: ``n``
-        divided by the median time of a call, on every core Dr.Jit uses.
+    Rate
+        Evaluations (one RGB value of one direction pair) per second of wall time, on
+        every core Dr.Jit uses: the median over the timed calls, their min and max.
     """
     import drjit as dr  # lazy: Dr.Jit is slow to import (see the module doc)
 
@@ -221,5 +297,6 @@ def format_rate(rate: float) -> str:
     return f"{rate / 1e6:.1f} M" if math.isfinite(rate) else "n/a"
 
 
-__all__ = ["DECODERS", "KINDS", "random_directions", "time_evaluations", "eval_rate",
-           "evals_per_second", "format_rate"]
+__all__ = ["DECODERS", "KINDS", "MAX_REPEATS", "SETTLE", "Rate", "random_directions",
+           "settled", "timed_rate", "time_evaluations", "eval_rate", "evals_per_second",
+           "measure_speed", "format_rate"]
