@@ -1,5 +1,6 @@
-"""``bench`` and ``bench-merge``: compared models measured by a bench suite (or the
-acquisition bench), and several suites' results ranked in one table."""
+"""``bench``, ``bench-merge`` and ``bench-compare``: compared models measured by a bench
+suite (or the acquisition bench), several suites' results ranked in one table, and two
+results compared cell by cell (the regression gate)."""
 
 from __future__ import annotations
 
@@ -13,11 +14,13 @@ from ..benchmark.acquisition_bench import (
 )
 from ..benchmark.bench import Bench, BenchConfig
 from ..benchmark.bench_config import check_config, config_kind, shipped_configs
+from ..benchmark.compare import PARAMETERS as GATE
+from ..benchmark.compare import compare_results, format_worse
 from ..benchmark.ranking import RANK_BY, merge_results, write_ranking
 from ..compared.specs import parse_spec
 from ..errors import UsageError
 from ..parallel import executor
-from ._options import add_where, default_of
+from ._options import add_where, default_of, typed
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
@@ -61,6 +64,23 @@ def cmd_bench_merge(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_bench_compare(args: argparse.Namespace) -> int:
+    """``bench-compare``: exit status 1 when a shared cell got worse, listing them."""
+    found = compare_results(args.old, args.new, args.fail_if_worse, args.fail_if_flip_rises)
+    flip = (f", HDR-FLIP risen by more than {args.fail_if_flip_rises}"
+            if args.fail_if_flip_rises is not None else "")
+    what = f"SNR dropped by more than {args.fail_if_worse} dB{flip}"
+    for row in found["worse"]:
+        print(format_worse(row))
+    if found["worse"]:
+        print(f"bench-compare: {len(found['worse'])} of {found['figures']} figures of "
+              f"{found['cells']} shared cells are worse ({what})")
+        return 1
+    print(f"bench-compare: {found['cells']} shared cells, {found['figures']} figures, none "
+          f"worse ({what})")
+    return 0
+
+
 def _bench_acquisition(args: argparse.Namespace) -> int:
     """``bench`` of an acquisition config: the options it takes, checked, then run."""
     cfg = AcquisitionConfig.load(args.config)
@@ -85,7 +105,7 @@ def _bench_acquisition(args: argparse.Namespace) -> int:
 
 
 def add_bench_commands(sub) -> None:
-    """``bench`` and ``bench-merge``."""
+    """``bench``, ``bench-merge`` and ``bench-compare``."""
     b = sub.add_parser("bench", help="compare models: tables, figures, speed-vs-accuracy chart",
                        description="Run a bench suite: a built-in config by name ("
                                    + ", ".join(shipped_configs()) + ") or a TOML file; "
@@ -133,3 +153,21 @@ def add_bench_commands(sub) -> None:
                          "lower HDR-FLIP first)")
     bm.add_argument("-o", "--output", required=True, help="output folder")
     bm.set_defaults(func=cmd_bench_merge)
+
+    bc = sub.add_parser("bench-compare", help="the regression gate: exit status 1 when a "
+                                              "cell of NEW is worse than in OLD",
+                        description="Compare two bench results of one protocol cell by "
+                                    "cell (material x model, in every scene both rendered): "
+                                    "print every figure that got worse and exit with status "
+                                    "1, else 0. Worse: an SNR form (object-only, "
+                                    "whole-image; cos-SNR without renders) dropped by more "
+                                    "than --fail-if-worse dB, HDR-FLIP rose by more than "
+                                    "--fail-if-flip-rises, or the cell failed in NEW.")
+    bc.add_argument("old", help="the baseline: a results.json file or a bench output folder")
+    bc.add_argument("new", help="the results to check, likewise")
+    bc.add_argument("--fail-if-worse", metavar="DB", required=True,
+                    type=typed(GATE["worse_db"]),
+                    help="largest SNR drop in dB that passes")
+    bc.add_argument("--fail-if-flip-rises", metavar="X", type=typed(GATE["flip_rise"]),
+                    help="largest HDR-FLIP rise that passes (default: FLIP not gated)")
+    bc.set_defaults(func=cmd_bench_compare)
