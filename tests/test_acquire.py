@@ -320,3 +320,76 @@ def test_missing_training_data_names_the_way_without_it(monkeypatch):
     monkeypatch.setattr(acquisition, "get_corpus", lambda name: Empty())
     with pytest.raises(MissingDataError, match="--prior none"):
         acquisition.training_materials()
+
+
+def test_only_the_first_encode_samples_builds_the_prior_and_the_basis(tmp_path, monkeypatch,
+                                                                      capsys, ens):
+    """The first ``encode-samples`` with the default prior builds the atom prior (a
+    progress bar per training material, saying what it does and where it caches) and the
+    PCA fallback's basis; the next run, a new process, reads both from the cache."""
+    from sparse_brdf.acquisition import defaults as acquisition
+
+    rng = np.random.default_rng(5)
+
+    class Material:  # a corpus material: a source path and a load()
+        def __init__(self, i):
+            self.source, self.name = f"/data/m{i}.binary", f"m{i}"
+            values = rng.uniform(0.01, 2.0, (*SMALL, 3)).astype(np.float32)
+            self.brdf = BRDF(values, geometric_valid(SMALL), name=self.name)
+
+        def load(self, shape=None):
+            return self.brdf
+
+    mats = [Material(i) for i in range(3)]
+    monkeypatch.setenv("SPARSE_BRDF_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setattr(acquisition, "training_materials", lambda: mats)
+    monkeypatch.setattr(acquisition, "_PCA", {})
+    builds = {"prior": 0, "basis": 0}
+
+    def counted(name, fn):
+        def build(*args, **kwargs):
+            builds[name] += 1
+            return fn(*args, **kwargs)
+        return build
+
+    monkeypatch.setattr(acquisition, "compute_prior",
+                        counted("prior", acquisition.compute_prior))
+    monkeypatch.setattr(acquisition.PCAModel, "fit",
+                        counted("basis", acquisition.PCAModel.fit))
+    ens_path = ens.save(tmp_path / "ens.npz")
+    _, brdf = _sparse_material(ens)
+    write_samples(tmp_path / "s.npz", _on_bins(brdf, 300, seed=0))
+    args = ("encode-samples", tmp_path / "s.npz", "--ensemble", ens_path, "--coeffs", 8)
+
+    code, _, err = run(capsys, *args, "-o", tmp_path / "a.sbrdf")
+    assert code == 0, err
+    assert builds == {"prior": 1, "basis": 1}
+    assert "computing the atom prior" in err and str(tmp_path / "cache") in err
+    assert "atom prior:   0%" in err and "0/3" in err  # a bar over the 3 materials
+    assert len(list((tmp_path / "cache").glob("*.pca"))) == 1
+
+    acquisition._PCA.clear()  # as a new process
+    code, _, err = run(capsys, *args, "-o", tmp_path / "b.sbrdf")
+    assert code == 0, err
+    assert builds == {"prior": 1, "basis": 1}
+    assert "computing" not in err and "fitting" not in err
+    assert (tmp_path / "a.sbrdf").read_bytes() == (tmp_path / "b.sbrdf").read_bytes()
+
+
+def test_the_prior_cache_key_names_what_the_prior_depends_on(monkeypatch, ens):
+    """A change of anything the prior is computed from gives another cache entry."""
+    from sparse_brdf.acquisition import defaults as acquisition
+
+    class Material:
+        def __init__(self, source):
+            self.source = source
+
+    mats = [Material("/data/a.h5"), Material("/data/b.h5")]
+    path = acquisition.prior_path(ens, mats)
+    assert acquisition.prior_path(ens, list(mats)) == path
+    assert acquisition.prior_path(ens, mats[:1]) != path
+    monkeypatch.setitem(acquisition.ENCODE_OPTIONS, "basis", "rgb")
+    assert acquisition.prior_path(ens, mats) != path
+    monkeypatch.undo()
+    monkeypatch.setattr(acquisition, "PRIOR_VERSION", acquisition.PRIOR_VERSION + 1)
+    assert acquisition.prior_path(ens, mats) != path

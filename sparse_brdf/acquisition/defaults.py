@@ -5,9 +5,10 @@ training materials (``docs/method.md``, "Encoding from samples").
 :func:`~sparse_brdf.acquisition.pca.pca_from_samples` take what they learned from
 explicitly or, by default, from here: learned from the training split of the merl corpus
 only (every :data:`TRAINING_STRIDE`-th material), the prior computed on first use and
-cached on disk (``sources.cache``, keyed by the ensemble and the materials; a few minutes
-once), the PCA basis likewise (about 30 s once; read back memory-mapped, kept for the
-process).
+cached on disk (``sources.cache``, keyed by all it is computed from; once: about 2 CPU
+minutes, with a progress bar), the PCA basis likewise (about 15 s once; read back
+memory-mapped, kept for the process). ``docs/benchmarks.md``, "encode-samples' first
+run", has the measured times.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..coding.encode import ENCODE_OPTIONS
 from ..coding.ensemble import Ensemble, resolve_ensemble
 from ..compared.baselines import PCAModel
 from ..errors import MissingDataError
@@ -68,17 +70,25 @@ def default_prior(ensemble: Ensemble | str | None = None) -> AtomPrior:
     return prior_of(resolve_ensemble(ensemble))
 
 
+def prior_path(ens: Ensemble, mats: Sequence) -> Path:
+    """Where the cache keeps the prior of ``ens`` on corpus materials ``mats``: keyed by
+    all that :func:`~sparse_brdf.acquisition.prior.compute_prior` reads (the ensemble,
+    the materials' sources, the coefficients and pool size, the transforms, the coded
+    channels' basis) and the version of its computation."""
+    key = content_key("atom-prior", PRIOR_VERSION, ens.id, [m.source for m in mats],
+                      PRIOR_COEFFS, POOL_SIZE, list(TRANSFORMS), ENCODE_OPTIONS["basis"])
+    return cache_dir() / f"{key}.npz"
+
+
 def prior_of(ens: Ensemble) -> AtomPrior:
     """:func:`default_prior` of a resolved ensemble."""
     mats = training_materials()
-    key = content_key("atom-prior", PRIOR_VERSION, ens.id, [m.source for m in mats],
-                      PRIOR_COEFFS, POOL_SIZE, list(TRANSFORMS))
-    path = cache_dir() / f"{key}.npz"
+    path = prior_path(ens, mats)
     prior = load_prior(path) if path.is_file() else None
     if prior is None:
         print(f"sparse-brdf: computing the atom prior of ensemble {ens.id} on {len(mats)} "
-              "training materials (once, about 3 min on 2 cores; then cached in "
-              f"{cache_dir()})", file=sys.stderr)
+              "training materials (once: 2-4 min on 2 cores shared with other jobs, the "
+              f"bar below estimates the rest; then cached in {cache_dir()})", file=sys.stderr)
         prior = compute_prior(ens, mats)
         try:
             save_prior(path, prior)
@@ -104,11 +114,12 @@ def trained_pca(training: Sequence | None = None) -> PCAModel:
             from tqdm.auto import tqdm  # lazy: tqdm.auto adds ~40 ms to `import sparse_brdf`
 
             print(f"sparse-brdf: fitting the PCA fallback's basis on {len(mats)} training "
-                  f"materials (once, about 30 s on 2 cores; then cached in {cache_dir()})",
+                  f"materials (once, about 15 s on 2 cores; then cached in {cache_dir()})",
                   file=sys.stderr)
-            brdfs = [m.load() for m in tqdm(mats, desc="PCA basis", unit="material",
-                                             leave=False)]
-            pca = PCAModel(max(1, len(mats) - 1)).fit(brdfs)
+            with tqdm(mats, desc="PCA basis", unit="material", leave=False) as bar:
+                brdfs = [m.load() for m in bar]
+                bar.set_postfix_str("fitting")  # the fit: about a third of the time
+                pca = PCAModel(max(1, len(mats) - 1)).fit(brdfs)
             _save_pca(folder, pca)
         _PCA[key] = pca
     return _PCA[key]

@@ -86,7 +86,8 @@ def compute_prior(ens: Ensemble, brdfs: list, transforms: tuple[str, ...] | None
                   coeffs: int = PRIOR_COEFFS, pool: int = POOL_SIZE) -> AtomPrior:
     """The atom prior of ``brdfs`` (BRDFs or corpus materials, loaded one at a time) on
     ``ens``, for ``transforms`` (default: those ``ens`` was trained for); a progress bar
-    per material."""
+    per material, whose estimate of the time left is the mean time per material so far
+    (every material costs the same: one table, the same projections)."""
     from tqdm.auto import tqdm  # lazy: tqdm.auto adds ~40 ms to `import sparse_brdf`
 
     basis = ENCODE_OPTIONS["basis"]
@@ -94,7 +95,7 @@ def compute_prior(ens: Ensemble, brdfs: list, transforms: tuple[str, ...] | None
     k = ens.n_dicts
     got = {(t, c, j): ([], []) for t in transforms for c in range(3) for j in range(k)}
     names = []
-    for item in tqdm(brdfs, desc="atom prior", unit="material", leave=False):
+    for item in tqdm(brdfs, desc="atom prior", unit="material", leave=False, smoothing=0):
         b = item.load(ens.shape) if hasattr(item, "load") else item
         names.append(b.name)
         for t in transforms:

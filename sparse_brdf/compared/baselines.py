@@ -29,6 +29,7 @@ import numpy as np
 from ..brdf import BRDF
 from ..coords import MERL_SHAPE, bin_solid_angle, cosine_product
 from ..errors import UsageError
+from ..parallel import blas_single_thread, parallel_map
 from ..params import Interval, check
 from ..transforms import cosine_weight, forward, inverse
 from .compact import BRDFModel, Compact, require_fitted
@@ -344,6 +345,23 @@ def from_log_relative(m: np.ndarray, c, median) -> np.ndarray:
         return (np.exp(m) * (median + LOG_RELATIVE_EPS) - LOG_RELATIVE_EPS) / c
 
 
+def _median(brdfs: Sequence[BRDF]) -> np.ndarray:
+    """The median of rho c (c the cosine weights) per bin and channel over ``brdfs``,
+    columns in chunks on the thread pool."""
+    shape = brdfs[0].shape
+    c = cosine_weight(shape)[..., None]
+    stack = np.stack([b.values * c for b in brdfs]).reshape(len(brdfs), -1)
+    out = np.empty(stack.shape[1], stack.dtype)
+    step = 1 << 16
+
+    def one(s: int) -> None:
+        out[s : s + step] = np.median(stack[:, s : s + step], axis=0)
+
+    for _ in parallel_map(one, range(0, out.size, step)):
+        pass
+    return out.reshape((*shape, 3))
+
+
 class PCAModel(BRDFModel):
     """Nielsen et al. 2015: a PCA basis of the training set in the log-relative mapping.
 
@@ -383,17 +401,23 @@ class PCAModel(BRDFModel):
         self.mask_ = np.broadcast_to(brdfs[0].valid[..., None], (*shape, 3))
         for b in brdfs:
             self.mask_ = self.mask_ & b.valid[..., None]
-        c = cosine_weight(shape)[..., None]
-        self.median_ = np.median(np.stack([b.values * c for b in brdfs]), axis=0)
-        data = np.stack([self._map(b) for b in brdfs]).astype(np.float64)
-        self.mean_ = data.mean(0)
-        centred = data - self.mean_
-        gram = centred @ centred.T
-        w, v = np.linalg.eigh(gram)
-        order = np.argsort(w)[::-1]
-        w, v = w[order], v[:, order]
-        keep = w > w[0] * 1e-12
-        self.basis_ = ((centred.T @ v[:, keep]) / np.sqrt(w[keep])).T.astype(np.float32)
+        self.median_ = _median(brdfs)
+        # in place where it can: each new GB of pages costs seconds in a VM
+        centred = np.empty((len(brdfs), int(self.mask_.sum())))
+        for row, b in zip(centred, brdfs, strict=True):
+            row[:] = self._map(b)
+        self.mean_ = centred.mean(0)
+        centred -= self.mean_
+        # thin products (N x bins): BLAS's own threads made them 10x slower on 2 cores
+        with blas_single_thread():
+            gram = centred @ centred.T
+            w, v = np.linalg.eigh(gram)
+            order = np.argsort(w)[::-1]
+            w, v = w[order], v[:, order]
+            keep = w > w[0] * 1e-12
+            basis = v[:, keep].T @ centred  # (components, bins), no transposed copy
+        basis /= np.sqrt(w[keep])[:, None]
+        self.basis_ = basis.astype(np.float32)
         return self
 
     def compress(self, brdf: BRDF) -> Compact:
