@@ -3,7 +3,9 @@
 - ``bench``: the resumable material x model x scene harness; ``bench_config``: its
   configurations and their checks.
 - ``report``, ``html_report``: its tables, charts, CSV and HTML page; ``results_file``:
-  the results schema; ``ranking``: several results files in one table.
+  the results schema; ``ranking``: several results files in one table; ``compare``:
+  two results compared cell by cell (the regression gate, ``bench-compare``);
+  ``provenance``: what each cell was computed from, so a rerun recomputes what changed.
 - ``speed``: evaluation throughput; ``stability``: inputs where models fail.
 - ``acquisition_bench``, ``acquisition_report``: fits from N samples, rendered against
   the full table.
@@ -11,5 +13,6 @@
 The renders themselves come from :mod:`sparse_brdf.evaluation`.
 """
 
-__all__ = ["acquisition_bench", "acquisition_report", "bench", "bench_config",
-           "html_report", "ranking", "report", "results_file", "speed", "stability"]
+__all__ = ["acquisition_bench", "acquisition_report", "bench", "bench_config", "compare",
+           "html_report", "provenance", "ranking", "report", "results_file", "speed",
+           "stability"]
