@@ -4,6 +4,7 @@ shows the FLIP map, its tables sort, and a screenshot shows it."""
 
 from __future__ import annotations
 
+import html
 import json
 import os
 import re
@@ -52,6 +53,40 @@ def test_the_page_is_self_contained(report):
     (material,) = cells
     assert set(cells[material]["models"]) == {"naive", "tabulated"}
     assert cells[material]["models"]["tabulated"]["flip"] == 0.0
+
+
+#: A number as report.md writes it: 12, 0.049, -3.5, 4.98e+07.
+NUMBER = re.compile(r"(?<![\w.])[-+]?\d+(?:\.\d+)?(?:e[-+]\d+)?(?!\w)")
+
+
+def test_every_number_of_report_md_is_in_report_html(report, tmp_path):
+    """Whatever report.md states (tables, speeds and their spread, noise floors, the
+    stability table), report.html states too, in the same digits."""
+    from sparse_brdf.benchmark.html_report import write_html_report
+    from sparse_brdf.benchmark.report import write_report
+    from sparse_brdf.benchmark.results_file import read_results
+
+    out = tmp_path / "bench"
+    shutil.copytree(report, out)
+    results = read_results(out)
+    # the fixture measures no speed and runs no stability: give it both
+    results["speed"] = {"naive": 4.98e7, "tabulated": 2.31e7}
+    results["speed_spread"] = {m: {"min": v * 0.9, "max": v * 1.05, "repeats": 7, "n": 4096,
+                                   "settled": True} for m, v in results["speed"].items()}
+    results["config"]["speed"] = True
+    results["stability"] = {"material": "mitsuba/x", "rows": [
+        {"case": "noise 1%", "method": "naive", "status": "finished", "snr": 31.46},
+        {"case": "noise 1%", "method": "tabulated", "status": "failed"}]}
+    write_report(results, out)
+    write_html_report(results, out)
+    md = (out / "report.md").read_text()
+    page = re.sub(r"data:image/[^\"']+", "", (out / "report.html").read_text())
+    text = html.unescape(re.sub(r"<[^>]+>", " ", page))
+    numbers = {n: line for line in md.splitlines() if not line.startswith("![")
+               for n in NUMBER.findall(line)}
+    assert {"4.98e+07", "4.48e+07", "5.23e+07", "31.5"} <= set(numbers)  # the test can see
+    missing = {n: line[:80] for n, line in numbers.items() if n not in text}
+    assert missing == {}
 
 
 def test_the_page_in_headless_chromium(report, tmp_path):

@@ -35,6 +35,7 @@ from ..metrics import OBJECT_ONLY, WHOLE_IMAGE
 from .report import (
     failed_cells,
     flip_map_path,
+    noise_floor_means,
     scenes_of,
     speed_settings,
     summary_table,
@@ -117,18 +118,48 @@ def _table(head: list[str], rows: list[list[str]]) -> str:
 
 def _model_table(results: dict, scene: str) -> str:
     cols = [("bytes", ".0f"), ("evals_per_s", ".3g"), ("evals_min", ".3g"),
-            ("evals_max", ".3g"), ("rae", ".4f"), ("cos_snr", ".1f"),
-            ("snr_object_mean", ".1f"), ("snr_object_min", ".1f"), ("snr_whole_mean", ".1f"),
-            ("snr_whole_min", ".1f"), ("flip_mean", ".3f"), ("flip_max", ".3f"),
-            ("render_s", ".2f")]
+            ("evals_max", ".3g"), ("fit_s", ".2f"), ("rae", ".4f"), ("cos_snr", ".1f"),
+            *((f"{form}_{stat}", ".1f") for form in ("snr_object", "snr_whole")
+              for stat in ("mean", "std", "min", "max")),
+            ("flip_mean", ".3f"), ("flip_max", ".3f"), ("render_s", ".2f")]
     head = ["model", "materials", "failed", "bytes", "evals/s", "evals/s min",
-            "evals/s max", "RAE", "cos-SNR (dB)", "obj mean (dB)", "obj min (dB)",
-            "whole mean (dB)", "whole min (dB)", "FLIP mean", "FLIP max", "render (s)"]
+            "evals/s max", "fit (s)", "RAE", "cos-SNR (dB)",
+            *(f"{form} {stat} (dB)" for form in ("obj", "whole")
+              for stat in ("mean", "std", "min", "max")),
+            "FLIP mean", "FLIP max", "render (s)"]
     rows = [[_cell(r["model"], ""), _cell(r["n"], "d"), _cell(r["failed"], "d"),
              *('<td data-v="">failed</td>' if k.startswith("evals") and r["n"] == 0
                else _cell(r.get(k, math.nan), f) for k, f in cols)]
             for r in summary_table(results, scene)]
     return f"<p>{html.escape(speed_settings(results))}</p>" + _table(head, rows)
+
+
+def _noise_floor(results: dict, scene: str) -> str:
+    """The noise floor of ``scene``'s references, as report.md states it."""
+    nf = noise_floor_means(results, scene)
+    if nf is None:
+        return ""
+    cfg = results["config"]
+    return (f"<p>Noise floor (two reference renders, seeds {cfg['seed']} and "
+            f"{cfg['noise_seed']}): {OBJECT_ONLY} mean {nf['snr_object']:.1f} dB, "
+            f"{WHOLE_IMAGE} mean {nf['snr_whole']:.1f} dB.</p>")
+
+
+def _stability(results: dict) -> list[str]:
+    """The stability section: each perturbation's cosine-weighted SNR per model."""
+    st = results.get("stability")
+    if not st:
+        return []
+    rows = st["rows"]
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    cell = {(r["case"], r["method"]): r for r in rows}
+    body = [[_cell(case, ""), *(_cell(cell[(case, m)]["snr"], ".1f")
+                                if cell[(case, m)]["status"] == "finished"
+                                else _cell(cell[(case, m)]["status"], "") for m in methods)]
+            for case in dict.fromkeys(r["case"] for r in rows)]
+    return [f"<h2>Stability</h2><p>Perturbations of {html.escape(st['material'])}; "
+            "cosine-weighted SNR (dB) against the clean BRDF, or the outcome.</p>",
+            _table(["case", *methods], body)]
 
 
 def _material_table(results: dict, scene: str) -> str:
@@ -373,9 +404,12 @@ def write_html_report(results: dict, out: Path) -> Path:
     data: dict = {"viewer": {}}
     for i, scene in enumerate(scenes):
         data["viewer"][scene] = viewer_data(results, out, scene)
-        body += [f"<h2>Scene <code>{html.escape(scene)}</code></h2>", "<h3>Models</h3>",
-                 _model_table(results, scene), "<h3>Renders</h3>", _viewer(scene, i),
-                 "<h3>Per material</h3>", _material_table(results, scene)]
+        body += [f"<h2>Scene <code>{html.escape(scene)}</code></h2>", _noise_floor(results, scene),
+                 "<h3>Models</h3>", _model_table(results, scene), "<h3>Renders</h3>",
+                 _viewer(scene, i), "<h3>Per material</h3>", _material_table(results, scene)]
+    if not scenes:
+        body += ["<h2>BRDF-space metrics (no renders)</h2>", _model_table(results, None)]
+    body += _stability(results)
     if charts:
         body.append("<h2>Charts</h2>")
         body += [f'<p>{html.escape(p.name)}<br><img class="chart" alt="{html.escape(p.stem)}" '
