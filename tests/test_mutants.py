@@ -355,6 +355,7 @@ def test_model_is_checked_on_construction():
         ([[], [], [-1]], [[], [], [1.0]], "channel 2 has coefficient locations outside"),
         ([[3], [], []], [[np.nan], [], []], "channel 0 has NaN/inf"),
         ([[], [3], []], [[], [-np.inf], []], "channel 1 has NaN/inf"),
+        ([[], [], [7, 2, 7]], [[], [], [1.0, 2.0, 3.0]], "channel 2 repeats a coefficient location"),
     ]
     for locs, vals, match in cases:
         with pytest.raises(InvalidBRDFError, match=match):
@@ -369,6 +370,14 @@ def test_model_is_checked_on_construction():
         SparseBRDF(**ok, locations=[[5], [], []], values=[[big], [], []])
     with pytest.raises(UsageError, match="colour basis"):
         SparseBRDF(**ok, locations=[[], [], []], values=[[], [], []], basis="xyz")
+    # the limit is checked in float64: on the (13, 13, 16) grid, this value's exact square
+    # is above it and its float32 square below
+    grid = (13, 13, 16)
+    over = np.float32(7990.9683)
+    limit = 3.0 * math.prod(grid) * T_MAX**2
+    assert float(over) ** 2 > limit >= float(np.square(over))
+    with pytest.raises(InvalidBRDFError, match="larger than any finite BRDF's"):
+        SparseBRDF(**{**ok, "shape": grid}, locations=[[5], [], []], values=[[over], [], []])
 
 
 def test_model_repr_modes_and_ensemble_checks(ens):

@@ -85,6 +85,9 @@ class SparseBRDF:
                                        f"outside the {self.shape} grid")
             if not np.all(np.isfinite(v)):
                 raise InvalidBRDFError(f"{self.name}: channel {c} has NaN/inf coefficients")
+            if np.unique(a).size != a.size:  # a file could not say which one holds
+                raise InvalidBRDFError(f"{self.name}: channel {c} repeats a coefficient "
+                                       "location")
             if float(np.sum(np.square(v, dtype=np.float64))) > 3.0 * size * T_MAX**2:
                 raise InvalidBRDFError(
                     f"{self.name}: channel {c}'s coefficients (largest |s| "
