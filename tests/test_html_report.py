@@ -45,7 +45,7 @@ def test_the_page_is_self_contained(report):
     page = (report / "report.html").read_text()
     assert "default-src 'none'" in page  # the browser may fetch nothing
     assert not re.search(r"""(src|href)\s*=\s*["'](?!data:|#)""", page)
-    assert page.count("data:image/jpeg;base64,") >= 6  # reference, renders and maps
+    assert page.count("data:image/jpeg;base64,") >= 8  # reference, renders, both maps, bars
     assert "data:image/png;base64," in page  # the charts
     data = json.loads(re.search(r'<script type="application/json" id="bench-data">(.*?)'
                                 r"</script>", page, re.S).group(1).replace("<\\/", "</"))
@@ -53,6 +53,9 @@ def test_the_page_is_self_contained(report):
     (material,) = cells
     assert set(cells[material]["models"]) == {"naive", "tabulated"}
     assert cells[material]["models"]["tabulated"]["flip"] == 0.0
+    assert all(m["diff_map"].startswith("data:image/jpeg") for m in cells[material]["models"]
+               .values())
+    assert set(data["bars"]) == {"flip", "diff"}
 
 
 #: A number as report.md writes it: 12, 0.049, -3.5, 4.98e+07.
@@ -106,7 +109,9 @@ def test_the_page_in_headless_chromium(report, tmp_path):
     assert found and found.group(1), "the page's self-check did not run"
     check = json.loads(found.group(1).replace("&quot;", '"'))
     assert check["ok"] and not check["errors"], check
-    assert set(check["checks"]) >= {"flips_to_reference", "flips_back", "flip_map", "sorts"}
+    assert set(check["checks"]) >= {"flips_to_reference", "flips_back", "flip_map", "sorts",
+                                    "flip_colour_bar", "diff_map", "map_off", "exposure",
+                                    "key_with_menu_focused"}
     # the sort was checked on a column whose values differ, reordering the rows both ways
     sort = check["sort"]
     assert len(set(sort["before"])) >= 2, sort

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sparse_brdf.benchmark.report import speed_settings, summary_table
+from sparse_brdf.benchmark.report import speed_accuracy_figure, speed_settings, summary_table
 from sparse_brdf.benchmark.speed import SETTLE, Rate, settled, timed_rate
 
 
@@ -105,3 +105,26 @@ def test_reports_state_the_real_speed_settings():
     assert speed_settings({"config": {"speed": False}}) .startswith("evals/s: not measured")
     (row,) = summary_table(_results(4096, spread))
     assert (row["evals_per_s"], row["evals_min"], row["evals_max"]) == (2e7, 1.5e7, 2.2e7)
+
+
+@pytest.mark.parametrize("speeds", [(2.1e7, 2.6e7, 3.3e7), (1.5e6, 9.9e6), (3e5, 4e7, 2e9)])
+def test_every_chart_axis_is_labelled_with_ticks(speeds):
+    """Speeds within one power of ten (the usual case) still get labelled ticks, as do
+    speeds over several."""
+    import matplotlib.pyplot as plt
+
+    rows = [{"model": f"m{i}", "evals_per_s": s, "bytes": 100.0 * (i + 1),
+             "snr_object_mean": 30.0 + i, "snr_whole_mean": 35.0 + i}
+            for i, s in enumerate(speeds)]
+    fig = speed_accuracy_figure(rows)
+    fig.canvas.draw()
+    try:
+        for ax in fig.axes:
+            assert ax.get_xlabel() and ax.get_ylabel()
+            lo, hi = ax.get_xlim()
+            shown = [t.get_text() for t in ax.get_xticklabels()
+                     if t.get_text() and lo <= t.get_position()[0] <= hi]
+            assert len(shown) >= 2, (ax.get_xlabel(), shown)
+            assert [t for t in ax.get_yticklabels() if t.get_text()]
+    finally:
+        plt.close(fig)

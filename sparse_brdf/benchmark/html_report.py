@@ -7,11 +7,15 @@ from disk with no network and can be mailed or archived as one file:
   a header; again for the reverse order);
 - per scene, a viewer of every material and model: the reference and the model's render
   in one frame, a slider wiping from one to the other, ``F`` (or the button) flipping
-  between them, ``M`` toggling the model's HDR-FLIP error map (magma, 0 to 1) in place of
-  its render; renders are tone-mapped as the report's figures (x / (1 + x), gamma 2.2);
+  between them, ``M`` toggling the model's HDR-FLIP error map (magma, 0 to 1) and ``D``
+  its difference map (``|ref - img| x 10``, jet, 0 to 1) in place of its render, each
+  map with its colour bar, and a display exposure slider (stops, applied to the
+  tone-mapped renders); the keys work whatever has focus (a menu, the slider, a table);
+  renders are tone-mapped as the report's figures (x / (1 + x), gamma 2.2);
 - the report's charts (its PNGs, but for the render figures, which the viewer replaces).
 
-Opened as ``report.html#selftest`` the page checks itself (a flip, the FLIP map, a
+Opened as ``report.html#selftest`` the page checks itself (a flip, with a menu focused
+too, the FLIP and difference maps and their colour bars, the exposure, a
 column of differing values sorted up then down, its rows reordered) and writes the
 outcome into the element ``#selftest-result`` (what the test suite reads through
 headless Chromium, ``tests/test_html_report.py``).
@@ -48,9 +52,10 @@ __all__ = ["write_html_report"]
 _JPEG_QUALITY = 92
 
 
-def _image_uri(rgb: np.ndarray | None = None, scalar: np.ndarray | None = None) -> str:
+def _image_uri(rgb: np.ndarray | None = None, scalar: np.ndarray | None = None,
+               cmap: str = "magma") -> str:
     """A data URI of a JPEG: ``rgb`` in [0, 1] (H, W, 3), or ``scalar`` in [0, 1] (H, W)
-    through the magma colour map."""
+    through the colour map ``cmap``."""
     import matplotlib  # lazy: matplotlib takes ~0.4 s to import; only reports need it
 
     matplotlib.use("Agg")
@@ -58,7 +63,7 @@ def _image_uri(rgb: np.ndarray | None = None, scalar: np.ndarray | None = None) 
 
     buf = io.BytesIO()
     if scalar is not None:
-        mimage.imsave(buf, np.clip(scalar, 0, 1), cmap="magma", vmin=0, vmax=1, format="jpeg",
+        mimage.imsave(buf, np.clip(scalar, 0, 1), cmap=cmap, vmin=0, vmax=1, format="jpeg",
                       pil_kwargs={"quality": _JPEG_QUALITY})
     else:
         mimage.imsave(buf, np.clip(rgb, 0, 1), format="jpeg",
@@ -79,22 +84,29 @@ def _num(x) -> float | str | None:
 
 
 def viewer_data(results: dict, out: Path, scene: str) -> dict:
-    """Per material of ``scene``: the reference render and each model's render and FLIP
-    map (data URIs) with its figures; materials without a reference render are left out."""
+    """Per material of ``scene``: the reference render and each model's render, FLIP map
+    and difference map (data URIs) with its figures; materials without a reference render
+    are left out."""
     work = out / "work" / scene
     mats: dict = {}
+    refs: dict = {}
     cells = sorted(results["cells"].values(), key=lambda c: (c["material"], c["model"]))
     for c in cells:
         stem = c["material"].replace("/", "__")
         ref_p, img_p = work / f"{stem}__reference.exr", work / f"{stem}__{c['model']}.exr"
         if not (ref_p.is_file() and img_p.is_file()):
             continue
-        entry = mats.setdefault(c["material"], {"reference": _image_uri(tone(read_exr(ref_p))),
+        if c["material"] not in refs:
+            refs[c["material"]] = read_exr(ref_p)
+        ref, img = refs[c["material"]], read_exr(img_p)
+        entry = mats.setdefault(c["material"], {"reference": _image_uri(tone(ref)),
                                                 "models": {}})
         fp = flip_map_path(out, scene, c["material"], c["model"])
         figures = (c.get("renders") or {}).get(scene, {})
         entry["models"][c["model"]] = {
-            "render": _image_uri(tone(read_exr(img_p))),
+            "render": _image_uri(tone(img)),
+            # linear radiance, as report.md's figures: |ref - img| x 10, jet from 0 to 1
+            "diff_map": _image_uri(scalar=np.abs(ref - img).mean(-1) * 10, cmap="jet"),
             "flip_map": _image_uri(scalar=np.load(fp).astype(np.float32)) if fp.is_file() else None,
             **{k: _num(figures.get(k)) for k in ("snr_object", "snr_whole", "flip")}}
     return mats
@@ -186,9 +198,14 @@ def _viewer(scene: str, index: int) -> str:
   <label>model <select class="model"></select></label>
   <button class="flip" title="key F">reference / model (F)</button>
   <button class="flipmap" title="key M">HDR-FLIP map (M)</button>
+  <button class="diffmap" title="key D">difference map (D)</button>
   <label>wipe <input class="wipe" type="range" min="0" max="100" value="100"></label>
+  <label>exposure <input class="exposure" type="range" min="-4" max="4" step="0.5"
+   value="0"> <span class="ev">0</span> stops</label>
  </div>
  <div class="frame"><img class="base" alt="reference"><img class="top" alt="model"></div>
+ <div class="colourbar" hidden><span class="lo">0</span><img class="bar" alt="colour bar">
+  <span class="hi">1</span> <span class="what"></span></div>
  <div class="caption"></div>
 </div>'''
 
@@ -206,6 +223,9 @@ th[aria-sort=ascending]::after{content:" \\25B2"} th[aria-sort=descending]::afte
 .frame img{position:absolute;left:0;top:0;width:384px;height:384px;image-rendering:pixelated}
 .controls{margin-bottom:.4em} .controls label{margin-right:.8em}
 .caption{font-size:13px;margin-top:.3em;min-height:1.2em}
+.colourbar{font-size:12px;margin-top:.3em;display:flex;align-items:center;gap:4px}
+.colourbar img{width:360px;height:12px;border:1px solid rgb(136,136,136)}
+.colourbar[hidden]{display:none}
 img.chart{max-width:100%;border:1px solid #ddd;margin:.4em 0}
 """
 
@@ -252,7 +272,11 @@ function setupViewer(el) {
   const matSel = el.querySelector('.material'), modSel = el.querySelector('.model');
   const base = el.querySelector('.base'), top = el.querySelector('.top');
   const wipe = el.querySelector('.wipe'), caption = el.querySelector('.caption');
-  const v = {el, showMap: false, base, top, wipe};
+  const exposure = el.querySelector('.exposure'), bar = el.querySelector('.colourbar');
+  const v = {el, map: null, base, top, wipe, exposure, bar};
+  const MAPS = {flip: ['flip_map', 'HDR-FLIP map', 'flipmap', 'HDR-FLIP, 0 (identical) to 1'],
+                diff: ['diff_map', 'difference map', 'diffmap',
+                       '|ref - img| x 10, linear radiance, 0 to 1']};
   for (const m of Object.keys(mats)) matSel.add(new Option(m, m));
   function fillModels() {
     const keep = modSel.value;
@@ -266,25 +290,35 @@ function setupViewer(el) {
     const mat = mats[matSel.value], cell = v.cell();
     if (!mat || !cell) { caption.textContent = 'no renders in this scene'; return; }
     base.src = mat.reference;
-    const map = v.showMap && cell.flip_map;
-    top.src = map ? cell.flip_map : cell.render;
-    const w = Number(wipe.value);
+    const m = v.map && cell[MAPS[v.map][0]] ? MAPS[v.map] : null;
+    top.src = m ? cell[m[0]] : cell.render;
+    const w = Number(wipe.value), ev = Number(exposure.value);
     top.style.clipPath = 'inset(0 ' + (100 - w) + '% 0 0)';
-    const shown = w === 100 ? (map ? 'HDR-FLIP map of ' + modSel.value : 'model ' + modSel.value)
-      : w === 0 ? 'reference' : 'left: ' + (map ? 'FLIP map' : 'model') + ', right: reference';
-    el.dataset.shown = w === 100 ? (map ? 'flipmap' : 'model') : w === 0 ? 'reference' : 'wipe';
+    const gain = 'brightness(' + Math.pow(2, ev) + ')';  // the tone-mapped renders only
+    base.style.filter = gain;
+    top.style.filter = m ? 'none' : gain;
+    el.querySelector('.ev').textContent = String(ev);
+    bar.hidden = !(m && w > 0);
+    if (m) { bar.querySelector('.bar').src = DATA.bars[v.map];
+             bar.querySelector('.what').textContent = m[3]; }
+    const shown = w === 100 ? (m ? m[1] + ' of ' + modSel.value : 'model ' + modSel.value)
+      : w === 0 ? 'reference' : 'left: ' + (m ? m[1] : 'model') + ', right: reference';
+    el.dataset.shown = w === 100 ? (m ? m[2] : 'model') : w === 0 ? 'reference' : 'wipe';
     caption.textContent = 'showing ' + shown + ' | SNR ' + fmt(cell.snr_object, 1) +
       ' dB object-only, ' + fmt(cell.snr_whole, 1) + ' dB whole-image | HDR-FLIP ' +
       fmt(cell.flip, 3);
   };
   v.flip = () => { wipe.value = Number(wipe.value) === 0 ? 100 : 0; v.update(); };
-  v.toggleMap = () => { v.showMap = !v.showMap; if (Number(wipe.value) === 0) wipe.value = 100;
-                        v.update(); };
+  v.toggleMap = (kind = 'flip') => { v.map = v.map === kind ? null : kind;
+                                      if (Number(wipe.value) === 0) wipe.value = 100;
+                                      v.update(); };
   matSel.addEventListener('change', () => { fillModels(); v.update(); });
   modSel.addEventListener('change', v.update);
   wipe.addEventListener('input', v.update);
+  exposure.addEventListener('input', v.update);
   el.querySelector('.flip').addEventListener('click', v.flip);
-  el.querySelector('.flipmap').addEventListener('click', v.toggleMap);
+  el.querySelector('.flipmap').addEventListener('click', () => v.toggleMap('flip'));
+  el.querySelector('.diffmap').addEventListener('click', () => v.toggleMap('diff'));
   el.addEventListener('focusin', () => { active = v; });
   el.addEventListener('pointerdown', () => { active = v; });
   fillModels();
@@ -293,11 +327,17 @@ function setupViewer(el) {
 }
 document.querySelectorAll('.viewer').forEach(setupViewer);
 active = viewers[0] || null;
+// The keys work whatever has focus (a menu, a slider, a button, a table): a menu's
+// type-ahead would otherwise take F, M or D as the first letter of an option.
 document.addEventListener('keydown', e => {
-  if (!active || e.target.tagName === 'SELECT' || e.target.tagName === 'INPUT') return;
-  if (e.key === 'f' || e.key === 'F') { active.flip(); e.preventDefault(); }
-  if (e.key === 'm' || e.key === 'M') { active.toggleMap(); e.preventDefault(); }
-});
+  if (!active || e.ctrlKey || e.metaKey || e.altKey) return;
+  const k = e.key.toLowerCase();
+  if (k === 'f') active.flip();
+  else if (k === 'm') active.toggleMap('flip');
+  else if (k === 'd') active.toggleMap('diff');
+  else return;
+  e.preventDefault();
+}, true);
 
 // A sort that changes nothing proves nothing: check on the first numeric column whose
 // values differ that a click sorts it ascending and a second click descending, the
@@ -344,6 +384,26 @@ function selftest() {
     out.checks.flips_back = v.el.dataset.shown === 'model';
     key('m');
     out.checks.flip_map = v.el.dataset.shown === 'flipmap' && v.top.src === v.cell().flip_map;
+    out.checks.flip_colour_bar = !v.bar.hidden &&
+      v.bar.querySelector('.bar').src === DATA.bars.flip;
+    key('d');
+    out.checks.diff_map = v.el.dataset.shown === 'diffmap' && v.top.src === v.cell().diff_map &&
+      v.bar.querySelector('.bar').src === DATA.bars.diff;
+    key('d');
+    out.checks.map_off = v.el.dataset.shown === 'model' && v.bar.hidden;
+    // a key pressed while a menu has focus reaches the viewer, and leaves the menu as it was
+    const menu = v.el.querySelector('.model'), chosen = menu.value;
+    menu.focus();
+    menu.dispatchEvent(new KeyboardEvent('keydown', {key: 'f', bubbles: true,
+                                                     cancelable: true}));
+    out.checks.key_with_menu_focused = v.el.dataset.shown === 'reference' &&
+      menu.value === chosen;
+    key('f');
+    v.exposure.value = 2; v.exposure.dispatchEvent(new Event('input'));
+    out.checks.exposure = v.top.style.filter === 'brightness(4)' &&
+      v.base.style.filter === 'brightness(4)';
+    v.exposure.value = 0; v.exposure.dispatchEvent(new Event('input'));
+    key('m');  // the FLIP map again, half wiped: what the screenshot shows
     v.wipe.value = 50; v.wipe.dispatchEvent(new Event('input'));
     out.checks.wipe = v.el.dataset.shown === 'wipe';
   } else {
@@ -388,8 +448,9 @@ def write_html_report(results: dict, out: Path) -> Path:
             f" split), {cfg['res']}x{cfg['res']}, {cfg['spp']} spp, seed {cfg['seed']}. "
             f"SNR in dB: <i>obj</i> = {OBJECT_ONLY}, <i>whole</i> = {WHOLE_IMAGE}; HDR-FLIP "
             "over the object's pixels (0 is identical). Click a column's header to sort; in "
-            "a viewer, F flips between reference and model, M shows the HDR-FLIP map, the "
-            "slider wipes.</p>"]
+            "a viewer, F flips between reference and model, M shows the HDR-FLIP map and D the "
+            "difference map (each with its colour bar), whatever has focus; one slider "
+            "wipes, the other sets the display exposure of the tone-mapped renders.</p>"]
     for scene, why in results.get("skipped_scenes", {}).items():
         body.append(f"<p>Skipped scene <code>{html.escape(scene)}</code>: "
                     f"{html.escape(why)}</p>")
@@ -401,7 +462,9 @@ def write_html_report(results: dict, out: Path) -> Path:
                  _table(["material", "model", "error"],
                         [[_cell(c["material"], ""), _cell(c["model"], ""),
                           _cell(c["error"], "")] for c in failed])]
-    data: dict = {"viewer": {}}
+    ramp = np.tile(np.linspace(0, 1, 256), (8, 1))  # the maps' colour bars, 0 to 1
+    data: dict = {"viewer": {}, "bars": {"flip": _image_uri(scalar=ramp, cmap="magma"),
+                                         "diff": _image_uri(scalar=ramp, cmap="jet")}}
     for i, scene in enumerate(scenes):
         data["viewer"][scene] = viewer_data(results, out, scene)
         body += [f"<h2>Scene <code>{html.escape(scene)}</code></h2>", _noise_floor(results, scene),

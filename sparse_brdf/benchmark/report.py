@@ -168,10 +168,40 @@ def pareto(points: list[tuple[float, float]], higher_x: bool = False) -> list[in
 def speed_accuracy_chart(rows: list[dict], path: Path, title: str = "") -> bool:
     """Mean rendering SNR (both forms) against each model's evaluations per second and
     against bytes per material, with the Pareto fronts. False when nothing to plot."""
+    fig = speed_accuracy_figure(rows, title)
+    if fig is None:
+        return False
+    with atomic_path(path, suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=100)
+    _plt().close(fig)
+    return True
+
+
+def _log_axis(ax, values: list[float], which: str = "x") -> None:
+    """A logarithmic axis (``which``: "x" or "y") whose ticks are labelled however narrow
+    the values' range: within one power of ten, plain numbers at 1, 1.5, 2, 3, 5 and 7
+    times each power."""
+    from matplotlib import ticker  # lazy: matplotlib is imported only for the figures
+
+    axis = ax.xaxis if which == "x" else ax.yaxis
+    (ax.set_xscale if which == "x" else ax.set_yscale)("log")
+    lo, hi = min(values), max(values)
+    if hi < 10 * lo:  # no power of ten, or one, in range: label the in-between ticks
+        axis.set_major_locator(ticker.LogLocator(base=10, subs=(1.0, 1.5, 2.0, 3.0, 5.0,
+                                                                7.0)))
+        axis.set_major_formatter(ticker.FuncFormatter(lambda x, _: f"{x:.3g}"))
+        pad = (hi / lo) ** 0.15 if hi > lo else 1.3
+        (ax.set_xlim if which == "x" else ax.set_ylim)(lo / pad, hi * pad)
+    axis.set_minor_formatter(ticker.NullFormatter())
+
+
+def speed_accuracy_figure(rows: list[dict], title: str = ""):
+    """The figure of :func:`speed_accuracy_chart` (a matplotlib ``Figure``), or None when
+    no row has a mean rendering SNR."""
     plt = _plt()
     rows = [r for r in rows if math.isfinite(r.get("snr_object_mean", math.nan))]
     if not rows:
-        return False
+        return None
     fig, axes = plt.subplots(2, 2, figsize=(11, 8), constrained_layout=True)
     for i, (key, label) in enumerate(FORMS):
         for ax, xkey, xlabel, higher in (
@@ -191,16 +221,12 @@ def speed_accuracy_chart(rows: list[dict], path: Path, title: str = "") -> bool:
             fx = sorted(pts[j] for j in front)
             ax.plot([p[0] for p in fx], [p[1] for p in fx], "--", color="grey", lw=1,
                     label="Pareto front")
-            ax.set_xscale("log")
-            ax.xaxis.set_minor_formatter(plt.NullFormatter())
+            _log_axis(ax, [p[0] for p in pts])
             ax.set_xlabel(xlabel)
             ax.set_ylabel(f"mean rendering SNR, {label} (dB)")
             ax.legend(fontsize=8)
     fig.suptitle(f"Speed and size against accuracy{title} (stars: Pareto-optimal; red: sparse)")
-    with atomic_path(path, suffix=".png") as tmp:
-        fig.savefig(tmp, dpi=100)
-    plt.close(fig)
-    return True
+    return fig
 
 
 def curve_figure(results: dict, path: Path) -> None:
@@ -212,13 +238,14 @@ def curve_figure(results: dict, path: Path) -> None:
     counts = first["counts"]
     fig, axes = plt.subplots(1, 2, figsize=(11, 4), constrained_layout=True)
     for t in [t for t in TRANSFORMS if t in first]:
-        for ax, key, lab in ((axes[0], "rae", "RAE"), (axes[1], "cos_snr", "cos-weighted SNR")):
+        for ax, key, lab in ((axes[0], "rae", "RAE"), (axes[1], "cos_snr", "cos-weighted SNR, dB")):
             v = np.array([c[t][key] for c in curves.values()])
             ax.plot(counts, v.mean(0), marker="o", label=t)
             ax.set_xscale("log", base=2)
             ax.set_xlabel("coefficients per channel")
             ax.set_ylabel(f"{lab} (mean of {len(curves)} materials)")
-    axes[0].set_yscale("log")
+    rae = [x for c in curves.values() for t in TRANSFORMS if t in c for x in c[t]["rae"]]
+    _log_axis(axes[0], [x for x in rae if x > 0] or [1.0], "y")
     axes[0].legend()
     with atomic_path(path, suffix=".png") as tmp:
         fig.savefig(tmp, dpi=100)
@@ -255,6 +282,7 @@ def difference_figure(results: dict, out: Path, scene: str,
             continue
         fig, axes = plt.subplots(3, len(shown) + 1, figsize=(2.2 * (len(shown) + 1), 7.0),
                                  constrained_layout=True)
+        scales = {}  # row -> an image of its colour map, for the colour bar
         axes = np.atleast_2d(axes)
         axes[0, 0].imshow(tone(ref))
         axes[0, 0].set_title("reference", fontsize=8)
@@ -267,17 +295,22 @@ def difference_figure(results: dict, out: Path, scene: str,
             axes[0, i].set_title(f"{m}\nobj {r.get('snr_object', math.nan):.1f} / "
                                  f"whole {r.get('snr_whole', math.nan):.1f} dB", fontsize=7)
             diff = np.abs(ref - img).mean(-1) * 10  # linear radiance, as the paper's figures
-            axes[1, i].imshow(np.clip(diff, 0, 1), cmap="jet", vmin=0, vmax=1)
+            scales[1] = axes[1, i].imshow(np.clip(diff, 0, 1), cmap="jet", vmin=0, vmax=1)
             axes[1, i].set_title("|ref - img| x 10", fontsize=7)
             fp = flip_map_path(out, scene, key, m)
             if fp.is_file():
-                axes[2, i].imshow(np.load(fp).astype(np.float32), cmap="magma", vmin=0, vmax=1)
+                scales[2] = axes[2, i].imshow(np.load(fp).astype(np.float32), cmap="magma",
+                                              vmin=0, vmax=1)
                 axes[2, i].set_title(f"HDR-FLIP, mean {_f(r.get('flip'), '.3f')}", fontsize=7)
             else:
                 axes[2, i].axis("off")
         for a in axes.ravel():
             a.set_xticks([])
             a.set_yticks([])
+        for row, im in scales.items():  # the colour scales, 0 to 1
+            label = "|ref - img| x 10" if row == 1 else "HDR-FLIP"
+            fig.colorbar(im, ax=axes[row, :], shrink=0.8, label=label).ax.tick_params(
+                labelsize=7)
         fig.suptitle(f"{key} in {scene}", fontsize=9)
         p = out / f"renders-{scene}-{stem}.png"
         with atomic_path(p, suffix=".png") as tmp:
