@@ -25,7 +25,9 @@ that the bench does not evaluate; a config that leaves none is refused.
 from __future__ import annotations
 
 import copy
+import glob
 import json
+import math
 import shutil
 import sys
 import time
@@ -60,6 +62,7 @@ from .bench_config import (
     learners_training_set,
     make_models,
     material_key,
+    render_seeds,
 )
 from .html_report import write_html_report
 from .provenance import cell_provenance, environment_provenance, stale_cells
@@ -68,7 +71,7 @@ from .results_file import READ_SCHEMAS, SCHEMA, environment
 from .speed import measure_speed
 from .stability import run_stability
 
-__all__ = ["Bench"]
+__all__ = ["Bench", "seed_mean"]
 
 class Bench:
     """Runs a :class:`BenchConfig`; results accumulate in ``self.results``. Decoded tables
@@ -210,6 +213,8 @@ class Bench:
             for scene in self.work.glob("*/"):
                 for suffix in (".exr", ".json", ".flip.npy"):
                     (scene / f"{stem}{suffix}").unlink(missing_ok=True)  # cached outputs
+                for f in scene.glob(f"{glob.escape(stem)}@s*"):  # of the other seeds
+                    f.unlink(missing_ok=True)
         for name in list(self.results["speed"]):
             if name in changed or name not in self._cell_provenance:
                 del self.results["speed"][name]
@@ -322,16 +327,33 @@ class Bench:
             json.dump({"seconds": seconds}, f)
         return img, seconds
 
+    def _scene_figures(self, scene: str, key: str, model: str, ref_file: str,
+                       path: str) -> dict:
+        """A model's figures in ``scene``: both SNR forms, HDR-FLIP and the render's
+        seconds, rendered at each of the bench's seeds (:func:`render_seeds`) beside the
+        reference at the same seed; with several seeds, their mean and standard error."""
+        per = []
+        for i, seed in enumerate(render_seeds(self.cfg)):
+            tag = "" if i == 0 else f"@s{seed}"  # the first seed's files keep their names
+            ref, _ = self._render(scene, key, ref_file, seed, f"reference{tag}")
+            img, secs = self._render(scene, key, path, seed, f"{model}{tag}")
+            per.append({**snr_forms(ref, img, self._mask(scene)).as_dict(),
+                        "flip": self._flip(scene, key, model, ref, img, keep=i == 0),
+                        "render_s": secs})
+        return seed_mean(per)
+
     def _flip(self, scene: str, key: str, model: str, ref: np.ndarray,
-              img: np.ndarray) -> float | None:
+              img: np.ndarray, keep: bool = True) -> float | None:
         """HDR-FLIP of a model's render over the object's pixels; its error map is kept
-        beside the render (``work/SCENE/MATERIAL__MODEL.flip.npy``, float16) for the
-        reports. None where FLIP is undefined (a black reference)."""
+        (``keep``) beside the render (``work/SCENE/MATERIAL__MODEL.flip.npy``, float16)
+        for the reports. None where FLIP is undefined (a black reference)."""
         try:
             res = hdr_flip(ref, img, self._mask(scene))
         except ValueError as exc:
             print(f"bench: no HDR-FLIP for {key} / {model} in {scene}: {exc}", file=sys.stderr)
             return None
+        if not keep:
+            return res.mean
         path = self.work / scene / f"{file_stem(key)}__{model}.flip.npy"
         with atomic_write(path, "wb") as f:
             np.save(f, res.map.astype(np.float16))
@@ -398,15 +420,10 @@ class Bench:
                     path = str(write_merl(base.parent / f"{base.name}.binary",
                                           BRDF(rec, brdf.valid, brdf.name)))
                 ref_file = self._reference_file(key, brdf)
-                row["renders"] = {}
                 try:
-                    for scene in self.scenes:
-                        ref, _ = self._render(scene, key, ref_file, self.cfg.seed, "reference")
-                        img, secs = self._render(scene, key, path, self.cfg.seed, model.name)
-                        row["renders"][scene] = {
-                            **snr_forms(ref, img, self._mask(scene)).as_dict(),
-                            "flip": self._flip(scene, key, model.name, ref, img),
-                            "render_s": secs}
+                    row["renders"] = {scene: self._scene_figures(scene, key, model.name,
+                                                                 ref_file, path)
+                                      for scene in self.scenes}
                 finally:  # the decoded table: 35 MB, rendered now, cached as renders
                     if not self.keep_work and path.endswith(".binary"):
                         Path(path).unlink(missing_ok=True)
@@ -418,6 +435,28 @@ class Bench:
             row["error"] = f"{type(exc).__name__}: {one_line(exc)}"
         return row
 
+
+
+def seed_mean(per: list[dict]) -> dict:
+    """One scene's figures over several seeds: each figure's mean, and for the SNRs and
+    HDR-FLIP their standard error (``KEY_se``: sample standard deviation over sqrt(N);
+    nan when a seed's figure is not finite) and ``seeds``, N; one seed's figures as they
+    are. A figure missing (None) at any seed is None."""
+    if len(per) == 1:
+        return per[0]
+    out: dict = {"seeds": len(per)}
+    for k in ("snr_object", "snr_whole", "flip", "render_s"):
+        v = [p[k] for p in per]
+        if any(x is None for x in v):
+            out[k] = None
+            continue
+        arr = np.array(v, float)
+        out[k] = float(arr.mean())
+        if k != "render_s":
+            out[f"{k}_se"] = (float(arr.std(ddof=1) / np.sqrt(len(arr)))
+                              if np.all(np.isfinite(arr)) else
+                              0.0 if np.all(arr == arr[0]) else math.nan)
+    return out
 
 
 def _settings(config) -> dict | None:

@@ -31,7 +31,8 @@ from ..params import Interval, check
 from ..paths import CONFIGS_DIR
 from ..sources.corpora import SPLITS, get_corpus
 
-__all__ = ["BenchConfig", "check_config", "config_kind", "read_config", "shipped_configs"]
+__all__ = ["BenchConfig", "check_config", "config_kind", "read_config", "render_seeds",
+           "shipped_configs"]
 
 #: The one-light scene set (``docs/method.md``, "The bench's protocol"): the studio sphere
 #: under one distant light at 0, 40 and 70 degrees from the camera.
@@ -72,6 +73,7 @@ class BenchConfig:
     res: int = 128
     seed: int = 0
     noise_seed: int = 1
+    seeds: int = 1  # renders per cell and scene, at seeds from seed on (noise_seed skipped)
     ensemble: str | None = None
     pca_train_max: int | None = None  # cap on PCA training materials (memory: ~17 MB each)
     out: str = "bench_out"
@@ -164,7 +166,8 @@ SETTINGS = {
     "spp": RENDER_PARAMETERS["spp"], "res": RENDER_PARAMETERS["res"],
     "seed": RENDER_PARAMETERS["seed"], "noise_seed": RENDER_PARAMETERS["seed"],
     "max_materials": Interval(int, 1), "pca_train_max": Interval(int, 2),
-    "speed_evals": Interval(int, 1, 1 << 26), "curve_coeffs": GRID_BINS, "split": SPLITS,
+    "speed_evals": Interval(int, 1, 1 << 26), "seeds": Interval(int, 1, 64),
+    "curve_coeffs": GRID_BINS, "split": SPLITS,
 }
 #: List settings that may not be empty, and why.
 _NON_EMPTY = {"curve_coeffs": "give at least one coefficient count (the error curve's "
@@ -323,6 +326,17 @@ def _check_byte_budgets(cfg: BenchConfig, models: list, mats: list) -> None:
             raise ConfigError(f"{cfg.label}: model {m.name}: {m.n_bytes} bytes hold no "
                               f"coefficient: a file of these materials takes up to {floor} "
                               "bytes before its first (header, name, checksum)")
+
+
+def render_seeds(cfg: BenchConfig) -> list[int]:
+    """The seeds each cell is rendered at: ``cfg.seeds`` of them, from ``cfg.seed`` on,
+    skipping ``cfg.noise_seed`` (the noise floor's second reference)."""
+    seeds, s = [], cfg.seed
+    while len(seeds) < cfg.seeds:
+        if s != cfg.noise_seed:
+            seeds.append(s)
+        s += 1
+    return seeds
 
 
 def material_key(m) -> str:

@@ -41,6 +41,7 @@ from .report import (
     flip_map_path,
     noise_floor_means,
     scenes_of,
+    seeds_sentence,
     speed_settings,
     summary_table,
     tone,
@@ -134,15 +135,20 @@ def _model_table(results: dict, scene: str) -> str:
             *((f"{form}_{stat}", ".1f") for form in ("snr_object", "snr_whole")
               for stat in ("mean", "std", "min", "max")),
             ("flip_mean", ".3f"), ("flip_max", ".3f"), ("render_s", ".2f")]
+    rows = summary_table(results, scene)
+    seeded = [k for k in ("snr_object_se", "snr_whole_se", "flip_se")
+              if any(k in r for r in rows)]  # several seeds: standard errors
+    cols += [(k, ".3f" if k == "flip_se" else ".1f") for k in seeded]
     head = ["model", "materials", "failed", "bytes", "evals/s", "evals/s min",
             "evals/s max", "fit (s)", "RAE", "cos-SNR (dB)",
             *(f"{form} {stat} (dB)" for form in ("obj", "whole")
               for stat in ("mean", "std", "min", "max")),
-            "FLIP mean", "FLIP max", "render (s)"]
+            "FLIP mean", "FLIP max", "render (s)",
+            *(_SE_HEADS[k] for k in seeded)]
     rows = [[_cell(r["model"], ""), _cell(r["n"], "d"), _cell(r["failed"], "d"),
              *('<td data-v="">failed</td>' if k.startswith("evals") and r["n"] == 0
                else _cell(r.get(k, math.nan), f) for k, f in cols)]
-            for r in summary_table(results, scene)]
+            for r in rows]
     return f"<p>{html.escape(speed_settings(results))}</p>" + _table(head, rows)
 
 
@@ -174,9 +180,17 @@ def _stability(results: dict) -> list[str]:
             _table(["case", *methods], body)]
 
 
+#: The columns of the standard errors over several seeds.
+_SE_HEADS = {"snr_object_se": "obj ± (dB)", "snr_whole_se": "whole ± (dB)",
+             "flip_se": "FLIP ±"}
+
+
 def _material_table(results: dict, scene: str) -> str:
     rows = []
-    for c in sorted(results["cells"].values(), key=lambda c: (c["material"], c["model"])):
+    cells = sorted(results["cells"].values(), key=lambda c: (c["material"], c["model"]))
+    seeded = [k for k in _SE_HEADS
+              if any(k in ((c.get("renders") or {}).get(scene) or {}) for c in cells)]
+    for c in cells:
         s = (c.get("renders") or {}).get(scene, {})
         rows.append([_cell(c["material"], ""), _cell(c["model"], ""),
                      _cell(s.get("snr_object", math.nan), ".1f"),
@@ -185,9 +199,11 @@ def _material_table(results: dict, scene: str) -> str:
                      _cell(s.get("render_s", math.nan), ".2f"),
                      _cell(c.get("rae", math.nan), ".4f"),
                      _cell(f"{c['status']}: {c['error']}" if c.get("error") else c["status"],
-                           "")])
+                           ""),
+                     *(_cell(s.get(k), ".3f" if k == "flip_se" else ".1f")
+                       for k in seeded)])
     return _table(["material", "model", "SNR obj (dB)", "SNR whole (dB)", "HDR-FLIP",
-                   "render (s)", "RAE", "status"], rows)
+                   "render (s)", "RAE", "status", *(_SE_HEADS[k] for k in seeded)], rows)
 
 
 def _viewer(scene: str, index: int) -> str:
@@ -445,7 +461,8 @@ def write_html_report(results: dict, out: Path) -> Path:
     scenes = scenes_of(results)
     body = ["<h1>sparse-brdf bench report</h1>",
             f"<p>Corpora {html.escape(', '.join(cfg['corpora']))} ({html.escape(cfg['split'])}"
-            f" split), {cfg['res']}x{cfg['res']}, {cfg['spp']} spp, seed {cfg['seed']}. "
+            f" split), {cfg['res']}x{cfg['res']}, {cfg['spp']} spp, seed {cfg['seed']}."
+            f"{html.escape(seeds_sentence(cfg))} "
             f"SNR in dB: <i>obj</i> = {OBJECT_ONLY}, <i>whole</i> = {WHOLE_IMAGE}; HDR-FLIP "
             "over the object's pixels (0 is identical). Click a column's header to sort; in "
             "a viewer, F flips between reference and model, M shows the HDR-FLIP map and D the "

@@ -137,6 +137,10 @@ def summary_table(results: dict, scene: str | None = None,
             for key, _ in FORMS:
                 for stat, v in _stats([x[key] for x in renders]).items():
                     row[f"{key}_{stat}"] = v
+            for key in ("snr_object", "snr_whole", "flip"):  # several seeds: the mean's se
+                se = [x[f"{key}_se"] for x in renders if f"{key}_se" in x]
+                if se:
+                    row[f"{key}_se"] = float(np.sqrt(np.sum(np.square(se)))) / len(se)
             flips = _finite([x.get("flip") for x in renders])
             row["flip_mean"] = float(np.mean(flips)) if flips else math.nan
             row["flip_max"] = float(np.max(flips)) if flips else math.nan
@@ -214,6 +218,8 @@ def speed_accuracy_figure(rows: list[dict], title: str = ""):
             pts = [(r[xkey], r[f"{key}_mean"]) for r in sub]
             front = set(pareto(pts, higher_x=higher))
             for j, (r, (x, y)) in enumerate(zip(sub, pts, strict=True)):
+                if math.isfinite(r.get(f"{key}_se", math.nan)):  # several seeds
+                    ax.errorbar(x, y, yerr=r[f"{key}_se"], color="grey", capsize=3, lw=1)
                 ax.scatter(x, y, s=60 if j in front else 30, marker="*" if j in front else "o",
                            color="C3" if r["model"].startswith("sparse") else "C0")
                 ax.annotate(r["model"], (x, y), fontsize=7, xytext=(3, 3),
@@ -356,6 +362,20 @@ def _f(x: float, fmt: str = ".1f") -> str:
         else "-"
 
 
+def seeds_sentence(cfg: dict) -> str:
+    """What the reports say of a bench rendered at several seeds ("" for one)."""
+    n = cfg.get("seeds", 1)
+    return "" if n <= 1 else (f" Each cell rendered at {n} seeds: its figures are the mean "
+                              "over them ± the standard error of that mean.")
+
+
+def _pm(row: dict, key: str, se: str | None = None, fmt: str = ".1f") -> str:
+    """``row[key]``, with `` ± `` its standard error over the seeds when it has one
+    (``row[se]``, default ``KEY_se``)."""
+    err = row.get(se or f"{key}_se")
+    return _f(row.get(key), fmt) + (f" ± {_f(err, fmt)}" if err is not None else "")
+
+
 def _speed(row: dict) -> str:
     """A summary row's evaluations per second, the median with the timings' min and max
     in brackets: "failed" for a model none of whose cells finished, "-" where none was
@@ -428,11 +448,11 @@ def _model_table(rows: list[dict], scene: str, settings: str) -> list[str]:
         md.append(
             f"| {r['model']} | {r['n']} | {r['failed']} | {_f(r['bytes'], '.0f')} | "
             f"{_speed(r)} | {_f(r['fit_s'], '.2f')} | {_f(r['rae'], '.4f')} | "
-            f"{_f(r['cos_snr'])} | {_f(r.get('snr_object_mean'))} | "
+            f"{_f(r['cos_snr'])} | {_pm(r, 'snr_object_mean', 'snr_object_se')} | "
             f"{_f(r.get('snr_object_std'))} | {_f(r.get('snr_object_min'))} | "
-            f"{_f(r.get('snr_object_max'))} | {_f(r.get('snr_whole_mean'))} | "
+            f"{_f(r.get('snr_object_max'))} | {_pm(r, 'snr_whole_mean', 'snr_whole_se')} | "
             f"{_f(r.get('snr_whole_min'))} | {_f(r.get('snr_whole_max'))} | "
-            f"{_f(r.get('flip_mean'), '.3f')} | {_f(r.get('flip_max'), '.3f')} | "
+            f"{_pm(r, 'flip_mean', 'flip_se', '.3f')} | {_f(r.get('flip_max'), '.3f')} | "
             f"{_f(r.get('render_s'), '.2f')} |")
     return md
 
@@ -465,8 +485,8 @@ def _material_table(results: dict, scene: str) -> list[str]:
           "status |", "|---" * 8 + "|"]
     for r in sorted(results["cells"].values(), key=lambda r: (r["material"], r["model"])):
         s = (r.get("renders") or {}).get(scene, {})
-        md.append(f"| {r['material']} | {r['model']} | {_f(s.get('snr_object'))} | "
-                  f"{_f(s.get('snr_whole'))} | {_f(s.get('flip'), '.3f')} | "
+        md.append(f"| {r['material']} | {r['model']} | {_pm(s, 'snr_object')} | "
+                  f"{_pm(s, 'snr_whole')} | {_pm(s, 'flip', fmt='.3f')} | "
                   f"{_f(s.get('render_s'), '.2f')} | {_f(r.get('rae'), '.4f')} | {r['status']}"
                   f"{': ' + _md_text(r['error']) if r.get('error') else ''} |")
     return md
@@ -523,7 +543,8 @@ def write_report(results: dict, out: Path) -> Path:
     cfg = results["config"]
     md = ["# sparse-brdf bench report", "",
           f"Corpora {cfg['corpora']} ({cfg['split']} split), {cfg['res']}x{cfg['res']}, "
-          f"{cfg['spp']} spp, seed {cfg['seed']}, scenes {', '.join(cfg['scenes'])}.", ""]
+          f"{cfg['spp']} spp, seed {cfg['seed']}, scenes {', '.join(cfg['scenes'])}."
+          + seeds_sentence(cfg), ""]
     for scene, why in results.get("skipped_scenes", {}).items():
         md += [f"Skipped scene `{scene}`: {why}", ""]
     md += _failed_section(results)

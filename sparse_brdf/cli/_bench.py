@@ -13,7 +13,7 @@ from ..benchmark.acquisition_bench import (
     check_acquisition_config,
 )
 from ..benchmark.bench import Bench, BenchConfig
-from ..benchmark.bench_config import check_config, config_kind, shipped_configs
+from ..benchmark.bench_config import SETTINGS, check_config, config_kind, shipped_configs
 from ..benchmark.compare import PARAMETERS as GATE
 from ..benchmark.compare import compare_results, format_worse
 from ..benchmark.ranking import RANK_BY, merge_results, write_ranking
@@ -32,6 +32,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
         cfg.out = args.out
     if args.no_render:
         cfg.render = False
+    if args.seeds is not None:
+        cfg.seeds = args.seeds
     if args.model:
         if not args.out:  # the config's folder holds its own models' results
             raise UsageError(f"--model: give --out too, a folder of its own (the results of "
@@ -89,8 +91,9 @@ def _bench_acquisition(args: argparse.Namespace) -> int:
     if args.model:
         raise UsageError(f"--model: the acquisition bench ({cfg.label}) compares encodings "
                          "from samples, the sparse model and PCA; it takes no --model")
-    if args.no_render or args.workers or args.scheduler:
-        given = "--no-render" if args.no_render else "--workers/--scheduler"
+    if args.no_render or args.seeds is not None or args.workers or args.scheduler:
+        given = ("--no-render" if args.no_render else "--seeds" if args.seeds is not None
+                 else "--workers/--scheduler")
         raise UsageError(f"{given}: the acquisition bench ({cfg.label}) renders every fit "
                          "here; run it without that option")
     plan = check_acquisition_config(cfg)
@@ -118,6 +121,10 @@ def add_bench_commands(sub) -> None:
                    help="a built-in config's name or a TOML file (default: the small suite)")
     b.add_argument("--out", help="output folder (default: the config's)")
     b.add_argument("--no-render", action="store_true", help="BRDF-space metrics only")
+    b.add_argument("--seeds", metavar="N", type=typed(SETTINGS["seeds"]),
+                   help="render each cell at N seeds (from the config's seed on) and report "
+                        "each figure's mean and standard error (default: the config's "
+                        "seeds, 1 unless it sets it)")
     b.add_argument("--model", action="append", metavar="SPEC",
                    help="compare this model instead of the config's models (repeat it for "
                         "several): a built-in spec (sparse:262, naive, pca:40, tabulated, "
