@@ -30,6 +30,7 @@ from sparse_brdf.evaluation.render import render_scene
 from sparse_brdf.evaluation.scenes import RENDER_PARAMETERS
 from sparse_brdf.fitting.fit_images import fit_images
 from sparse_brdf.fitting.fit_scene import fit_scene
+from sparse_brdf.mitsuba_env import VARIANTS
 from sparse_brdf.params import SEED, Choice, Interval, check, check_choice, check_range
 from sparse_brdf.sources.corpora import SPLITS, TRAINING_CORPORA
 from sparse_brdf.sources.dataset import training_data
@@ -163,6 +164,7 @@ MIRRORS = {
     ("render", "spp"): (render_scene, "spp"),
     ("render", "seed"): (render_scene, "seed"),
     ("render", "res"): (render_scene, "res"),
+    ("render", "variant"): (render_scene, "variant"),
     ("fit-scene", "output"): (fit_scene, "out"),
     ("fit-scene", "spp"): (fit_scene, "spp"),
     ("fit-scene", "res"): (fit_scene, "res"),
@@ -216,6 +218,7 @@ def test_cli_choices_are_the_declarations():
     assert tuple(tr["init"].choices) == train_module.PARAMETERS["init"]
     assert tuple(rn["sampling"].choices) == LOBES
     assert tuple(rn["decoder"].choices) == DECODERS
+    assert tuple(rn["variant"].choices) == VARIANTS
 
 
 @pytest.mark.parametrize("command,dest,declared", [
