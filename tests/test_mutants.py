@@ -355,7 +355,8 @@ def test_model_is_checked_on_construction():
         ([[], [], [-1]], [[], [], [1.0]], "channel 2 has coefficient locations outside"),
         ([[3], [], []], [[np.nan], [], []], "channel 0 has NaN/inf"),
         ([[], [3], []], [[], [-np.inf], []], "channel 1 has NaN/inf"),
-        ([[], [], [7, 2, 7]], [[], [], [1.0, 2.0, 3.0]], "channel 2 repeats a coefficient location"),
+        ([[], [], [7, 2, 7]], [[], [], [1.0, 2.0, 3.0]],
+         "channel 2 repeats a coefficient location"),
     ]
     for locs, vals, match in cases:
         with pytest.raises(InvalidBRDFError, match=match):
@@ -378,6 +379,10 @@ def test_model_is_checked_on_construction():
     assert float(over) ** 2 > limit >= float(np.square(over))
     with pytest.raises(InvalidBRDFError, match="larger than any finite BRDF's"):
         SparseBRDF(**{**ok, "shape": grid}, locations=[[5], [], []], values=[[over], [], []])
+    # the limit itself is allowed: three values whose squares sum to it to the last bit
+    at = np.array([16596.625, 6.372054, 0.004328941], np.float32)
+    assert float(np.sum(np.square(at, dtype=np.float64))) == 3.0 * size * T_MAX**2
+    SparseBRDF(**ok, locations=[[1, 2, 3], [], []], values=[at, [], []])
 
 
 def test_model_repr_modes_and_ensemble_checks(ens):
@@ -458,6 +463,12 @@ def test_step_exponent_follows_its_rules():
     # a tiny 10th percentile: the step stops at 2^-22 of the largest
     v = np.array([1e-30] * 2 + [1.0] * 18)
     assert ff.step_exponent(v) == 4 * (math.frexp(1.0)[1] - 22)
+    # values are read as float32: float64 values off every grid keep the grid of their
+    # float32 copies, which lie on it
+    qs = np.array([1, 1, 2, 5, 100, 5000, 3_600_001, 3_000_000, 77, 12345])
+    on_grid = (qs * ff.step(-85)).astype(np.float32)  # one finer than the rule's grid
+    off = on_grid.astype(np.float64) * (1 + 1e-12)
+    assert ff.step_exponent(off) == ff.step_exponent(on_grid) == -85
 
 
 def test_varints_encode_and_decode():

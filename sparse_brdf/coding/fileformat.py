@@ -192,8 +192,8 @@ def step_exponent(values: np.ndarray) -> int:
     writer chooses it (module doc): the largest k with step <= max|v| / 4096 and <= the
     10th-percentile |v| / 8, but step >= max|v| 2^-22 (|q| <= 2^22). Values already on
     the grid of k - 1, k or k + 1 (a file read back) keep it, so they are written back
-    unchanged."""
-    v = np.asarray(values, np.float64)
+    unchanged. ``values`` are read as float32, as a model holds them."""
+    v = np.asarray(values, np.float32).astype(np.float64)
     a = np.abs(v)
     top = float(a.max()) if a.size else 0.0
     if top == 0.0:
@@ -202,11 +202,10 @@ def step_exponent(values: np.ndarray) -> int:
     want = min(top / 2.0**_STEP_BITS, ref / _STEP_REF_DIV)
     k = math.floor(4 * math.log2(want)) if want > 0 else _K_MIN
     k = min(max(k, 4 * (math.frexp(top)[1] - _Q_BITS), _K_MIN), _K_MAX)
-    v32 = v.astype(np.float32)
     for cand in (c for c in (k + 1, k, k - 1) if _K_MIN <= c <= _K_MAX):
         q = np.rint(v / step(cand))
         if np.abs(q).max() <= 2.0**(_Q_BITS + 1) and np.array_equal(
-                (q * step(cand)).astype(np.float32), v32):
+                (q * step(cand)).astype(np.float32), v):
             return cand
     return k
 
