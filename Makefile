@@ -18,9 +18,9 @@ test: setup
 	$(PY) -m pytest -q --durations=10 tests
 	$(MAKE) --no-print-directory test-other-cpu
 
-# What neither renders nor trains: the edit-test loop.
+# What neither renders, trains nor runs a bench: the edit-test loop.
 test-fast: setup
-	$(PY) -m pytest -q -m "not render and not train" tests
+	$(PY) -m pytest -q -m "not render and not train and not bench" tests
 
 # numpy, OpenBLAS and Dr.Jit on kernels other than the ones they pick here
 # (tests/other_cpu.py prints the settings).

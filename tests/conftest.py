@@ -25,17 +25,20 @@ def pytest_report_header(config) -> list[str]:
 
 
 #: The markers of slow work, and what a test that does it without its marker is told.
-SLOW_WORK = {"render": "renders with Mitsuba", "train": "trains an ensemble"}
+SLOW_WORK = {"render": "renders with Mitsuba", "train": "trains an ensemble",
+             "bench": "runs a bench"}
 _running: set[str] | None = None  # the slow work the running test's markers allow; None: any
 
 
 def pytest_configure(config) -> None:
-    """Watch the two doors slow work goes through: ``mitsuba.render`` and the trainer's
-    iteration. A test that passes one without its marker fails, so that ``make
-    test-fast`` (``-m "not render and not train"``) stays fast. Work in fixtures and in
-    child processes is not watched."""
+    """Watch the doors slow work goes through: ``mitsuba.render``, the trainer's
+    iteration and the benches' ``run``. A test that passes one without its marker fails,
+    so that ``make test-fast`` (``-m "not render and not train and not bench"``) stays
+    fast. Work in fixtures and in child processes is not watched."""
     import mitsuba
 
+    from sparse_brdf.benchmark.acquisition_bench import AcquisitionBench
+    from sparse_brdf.benchmark.bench import Bench
     from sparse_brdf.training import train
 
     def guarded(work, fn):
@@ -48,6 +51,8 @@ def pytest_configure(config) -> None:
 
     mitsuba.render = guarded("render", mitsuba.render)
     train._iterate = guarded("train", train._iterate)
+    Bench.run = guarded("bench", Bench.run)
+    AcquisitionBench.run = guarded("bench", AcquisitionBench.run)
 
 
 @pytest.hookimpl(hookwrapper=True)

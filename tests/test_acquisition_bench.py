@@ -76,6 +76,7 @@ def few_training(shared_data, monkeypatch):
     return mats
 
 
+@pytest.mark.bench
 @pytest.mark.render
 def test_a_real_run_scores_both_methods_and_the_full_table(tmp_path, few_training):
     cfg = ab.AcquisitionConfig(max_materials=1, n_samples=[300], seeds=[0],
@@ -140,6 +141,7 @@ def _stub_bench(monkeypatch, calls: list, stop_after: int | None = None):
     monkeypatch.setattr(ab, "get_corpus", lambda name: _Corpus())
 
 
+@pytest.mark.bench
 def test_an_interrupted_run_resumes_where_it_stopped(tmp_path, shared_data, monkeypatch):
     cfg = ab.AcquisitionConfig(n_samples=[100, 1000, 10000], seeds=[0, 1], bins_n=[10000],
                                noise_n=[], scenes=["paper_sphere.xml"],
@@ -165,6 +167,7 @@ def test_an_interrupted_run_resumes_where_it_stopped(tmp_path, shared_data, monk
     assert len(again) == every
 
 
+@pytest.mark.bench
 def test_curves_and_goals_of_known_results(tmp_path, shared_data, monkeypatch):
     cfg = ab.AcquisitionConfig(n_samples=[100, 1000, 10000], seeds=[0, 1], bins_n=[10000],
                                noise_n=[], scenes=["paper_sphere.xml"],

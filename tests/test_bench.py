@@ -50,6 +50,7 @@ def test_pareto_front_faster_is_better():
     assert pareto(pts, higher_x=True) == [1, 2]
 
 
+@pytest.mark.bench
 def test_learned_models_never_train_on_evaluated_materials(tmp_path):
     """PCA trains on the training split minus every evaluated material, and a config that
     leaves no disjoint training set is refused (it used to train on its test materials)."""
@@ -93,6 +94,7 @@ def test_unknown_model_and_setting(tmp_path):
         BenchConfig.load(bad)
 
 
+@pytest.mark.bench
 @pytest.mark.render
 def test_ci_bench_report(tmp_path):
     cfg = BenchConfig.load("ci")

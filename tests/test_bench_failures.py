@@ -104,6 +104,7 @@ NAN_ERROR = "FloatingPointError: reconstruction holds NaN/inf"
          "mitsuba/au-ggx-0.25|nans": NAN_ERROR, "mitsuba/al-ggx-0.3|fails-all": AL_ERROR,
          "mitsuba/au-ggx-0.25|fails-all": "IndexError: no fit for au-ggx-0.25"}),
 ], ids=["raises-on-one-alone", "nan-alone", "fails-everywhere-alone", "beside-built-ins"])
+@pytest.mark.bench
 def test_a_failing_model_never_stops_the_bench_nor_its_reports(user_dir, capsys, models, n,
                                                                 failed):
     rc, out = _bench(user_dir, models, n)
@@ -288,6 +289,7 @@ def test_results_json_is_strict_and_keeps_its_infinities(tmp_path):
     assert read_results(old)["cells"]["mitsuba/a~b|tab/x"]["cos_snr"] == math.inf
 
 
+@pytest.mark.bench
 def test_a_bench_resumes_an_old_results_file_and_rewrites_it_strict(tmp_path):
     from sparse_brdf.benchmark.bench import Bench
     from sparse_brdf.benchmark.bench_config import BenchConfig
@@ -314,6 +316,7 @@ def test_a_bench_resumes_an_old_results_file_and_rewrites_it_strict(tmp_path):
     assert Bench(cfg, progress=False).results["cells"] == old["cells"]
 
 
+@pytest.mark.bench
 @pytest.mark.render
 def test_decoded_tables_are_deleted_unless_kept(user_dir, capsys):
     rc, out = _bench(user_dir, ["naive", "failmodels:Fails"], 1)

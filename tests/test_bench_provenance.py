@@ -57,6 +57,7 @@ def _run(cfg: BenchConfig, capsys) -> tuple[dict, str]:
     return results, capsys.readouterr().out
 
 
+@pytest.mark.bench
 def test_a_changed_model_source_recomputes_its_cells_and_keeps_the_others(
         tmp_path, user_model, capsys):
     cfg = BenchConfig(corpora=["mitsuba"], max_materials=2, models=["provmodels:Flat", "naive"],

@@ -34,6 +34,7 @@ def test_seed_mean_gives_means_and_standard_errors():
     assert seed_mean(per[:1]) == per[0]  # one seed: as it is
 
 
+@pytest.mark.bench
 @pytest.mark.render
 def test_a_bench_at_three_seeds(tmp_path, capsys):
     out = tmp_path / "b"

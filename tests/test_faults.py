@@ -131,6 +131,7 @@ def _without_timings(results: dict) -> dict:
     return {"cells": cells, "curves": results["curves"], "noise_floor": results["noise_floor"]}
 
 
+@pytest.mark.bench
 def test_bench_survives_a_killed_worker(materials, ensemble_file, cluster, tmp_path):
     """The small grid's materials (a folder corpus) and ensemble keep the cells cheap."""
 

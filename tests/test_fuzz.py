@@ -468,6 +468,7 @@ def test_bench_configs_check_with_exit_0_or_2(work, bench_world, capsys, monkeyp
        split=st.sampled_from(["train", "test", "all"]),
        curve=st.lists(st.integers(1, 20000), max_size=2),
        corpus=st.sampled_from(["mats", "mixed"]))
+@pytest.mark.bench
 def test_bench_runs_with_exit_0_or_2(work, bench_world, capsys, models, split, curve,
                                      corpus):
     """Small real runs (BRDF-space metrics, small grids, one folder of mixed grids):

@@ -17,7 +17,7 @@ import pytest
 from sparse_brdf.benchmark.bench import Bench
 from sparse_brdf.benchmark.bench_config import BenchConfig
 
-pytestmark = pytest.mark.render  # the module's fixture runs a bench
+pytestmark = [pytest.mark.render, pytest.mark.bench]  # the module's fixture runs a bench
 
 
 def _chromium() -> str | None:

@@ -137,6 +137,7 @@ def test_outside_specs_in_a_config_pass_check(user_dir, capsys):
     assert plan["models"] == ["grey-0.5", "naive", "quantised-6bit"]
 
 
+@pytest.mark.bench
 @pytest.mark.render
 def test_the_example_model_in_a_small_bench_beside_naive_and_the_table(user_dir):
     """A tiny bench: the example (quantised table), the test's grey model (evaluates at

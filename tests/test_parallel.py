@@ -216,6 +216,7 @@ def test_train_command_on_a_cluster(cluster, tmp_path):
 # ------------------------------------------------------------------ bench
 
 
+@pytest.mark.bench
 @pytest.mark.render
 def test_bench_gives_the_same_results_on_workers(tmp_path, cluster):
     def run(ex, name):
