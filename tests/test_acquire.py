@@ -271,25 +271,32 @@ def test_the_pca_fallback_is_taken_when_pca_predicts_better(ens, prior_and_truth
     assert _coded_error(model, truth, ens) < _coded_error(plain, truth, ens)
 
 
+class _FakeMaterial:
+    """A corpus material as the defaults read one: a source path, a name and load()."""
+
+    def __init__(self, i: int, rng: np.random.Generator):
+        self.source, self.name = f"/data/m{i}.binary", f"m{i}"
+        values = rng.uniform(0.01, 2.0, (*SMALL, 3)).astype(np.float32)
+        self.brdf = BRDF(values, geometric_valid(SMALL), name=self.name)
+
+    def load(self, shape=None):
+        return self.brdf
+
+
+def _fake_materials(n: int, seed: int) -> list[_FakeMaterial]:
+    """``n`` materials of random values on the small grid."""
+    rng = np.random.default_rng(seed)
+    return [_FakeMaterial(i, rng) for i in range(n)]
+
+
 def test_the_pca_fallback_basis_is_cached_like_the_prior(tmp_path, monkeypatch, capsys):
     """The first use fits the basis and says so; the next process reads it back from the
     cache (memory-mapped), the same arrays, without fitting again."""
     from sparse_brdf.acquisition import defaults as acquisition
 
-    rng = np.random.default_rng(4)
-
-    class Material:  # a corpus material: a source path and a load()
-        def __init__(self, i):
-            self.source, self.name = f"/data/m{i}.binary", f"m{i}"
-            values = rng.uniform(0.01, 2.0, (*SMALL, 3)).astype(np.float32)
-            self.brdf = BRDF(values, geometric_valid(SMALL), name=self.name)
-
-        def load(self, shape=None):
-            return self.brdf
-
     monkeypatch.setenv("SPARSE_BRDF_CACHE", str(tmp_path))
     monkeypatch.setattr(acquisition, "_PCA", {})
-    mats = [Material(i) for i in range(4)]
+    mats = _fake_materials(4, seed=4)
     first = acquisition.trained_pca(mats)
     assert "fitting the PCA fallback's basis on 4 training materials" in capsys.readouterr().err
     assert len(list(tmp_path.glob("*.pca"))) == 1
@@ -329,18 +336,7 @@ def test_only_the_first_encode_samples_builds_the_prior_and_the_basis(tmp_path, 
     PCA fallback's basis; the next run, a new process, reads both from the cache."""
     from sparse_brdf.acquisition import defaults as acquisition
 
-    rng = np.random.default_rng(5)
-
-    class Material:  # a corpus material: a source path and a load()
-        def __init__(self, i):
-            self.source, self.name = f"/data/m{i}.binary", f"m{i}"
-            values = rng.uniform(0.01, 2.0, (*SMALL, 3)).astype(np.float32)
-            self.brdf = BRDF(values, geometric_valid(SMALL), name=self.name)
-
-        def load(self, shape=None):
-            return self.brdf
-
-    mats = [Material(i) for i in range(3)]
+    mats = _fake_materials(3, seed=5)
     monkeypatch.setenv("SPARSE_BRDF_CACHE", str(tmp_path / "cache"))
     monkeypatch.setattr(acquisition, "training_materials", lambda: mats)
     monkeypatch.setattr(acquisition, "_PCA", {})

@@ -678,18 +678,8 @@ def test_render_to_a_full_disk_names_the_output(tmp_path):
 
 
 def test_exr_writer_errors_are_output_errors(tmp_path, monkeypatch):
-    class Full:
-        def __init__(self, *a):
-            pass
-
-        def __enter__(self):
-            return self
-
-        def __exit__(self, *a):
-            return False
-
-        def write(self, name):
-            raise RuntimeError(f'Cannot write image file "{name}". No space left on device.')
+    class Full(_FullDiskEXR):
+        error = "runtime"
 
     monkeypatch.setattr(OpenEXR, "File", Full)
     with pytest.raises(OutputError, match="x.exr.*No space left"):
