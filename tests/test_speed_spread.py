@@ -128,3 +128,24 @@ def test_every_chart_axis_is_labelled_with_ticks(speeds):
             assert [t for t in ax.get_yticklabels() if t.get_text()]
     finally:
         plt.close(fig)
+
+
+def test_flip_is_charted_beside_snr_with_its_own_front():
+    """HDR-FLIP (lower is better) gets its own row of charts; its Pareto front against
+    bytes keeps the models no other beats on both, here the smallest and the closest."""
+    import matplotlib.pyplot as plt
+
+    rows = [{"model": m, "evals_per_s": 1e7, "bytes": b, "snr_object_mean": 30.0,
+             "snr_whole_mean": 40.0, "flip_mean": f}
+            for m, b, f in (("small", 100.0, 0.2), ("close", 200.0, 0.05), ("worse", 300.0, 0.1))]
+    fig = speed_accuracy_figure(rows)
+    try:
+        flip_axes = [ax for ax in fig.axes if "HDR-FLIP" in ax.get_ylabel()]
+        assert len(fig.axes) == 6 and len(flip_axes) == 2
+        by_bytes = next(ax for ax in flip_axes if ax.get_xlabel() == "bytes per material")
+        front = next(line for line in by_bytes.get_lines()
+                     if line.get_label() == "Pareto front")
+        assert list(zip(front.get_xdata(), front.get_ydata(), strict=True)) == [
+            (100.0, 0.2), (200.0, 0.05)]
+    finally:
+        plt.close(fig)

@@ -170,8 +170,9 @@ def pareto(points: list[tuple[float, float]], higher_x: bool = False) -> list[in
 
 
 def speed_accuracy_chart(rows: list[dict], path: Path, title: str = "") -> bool:
-    """Mean rendering SNR (both forms) against each model's evaluations per second and
-    against bytes per material, with the Pareto fronts. False when nothing to plot."""
+    """Mean rendering SNR (both forms) and mean HDR-FLIP against each model's evaluations
+    per second and against bytes per material, with the Pareto fronts. False when nothing
+    to plot."""
     fig = speed_accuracy_figure(rows, title)
     if fig is None:
         return False
@@ -199,24 +200,34 @@ def _log_axis(ax, values: list[float], which: str = "x") -> None:
     axis.set_minor_formatter(ticker.NullFormatter())
 
 
+#: What the speed and size charts plot against: (result key, axis label, higher is better).
+CHART_MEASURES = (*((key, f"mean rendering SNR, {label} (dB)", True) for key, label in FORMS),
+                  ("flip", "mean HDR-FLIP (0 is identical)", False))
+
+
 def speed_accuracy_figure(rows: list[dict], title: str = ""):
-    """The figure of :func:`speed_accuracy_chart` (a matplotlib ``Figure``), or None when
-    no row has a mean rendering SNR."""
+    """The figure of :func:`speed_accuracy_chart` (a matplotlib ``Figure``): a row of two
+    charts (against speed, against bytes) for each of :data:`CHART_MEASURES` that some
+    model has, or None when no row has a mean rendering SNR."""
     plt = _plt()
     rows = [r for r in rows if math.isfinite(r.get("snr_object_mean", math.nan))]
     if not rows:
         return None
-    fig, axes = plt.subplots(2, 2, figsize=(11, 8), constrained_layout=True)
-    for i, (key, label) in enumerate(FORMS):
+    measures = [m for m in CHART_MEASURES
+                if any(math.isfinite(r.get(f"{m[0]}_mean", math.nan)) for r in rows)]
+    fig, axes = plt.subplots(len(measures), 2, figsize=(11, 4 * len(measures)),
+                             constrained_layout=True, squeeze=False)
+    for i, (key, ylabel, higher_y) in enumerate(measures):
         for ax, xkey, xlabel, higher in (
                 (axes[i, 0], "evals_per_s", "BRDF evaluations per second (own evaluator)", True),
                 (axes[i, 1], "bytes", "bytes per material", False)):
-            sub = [r for r in rows if math.isfinite(r.get(xkey, math.nan)) and r[xkey] > 0]
+            sub = [r for r in rows if math.isfinite(r.get(xkey, math.nan)) and r[xkey] > 0
+                   and math.isfinite(r.get(f"{key}_mean", math.nan))]
             if not sub:
                 ax.set_visible(False)
                 continue
             pts = [(r[xkey], r[f"{key}_mean"]) for r in sub]
-            front = set(pareto(pts, higher_x=higher))
+            front = set(pareto([(x, y if higher_y else -y) for x, y in pts], higher_x=higher))
             for j, (r, (x, y)) in enumerate(zip(sub, pts, strict=True)):
                 if math.isfinite(r.get(f"{key}_se", math.nan)):  # several seeds
                     ax.errorbar(x, y, yerr=r[f"{key}_se"], color="grey", capsize=3, lw=1)
@@ -229,7 +240,7 @@ def speed_accuracy_figure(rows: list[dict], title: str = ""):
                     label="Pareto front")
             _log_axis(ax, [p[0] for p in pts])
             ax.set_xlabel(xlabel)
-            ax.set_ylabel(f"mean rendering SNR, {label} (dB)")
+            ax.set_ylabel(ylabel)
             ax.legend(fontsize=8)
     fig.suptitle(f"Speed and size against accuracy{title} (stars: Pareto-optimal; red: sparse)")
     return fig
