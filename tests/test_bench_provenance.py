@@ -74,6 +74,11 @@ def test_a_changed_model_source_recomputes_its_cells_and_keeps_the_others(
     assert {"mitsuba", "drjit", "machine"} <= set(prov) and prov["machine"]
     naive = next(c for c in cells.values() if c["model"] == "naive")["provenance"]
     assert set(naive["source"]) == {"sparse_brdf", "commit"}
+    # both reports say where and with what: the model's source file and hash, the renderer
+    for report in ("report.md", "report.html"):
+        text = (tmp_path / "b" / report).read_text()
+        assert "Environment and provenance" in text, report
+        assert prov["source"]["sha256"][:16] in text and prov["mitsuba"] in text, report
 
     # unchanged: every cell kept, nothing recomputed (fit times identical)
     again, out = _run(cfg, capsys)

@@ -40,6 +40,7 @@ from .report import (
     failed_cells,
     flip_map_path,
     noise_floor_means,
+    provenance_rows,
     scenes_of,
     seeds_sentence,
     speed_settings,
@@ -494,6 +495,9 @@ def write_html_report(results: dict, out: Path) -> Path:
         body.append("<h2>Charts</h2>")
         body += [f'<p>{html.escape(p.name)}<br><img class="chart" alt="{html.escape(p.stem)}" '
                  f'src="{_png_uri(p)}"></p>' for p in charts if p.is_file()]
+    body += ["<h2>Environment and provenance</h2>",
+             _table(["what", "value"], [[_cell(w, ""), _cell(v, "")]
+                                        for w, v in provenance_rows(results)])]
     payload = json.dumps(data, allow_nan=False).replace("</", "<\\/")
     page = ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
             "<meta http-equiv=\"Content-Security-Policy\" content=\"default-src 'none'; "

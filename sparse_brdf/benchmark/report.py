@@ -8,6 +8,7 @@ flat ``results.csv`` (:func:`write_csv`)."""
 from __future__ import annotations
 
 import csv
+import json
 import math
 from pathlib import Path
 
@@ -525,6 +526,34 @@ def _failed_section(results: dict) -> list[str]:
     return md + [""]
 
 
+def provenance_rows(results: dict) -> list[tuple[str, str]]:
+    """Where and with what the results were computed, as (what, value) rows: the machine
+    and software of the last run, the renderer's versions, the ensemble and file version,
+    and each model's source (the package's version and commit, or an outside module's
+    file and sha256) with its options. report.md and report.html show the same rows."""
+    env, prov = results.get("environment", {}), results.get("provenance", {})
+    renderer = prov.get("environment", {})
+    rows = [("last run", f"{env.get('date', '-')} on {env.get('platform', '-')} "
+                         f"({env.get('cpus', '-')} CPUs), Python {env.get('python', '-')}"),
+            ("sparse-brdf", str(env.get("sparse_brdf", "-"))),
+            ("Mitsuba, Dr.Jit", f"{renderer.get('mitsuba', '-')}, {renderer.get('drjit', '-')}"),
+            ("CPU", str(renderer.get("machine", env.get("machine", "-")))),
+            ("ensemble", str(prov.get("ensemble", "-"))),
+            (".sbrdf version written", str(prov.get("sbrdf_version", "-")))]
+    seen: dict[str, dict] = {}
+    for cell in results.get("cells", {}).values():
+        if cell.get("provenance") and cell["model"] not in seen:
+            seen[cell["model"]] = cell["provenance"]
+    for model, cp in sorted(seen.items()):
+        src = cp.get("source", {})
+        where = (f"{src.get('module')} ({src.get('file')}, sha256 {str(src.get('sha256'))[:16]})"
+                 if "module" in src else
+                 f"sparse-brdf {src.get('sparse_brdf')}, commit {src.get('commit') or '-'}")
+        options = json.dumps(cp.get("options") or {}, sort_keys=True)
+        rows.append((f"model {model}", f"{where}; options {options}"))
+    return rows
+
+
 def _md_text(text: str) -> str:
     """``text`` as one Markdown table cell: on one line, its pipes escaped."""
     return " ".join(str(text).split()).replace("|", "\\|")
@@ -575,7 +604,10 @@ def write_report(results: dict, out: Path) -> Path:
                "against the clean BRDF, or the outcome.", "",
                *stability_markdown(results["stability"]["rows"])]
     md += ["", "## Error against coefficients (Fig. 2)", "",
-           "![error vs coefficients](error_vs_coeffs.png)", ""]
+           "![error vs coefficients](error_vs_coeffs.png)", "",
+           "## Environment and provenance", "", "| what | value |", "|---|---|",
+           *(f"| {what} | {_md_text(value)} |" for what, value in provenance_rows(results)),
+           ""]
     path = out / "report.md"
     with atomic_write(path, "w") as f:
         f.write("\n".join(md) + "\n")
