@@ -185,7 +185,7 @@ def test_readme_inverse_rendering_example_runs(case, tmp_path):
 @pytest.mark.render
 def test_render_sets_scene_defaults(capsys, tmp_path):
     """``render -D KEY=VALUE`` sets a scene default (the views of a fit are rendered so);
-    a malformed one, or one that has its own option, is one line and exit 2."""
+    a malformed one, or one whose own option says otherwise, is one line and exit 2."""
     from sparse_brdf.evaluation.images import read_exr
 
     imgs = {}
@@ -199,8 +199,8 @@ def test_render_sets_scene_defaults(capsys, tmp_path):
     direct = render_scene(find_scene("sphere.xml"), {"material": str(MATERIAL)}, spp=2,
                           seed=0, res=16, params={"envrot": 90})
     assert np.array_equal(imgs[90], direct) and not np.array_equal(imgs[0], imgs[90])
-    for bad, named in (("spp=3", "--spp"), ("envrot", "KEY=VALUE")):
-        code, _, err = run(capsys, "render", "sphere.xml", "-o", tmp_path / "x.exr", "-D", bad)
+    for bad, named in ((["--spp", 2, "-D", "spp=3"], "--spp"), (["-D", "envrot"], "KEY=VALUE")):
+        code, _, err = run(capsys, "render", "sphere.xml", "-o", tmp_path / "x.exr", *bad)
         assert code == 2 and len(err.splitlines()) == 1 and named in err, err
     assert not (tmp_path / "x.exr").exists()
 
