@@ -24,7 +24,7 @@ import numpy as np
 from harness import header, parser, write_json
 
 from sparse_brdf import get_corpus, load_brdf
-from sparse_brdf.benchmark.report import speed_accuracy_chart
+from sparse_brdf.benchmark.charts import speed_accuracy_chart
 from sparse_brdf.benchmark.speed import evals_per_second
 from sparse_brdf.compared.specs import make_model
 

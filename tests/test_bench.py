@@ -20,9 +20,9 @@ from sparse_brdf.benchmark.bench_config import (
     find_config,
     learners_training_set,
 )
+from sparse_brdf.benchmark.charts import pareto
 from sparse_brdf.benchmark.compare import compare_results, format_worse
 from sparse_brdf.benchmark.provenance import environment_provenance
-from sparse_brdf.benchmark.report import pareto
 from sparse_brdf.coding.encode import ENCODE_OPTIONS
 from sparse_brdf.compared.specs import make_model
 from sparse_brdf.errors import MissingDataError

@@ -63,7 +63,7 @@ def test_a_bench_at_three_seeds(tmp_path, capsys):
 def test_the_charts_carry_error_bars_with_several_seeds():
     import matplotlib.pyplot as plt
 
-    from sparse_brdf.benchmark.report import speed_accuracy_figure
+    from sparse_brdf.benchmark.charts import speed_accuracy_figure
 
     rows = [{"model": m, "evals_per_s": s, "bytes": b, "snr_object_mean": y,
              "snr_whole_mean": y + 3, "snr_object_se": 0.4, "snr_whole_se": 0.2}

@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sparse_brdf.benchmark.report import speed_accuracy_figure, speed_settings, summary_table
+from sparse_brdf.benchmark.charts import speed_accuracy_figure
+from sparse_brdf.benchmark.report import speed_settings, summary_table
 from sparse_brdf.benchmark.speed import SETTLE, Rate, settled, timed_rate
 
 

@@ -2,7 +2,8 @@
 
 - ``bench``: the resumable material x model x scene harness; ``bench_config``: its
   configurations and their checks.
-- ``report``, ``html_report``: its tables, charts, CSV and HTML page; ``results_file``:
+- ``report``, ``html_report``: its tables, CSV and HTML page; ``charts``: its charts
+  (SNR and HDR-FLIP against speed and bytes, error against coefficients); ``results_file``:
   the results schema; ``ranking``: several results files in one table; ``compare``:
   two results compared cell by cell (the regression gate, ``bench-compare``);
   ``provenance``: what each cell was computed from, so a rerun recomputes what changed.
@@ -13,6 +14,6 @@
 The renders themselves come from :mod:`sparse_brdf.evaluation`.
 """
 
-__all__ = ["acquisition_bench", "acquisition_report", "bench", "bench_config", "compare",
+__all__ = ["acquisition_bench", "acquisition_report", "bench", "bench_config", "charts", "compare",
            "html_report", "provenance", "ranking", "report", "results_file", "speed",
            "stability"]

@@ -13,9 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from ..fileio import atomic_write
-from ..metrics import OBJECT_ONLY, WHOLE_IMAGE
+from .charts import FORMS, pyplot
 
-FORMS = (("snr_object", OBJECT_ONLY), ("snr_whole", WHOLE_IMAGE))
 #: The scene the goals are checked in when it ran (the paper's), else the first one.
 GOAL_SCENE = "paper_sphere"
 #: Goal thresholds (dB, dB, dB, s): sparse above PCA by this from GOAL_FROM_N samples;
@@ -66,21 +65,12 @@ def full_mean(results: dict, scene: str, form: str) -> float:
     return float(np.mean(xs)) if xs else math.nan
 
 
-def _plt():
-    import matplotlib  # lazy: matplotlib + pyplot take ~0.4 s to import; only figures need it
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def chart(results: dict, scene: str, path: Path) -> Path:
     """SNR against N in both forms (two panels), one line per method and placement
     (mean over materials and seeds, a band from the lowest to the highest seed's mean
     over materials), the bin-placed samples as points and the full-table encoding as a
     dashed line."""
-    plt = _plt()
+    plt = pyplot()
     cfg = results["config"]
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), sharex=True)
     colours = {"sparse": "tab:blue", "pca": "tab:orange"}
