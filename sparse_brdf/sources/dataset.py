@@ -12,7 +12,6 @@ import numpy as np
 
 from ..coords import MERL_SHAPE, geometric_valid
 from ..fingerprints import (
-    FINGERPRINT_RTOL,
     FINGERPRINT_STATS,
     fingerprint_changes,
     fingerprint_list,
@@ -132,7 +131,7 @@ def training_fingerprint(
         :func:`~sparse_brdf.sources.load.source_key` reads them, the labels, transforms,
         basis, grid and symmetrisation), ``inputs`` ({material: its key}), ``settings``,
         ``tensors`` ({label: fingerprint list}, float64 statistics of each tensor, in
-        the order of ``stats``), ``size`` (values per tensor), ``rtol``, and
+        the order of ``stats``), ``size`` (values per tensor), and
         ``data_sha256`` (:meth:`TrainingData.digest`: bit identity, for information).
         :func:`fingerprint_mismatches` compares two of them.
     """
@@ -161,7 +160,7 @@ def training_fingerprint(
                      missing)
     return {"inputs_sha256": h.hexdigest(), "inputs": inputs, "settings": settings,
             "stats": list(FINGERPRINT_STATS), "size": math.prod(shape),
-            "rtol": FINGERPRINT_RTOL, "tensors": tensors, "data_sha256": digest}
+            "tensors": tensors, "data_sha256": digest}
 
 
 def fingerprint_mismatches(got: dict, want: dict) -> list[str]:
@@ -178,9 +177,12 @@ def fingerprint_mismatches(got: dict, want: dict) -> list[str]:
     -------
     list of str
         Empty when the data match: the same exact inputs, and every tensor's statistics
-        within ``want["rtol"]``. Else a line per material whose inputs changed, per setting
-        that changed, and per tensor (named ``"<corpus>/<name>:<transform>:<channel>"``)
-        whose statistics moved, naming each statistic.
+        within :data:`~sparse_brdf.fingerprints.FINGERPRINT_RTOL` of the scale of its
+        material's channels in that transform
+        (the largest L2 norm and magnitude of the three). Else a line per material whose
+        inputs changed, per setting that changed, and per tensor (named
+        ``"<corpus>/<name>:<transform>:<channel>"``) whose statistics moved, naming each
+        statistic.
     """
     lines = []
     for key in ("settings", "stats", "size"):
@@ -195,11 +197,27 @@ def fingerprint_mismatches(got: dict, want: dict) -> list[str]:
                                         "BSDF's parameters or the Mitsuba version)"))
     if lines:
         return lines
+    scales = _channel_scales(want)
     for label, fp in want["tensors"].items():
-        moved = fingerprint_changes(got["tensors"][label], fp, want["size"], want["rtol"])
+        moved = fingerprint_changes(got["tensors"][label], fp, want["size"],
+                                    scale=scales[label.rpartition(":")[0]])
         if moved:
             lines.append(f"{label}: " + "; ".join(moved))
     return lines
+
+
+def _channel_scales(fp: dict) -> dict[str, dict[str, float]]:
+    """Per material and transform (``"<corpus>/<name>:<transform>"``), the largest L2
+    norm and magnitude of its three channels: the scale each of them rounds at (an
+    opponent colour channel is a difference of transformed R, G and B, and rounds as
+    they do, however small it is)."""
+    stats = fp["stats"]
+    l2, top = stats.index("l2"), stats.index("max")
+    scales: dict[str, dict[str, float]] = {}
+    for label, f in fp["tensors"].items():
+        s = scales.setdefault(label.rpartition(":")[0], {"l2": 0.0, "max": 0.0})
+        s["l2"], s["max"] = max(s["l2"], abs(f[l2])), max(s["max"], abs(f[top]))
+    return scales
 
 
 def _labels(materials, transforms, basis) -> list[str]:
