@@ -270,7 +270,6 @@ def test_fingerprint_forgives_rounding_and_names_what_moved(two_fingerprinted):
     assert any(line.startswith(f"mitsuba/{mats[1].name}: missing now") for line in named)
 
 
-@pytest.mark.train
 @pytest.mark.numerics
 def test_a_colour_channel_rounds_at_its_material_s_scale():
     """An opponent colour channel of a grey material is a difference of nearly equal
@@ -298,6 +297,7 @@ def test_a_colour_channel_rounds_at_its_material_s_scale():
     assert [line.split(":")[2] for line in moved(1e-2)] == ["RG"]
 
 
+@pytest.mark.train
 def test_pruned_clustering_matches_full_search(small_training, monkeypatch):
     """The pruned search (``train.PRUNE``) clusters and codes as projecting every tensor on
     every dictionary does, with and without known codes of the own dictionaries."""
