@@ -202,6 +202,9 @@ class DaskExecutor:
     """Runs pieces of work on the workers of a ``distributed.Client``."""
 
     distributed = True
+    #: How many times :meth:`as_completed` and :meth:`map` run a piece again whose
+    #: worker was lost (objects placed on one worker are not retried: see :meth:`run_on`).
+    RETRIES = 3
 
     def __init__(self, client, cluster=None):
         self.client, self.cluster = client, cluster
@@ -212,6 +215,8 @@ class DaskExecutor:
         self.n_workers = len(self.workers)
         self.stats = dict.fromkeys(STAT_KEYS, 0)
         self._turn = 0
+        # scattered objects by their futures' keys: sent again if their workers are lost
+        self._kept: dict[str, tuple[Any, Any]] = {}
 
     def describe(self) -> str:
         where = "local cluster" if self.cluster is not None else self.client.scheduler.address
@@ -238,7 +243,34 @@ class DaskExecutor:
     def scatter(self, obj: Any) -> Any:
         """A future of ``obj``, copied once to every worker (``broadcast``)."""
         self.stats["bytes_scattered"] += self._size(obj) * self.n_workers
-        return self.client.scatter([obj], broadcast=True, hash=False)[0]
+        fut = self.client.scatter([obj], broadcast=True, hash=False)[0]
+        self._kept[fut.key] = (obj, fut)
+        return fut
+
+    def _renewed(self, arg: Any) -> Any:
+        """``arg`` with each scattered future whose data is gone scattered again (a
+        worker that joined after the broadcast has no copy: if every worker that had one
+        dies, the data is lost and the tasks that read it are cancelled)."""
+        if isinstance(arg, (tuple, list)):
+            return type(arg)(self._renewed(a) for a in arg)
+        kept = self._kept.get(getattr(arg, "key", None))
+        if kept is None:
+            return arg
+        obj, fut = kept
+        if fut.status != "finished":
+            fut = self.client.scatter([obj], broadcast=True, hash=False)[0]
+            self.stats["bytes_scattered"] += self._size(obj) * self.n_workers
+            self._kept[arg.key] = self._kept[fut.key] = (obj, fut)
+        return fut
+
+    @staticmethod
+    def _lost(fut) -> bool:
+        """Whether ``fut`` failed for want of a worker (not by its task's own error)."""
+        from distributed import KilledWorker  # lazy: Dask is optional (see the module doc)
+
+        if fut.status in ("cancelled", "lost"):
+            return True
+        return fut.status == "error" and isinstance(fut.exception(), KilledWorker)
 
     def _submit(self, fn, args, worker=None):
         self._sent(args)
@@ -261,16 +293,26 @@ class DaskExecutor:
         return out
 
     def map(self, fn: Callable, items: Iterable, *shared: Any) -> list:
-        futures = [self._submit(fn, (item, *shared)) for item in items]
-        return [self._result(f) for f in futures]
+        out = dict(self.as_completed(fn, items, *shared))
+        return [out[i] for i in range(len(out))]
 
     def as_completed(self, fn: Callable, items: Iterable, *shared: Any) -> Iterator[tuple]:
+        """A piece whose worker was lost runs again, up to :attr:`RETRIES` times, with
+        any scattered object it reads sent again if its data went with the worker."""
         from dask.distributed import as_completed  # lazy: Dask is optional (see the module doc)
 
-        futures = [self._submit(fn, (item, *shared)) for item in items]
-        index = {f.key: i for i, f in enumerate(futures)}
-        for fut in as_completed(futures):
-            yield index[fut.key], self._result(fut)
+        tasks = [(item, *shared) for item in items]
+        futures = [self._submit(fn, args) for args in tasks]
+        index = {f.key: (i, 0) for i, f in enumerate(futures)}
+        pending = as_completed(futures)
+        for fut in pending:
+            i, tries = index.pop(fut.key)
+            if tries < self.RETRIES and self._lost(fut):
+                again = self._submit(fn, self._renewed(tasks[i]))
+                index[again.key] = (i, tries + 1)
+                pending.add(again)
+                continue
+            yield i, self._result(fut)
 
     def place(self, fn: Callable, arg_lists: Sequence[tuple]) -> list:
         handles = []
@@ -299,9 +341,15 @@ class DaskExecutor:
 
     def release(self, handles: Sequence) -> None:
         for h in handles:
-            getattr(h, "future", h).release()
+            fut = getattr(h, "future", h)
+            _, renewed = self._kept.pop(getattr(fut, "key", None), (None, fut))
+            if renewed is not fut:
+                self._kept.pop(renewed.key, None)
+                renewed.release()
+            fut.release()
 
     def close(self) -> None:
+        self._kept.clear()
         self.client.close()
         if self.cluster is not None:
             self.cluster.close()

@@ -17,6 +17,7 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from conftest import SMALL
@@ -129,6 +130,24 @@ def _without_timings(results: dict) -> dict:
     for key, cell in results["cells"].items():
         cells[key] = {k: v for k, v in cell.items() if not k.endswith("_s")}
     return {"cells": cells, "curves": results["curves"], "noise_floor": results["noise_floor"]}
+
+
+def _plus_total(x: int, shared: np.ndarray) -> float:
+    return float(x + shared.sum())
+
+
+def test_pieces_that_read_lost_scattered_data_run_again(cluster):
+    """Every worker that held a scattered object dies before its pieces run (as when the
+    one worker that got the broadcast is killed while another restarts): the pieces are
+    cancelled, and the executor sends the object again and runs them again."""
+    shared = np.arange(4.0)
+    handle = cluster.scatter(shared)
+    cluster.client.restart()  # every worker replaced: the scattered data is gone
+    assert handle.status != "finished", "the data survived the restart: the test did not test"
+    assert cluster.map(_plus_total, [1, 2, 3], handle) == [7.0, 8.0, 9.0]
+    assert dict(cluster.as_completed(_plus_total, [5], handle)) == {0: 11.0}
+    cluster.release([handle])
+    assert cluster._kept == {}
 
 
 @pytest.mark.bench
