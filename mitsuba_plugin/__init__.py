@@ -20,7 +20,7 @@ One job per module, each building on those before it:
 - :mod:`~mitsuba_plugin.tabulated`, :mod:`~mitsuba_plugin.sparse`,
   :mod:`~mitsuba_plugin.neural`: one BSDF each, its parameters in its class docstring
   (the choices: :data:`DECODERS`, :data:`LAYOUTS`, :data:`LOBES`,
-  the importance-sampling strategies; :data:`SAMPLING` is its old name, kept for one release);
+  the importance-sampling strategies);
 - :mod:`~mitsuba_plugin.registration`: the variants' classes, and :func:`register`;
 - :mod:`~mitsuba_plugin.evaluators`: the baseline models' evaluators (the speed axis).
 
@@ -31,11 +31,11 @@ holds).
 
 from __future__ import annotations
 
-from sparse_brdf.decoders.layouts import DECODERS, LAYOUTS, LOBES, SAMPLING
+from sparse_brdf.decoders.layouts import DECODERS, LAYOUTS, LOBES
 from sparse_brdf.errors import PluginError
 
 from .loading import load_ensemble
 from .registration import classes, make_classes, register
 
 __all__ = ["register", "classes", "make_classes", "PluginError", "DECODERS", "LAYOUTS",
-           "LOBES", "SAMPLING", "load_ensemble"]
+           "LOBES", "load_ensemble"]

@@ -14,7 +14,6 @@ decode/render -> evaluate.
 >>> net = sb.train_nbrdf(brdf, time_budget=120)          # a Neural-BRDF network (675 floats)
 """
 
-from . import _moved
 from .acquisition.files import plan as plan_samples
 from .acquisition.files import read_samples, write_samples
 from .acquisition.measurements import Samples
@@ -50,9 +49,6 @@ from .transforms import forward as transform
 from .transforms import inverse as inverse_transform
 
 __version__ = "0.1.0"
-
-# old module paths (sparse_brdf.model.*, sparse_brdf.samples, ...) for one release
-_moved.install()
 
 __all__ = [
     "BRDF", "BRDFFileError", "ComparedModel", "CompressedBRDF", "Corpus",

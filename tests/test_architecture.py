@@ -15,7 +15,6 @@ from pathlib import Path
 
 import pytest
 
-from sparse_brdf._moved import MOVED, MOVED_NAMES, OLD_PACKAGES
 from sparse_brdf.coding.ensemble import shipped_ids
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -61,14 +60,6 @@ def _imports(path: Path) -> list[tuple[str, bool, int]]:
     return out
 
 
-def _new_name(name: str) -> str:
-    """An old module path (``sparse_brdf._moved``) as the module that holds it now."""
-    for old in sorted(MOVED, key=len, reverse=True):
-        if name == old or name.startswith(old + "."):
-            return MOVED[old] + name[len(old):]
-    return name
-
-
 def _graph() -> dict[str, set[str]]:
     files = [p for pkg in PACKAGES for p in (ROOT / pkg).rglob("*.py")]
     mods = {_module_name(p): p for p in files}
@@ -76,7 +67,6 @@ def _graph() -> dict[str, set[str]]:
     for m, p in mods.items():
         deps = set()
         for name, _, _ in _imports(p):
-            name = _new_name(name)  # an old path counts as the module that holds it now
             while name and name not in mods:  # "pkg.mod.attr" -> "pkg.mod"
                 name = name.rpartition(".")[0]
             if name and name != m and not m.startswith(name + "."):
@@ -163,21 +153,21 @@ def test_groups_import_one_way():
     assert bad == []
 
 
-def test_the_package_imports_no_old_path():
-    """Inside sparse_brdf every import names a module where it is now; the old paths of
-    ``sparse_brdf._moved`` are for users' code. The plugin names them nowhere either."""
-    old = (*MOVED, *OLD_PACKAGES)
-    files = [p for pkg in PACKAGES for p in (ROOT / pkg).rglob("*.py")]
-    bad = [f"{p.relative_to(ROOT)}:{line}: {name}" for p in files
-           for name, _, line in _imports(p)
-           if any(name == o or name.startswith(o + ".") for o in old)]
-    # nor a name that moved out of a module that stays (MOVED_NAMES: its __getattr__)
-    held = {m: set(vars(importlib.import_module(m))) for m in MOVED_NAMES}
-    bad += [f"{p.relative_to(ROOT)}:{line}: {name}" for p in files
-            for name, _, line in _imports(p)
-            if name.rpartition(".")[0] in held
-            and name.rpartition(".")[2] not in held[name.rpartition(".")[0]]]
+def test_no_module_answers_names_it_does_not_hold():
+    """No module-level ``__getattr__`` (a name is imported from the module that defines it)
+    and no import hook: ``import sparse_brdf`` leaves ``sys.meta_path`` as it was."""
+    bad = [f"{p.relative_to(ROOT)}:{node.lineno}" for pkg in PACKAGES
+           for p in (ROOT / pkg).rglob("*.py")
+           for node in ast.parse(p.read_text()).body
+           if isinstance(node, ast.FunctionDef) and node.name == "__getattr__"
+           or isinstance(node, ast.Assign)
+           and any(isinstance(t, ast.Name) and t.id == "__getattr__" for t in node.targets)]
     assert bad == []
+    code = ("import sys; before = list(sys.meta_path); import sparse_brdf, sparse_brdf.cli; "
+            "print(sys.meta_path == before)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, cwd=ROOT).stdout.strip()
+    assert out == "True"
 
 
 # Size bounds: a folder a newcomer can read in a sitting, modules with one job.

@@ -130,16 +130,12 @@ def _row_pointers(text: str) -> set[str]:
 
 def _resolve(name: str) -> str | None:
     """None when ``name`` (a module, or attributes of one) imports without a warning;
-    else why not: an old path, a missing name or the warnings it gives."""
+    else why not: a missing module or name, or the warnings it gives."""
     import importlib
     import warnings
 
-    from sparse_brdf._moved import MOVED, OLD_PACKAGES
-
     parts = name.split(".")
     prefixes = [".".join(parts[:i]) for i in range(1, len(parts) + 1)]
-    if any(p in MOVED or p in OLD_PACKAGES for p in prefixes):
-        return "an old module path (sparse_brdf._moved.MOVED)"
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         obj = importlib.import_module(parts[0])
@@ -163,14 +159,12 @@ def test_the_readme_names_only_current_python_names():
     assert {n: why for n in sorted(names) if (why := _resolve(n))} == {}
 
 
-def test_the_guides_name_old_python_names_only_as_old():
-    """In docs/, a name that moved appears only where the paragraph says it is deprecated
-    (docs/architecture.md's account of the old paths)."""
+def test_the_guides_name_only_current_python_names():
+    """In docs/, every Python name a code span mentions imports from where it says (old
+    paths are listed in CHANGELOG.md, not in the guides)."""
     stale = []
     for md in sorted(DOCS.glob("*.md")):
         for para in md.read_text().split("\n\n"):
-            if "deprecat" in para.lower():
-                continue
             stale += [f"{md.name}: {n}: {why}" for n in sorted(_python_names(para))
                       if (why := _resolve(n))]
     assert stale == []
@@ -186,8 +180,8 @@ def test_the_name_check_catches_moved_and_missing_names():
                          "`write_exr`/`read_exr`, `sparse_brdf.coords.MERL_SHAPE`, `x=1` |\n"
                          "| `load(x)` | `y` |") == {
         "sparse_brdf.evaluation.render.write_exr", "sparse_brdf.evaluation.render.read_exr"}
-    assert "sparse_brdf.evaluation.images.write_exr" in _resolve(
-        "sparse_brdf.evaluation.render.write_exr")
-    assert "old module path" in _resolve("sparse_brdf.model.encode")
+    assert _resolve("sparse_brdf.evaluation.render.write_exr") == (
+        "no write_exr in sparse_brdf.evaluation.render")  # moved to evaluation.images
+    assert _resolve("sparse_brdf.model.encode") == "no model in sparse_brdf"  # an old path
     assert _resolve("sparse_brdf.no_such_name") == "no no_such_name in sparse_brdf"
     assert _resolve("sparse_brdf.coding.ensemble.Ensemble.default") is None

@@ -23,7 +23,6 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from .._moved import moved_names
 from ..brdf import BRDF
 from ..coords import geometric_valid
 from ..errors import EnsembleMismatchError, UsageError
@@ -376,7 +375,3 @@ def _encode_one(brdf: BRDF, ens: Ensemble, transform: str, o: _Options) -> Spars
     model.stats["fill"] = {"rounds": o.fill_iters}
     return model
 
-
-# Names that moved to modules of their own (sparse_brdf._moved.MOVED_NAMES) still import
-# from here for one release, with a DeprecationWarning.
-__getattr__ = moved_names(__name__)

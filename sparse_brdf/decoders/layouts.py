@@ -58,7 +58,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._moved import moved_names
 from ..coords import bin_angles
 from ..params import check_choice
 from .buffers import bin_weight, mix_channels
@@ -72,8 +71,6 @@ LAYOUTS = ("auto", "union", "slots")
 #: Both plugins' importance-sampling lobes (their ``sampling`` parameter): the
 #: cosine-weighted hemisphere, or that mixed with the glossy lobe of :func:`fit_lobe`.
 LOBES = ("cosine", "lobe")
-#: The old name of :data:`LOBES`, kept for one release.
-SAMPLING = LOBES
 
 #: The plugins' defaults of those choices (``sparse-brdf render`` takes them too). Lobe
 #: sampling is the lower-noise choice for a user's image; comparisons of renders set
@@ -584,7 +581,3 @@ def term_values(arrays, n_terms) -> list[np.ndarray]:
         out.append(a)
     return out
 
-
-# Names that moved to modules of their own (sparse_brdf._moved.MOVED_NAMES) still import
-# from here for one release, with a DeprecationWarning.
-__getattr__ = moved_names(__name__)

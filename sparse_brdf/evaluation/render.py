@@ -28,7 +28,6 @@ from pathlib import Path
 
 import numpy as np
 
-from .._moved import moved_names
 from ..decoders.layouts import LOBES
 from ..errors import RenderError, UsageError
 from ..fileio import require_file
@@ -388,7 +387,3 @@ def noise_floor_snr(reference: np.ndarray, reference2: np.ndarray,
     object pixels (see :func:`object_mask`)."""
     return snr_forms(reference, reference2, mask)
 
-
-# Names that moved to modules of their own (sparse_brdf._moved.MOVED_NAMES) still import
-# from here for one release, with a DeprecationWarning.
-__getattr__ = moved_names(__name__)

@@ -39,7 +39,6 @@ from pathlib import Path
 
 import numpy as np
 
-from .._moved import moved_names
 from ..coding.coefficients import SparseBRDF
 from ..coding.ensemble import Ensemble, resolve_ensemble
 from ..coding.fileformat import load_sbrdf, save_sbrdf
@@ -436,7 +435,3 @@ def views_for(scene_params: Sequence[Mapping[str, object]],
                  name=json.dumps(dict(p), sort_keys=True), seed=sd)
             for p, img, sd in zip(scene_params, images, seeds, strict=True)]
 
-
-# Names that moved to modules of their own (sparse_brdf._moved.MOVED_NAMES) still import
-# from here for one release, with a DeprecationWarning.
-__getattr__ = moved_names(__name__)

@@ -32,7 +32,6 @@ from pathlib import Path
 
 import numpy as np
 
-from .._moved import moved_names
 from ..coding.ensemble import Ensemble
 from ..coding.tensor import hosvd_factors, mode_grams, procrustes
 from ..errors import UsageError
@@ -511,7 +510,3 @@ def hosvd_ensemble(x: np.ndarray, progress: bool = True) -> Ensemble:
 
 # ----------------------------------------------------------------------- helpers
 
-
-# Names that moved to modules of their own (sparse_brdf._moved.MOVED_NAMES) still import
-# from here for one release, with a DeprecationWarning.
-__getattr__ = moved_names(__name__)
