@@ -15,7 +15,10 @@ One job per module, each building on those before it:
 
 - :mod:`~mitsuba_plugin.kernels`: lookup, sampling and colour building blocks;
 - :mod:`~mitsuba_plugin.loading`: properties, files, the ensemble cache;
-- :mod:`~mitsuba_plugin.decoders`: the sparse model's decoder kernels;
+- :mod:`~mitsuba_plugin.decoders`: the sparse model's decoder kernels, and the
+  ensembles' atom rows that every strict-decoded material shares;
+- :mod:`~mitsuba_plugin.budget`: a scene's memory budget, which decoder each ``auto``
+  material gets (:func:`memory_budget`, :func:`resolve`);
 - :mod:`~mitsuba_plugin.glossy`: the BSDFs' shared base (sampling, pdf, colours);
 - :mod:`~mitsuba_plugin.tabulated`, :mod:`~mitsuba_plugin.sparse`,
   :mod:`~mitsuba_plugin.neural`: one BSDF each, its parameters in its class docstring
@@ -34,8 +37,9 @@ from __future__ import annotations
 from sparse_brdf.decoders.layouts import DECODERS, LAYOUTS, LOBES
 from sparse_brdf.errors import PluginError
 
+from .budget import memory_budget, resolve
 from .loading import load_ensemble
 from .registration import classes, make_classes, register
 
 __all__ = ["register", "classes", "make_classes", "PluginError", "DECODERS", "LAYOUTS",
-           "LOBES", "load_ensemble"]
+           "LOBES", "load_ensemble", "memory_budget", "resolve"]

@@ -16,11 +16,13 @@ twins of both kernels.
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import drjit as dr
 
 from sparse_brdf.decoders.layouts import END_B, END_C, PACK_BITS, PACKET, SLOT, UNION_ATOMS
+from sparse_brdf.decoders.scene import ensemble_rows
 
 from .kernels import Ops, Shape
 
@@ -141,6 +143,28 @@ def grouped_x(ops: Ops, buf: GroupedBuffers, bins, lin, active):
 
 # ----------------------------------------------------------------- strict decoder kernel
 
+# The ensembles' atom rows as uploaded, one per variant (its ``Ops``) and ensemble id:
+# every strict-decoded material of a scene reads the one copy.
+_SHARED: dict = {}
+_SHARED_LOCK = threading.Lock()
+
+
+def shared_rows(ops: Ops, ensemble):
+    """(the ensemble's :class:`~sparse_brdf.decoders.scene.SharedRows`, its rows as a
+    Float buffer of variant ``ops``), uploaded once per variant and ensemble (the last
+    ensemble of each variant is kept)."""
+    key = (ops, ensemble.id)
+    with _SHARED_LOCK:
+        hit = _SHARED.get(key)
+        if hit is None:
+            rows = ensemble_rows(ensemble)
+            hit = (rows, ops.floats(rows.rows))
+            for k in [k for k in _SHARED if k[0] is ops]:
+                del _SHARED[k]
+            _SHARED[key] = hit
+    return hit
+
+
 
 @dataclass
 class StrictBuffers:
@@ -153,13 +177,16 @@ class StrictBuffers:
     channels: list  # per channel {"t": terms, "soff": first term, "roff": [row offset]}
 
 
-def upload_strict(ops: Ops, lay) -> StrictBuffers:
-    """:class:`StrictBuffers` of layout ``lay``."""
+def upload_strict(ops: Ops, lay, rows=None) -> StrictBuffers:
+    """:class:`StrictBuffers` of layout ``lay``; ``rows``: a Float buffer of atom rows
+    that ``lay``'s row offsets point into (the ensemble's, :func:`shared_rows`) instead
+    of the layout's own."""
     # a buffer is never empty (a material without coefficients): Dr.Jit refuses to trace
     # a gather from an empty array, even one a zero-trip loop never runs
     values = ops.floats(lay.values if len(lay.values) else [0.0])
     packed = ops.uints(lay.packed if len(lay.packed) else [0])
-    rows = ops.floats(lay.rows if len(lay.rows) else [0.0])
+    if rows is None:
+        rows = ops.floats(lay.rows if len(lay.rows) else [0.0])
     per = [{"t": ops.u(t), "soff": ops.u(soff), "roff": [ops.u(r) for r in roff]}
            for t, soff, roff in zip(lay.n_terms, lay.term_offsets, lay.row_offsets,
                                     strict=True)]

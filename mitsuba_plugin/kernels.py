@@ -14,6 +14,7 @@ per BSDF call on plain Python floats use the scalar helpers :func:`point_weight`
 from __future__ import annotations
 
 import math
+import threading
 
 import drjit as dr
 
@@ -231,6 +232,20 @@ class Shape:
         self.n = tuple(ops.u(n) for n in self.py)
         self.nf = tuple(ops.f(n) for n in self.py)
         self.trig = tuple(ops.floats(a) for a in angle_tables(self.py))
+
+
+_SHAPES: dict = {}
+_SHAPES_LOCK = threading.Lock()
+
+
+def shared_shape(ops: Ops, shape) -> Shape:
+    """The :class:`Shape` of grid ``shape`` in variant ``ops``, made once and shared by
+    every material on that grid (its angle tables are the grid's, not the material's)."""
+    key = (ops, tuple(int(n) for n in shape))
+    with _SHAPES_LOCK:
+        if key not in _SHAPES:
+            _SHAPES[key] = Shape(ops, key[1])
+        return _SHAPES[key]
 
 
 def half_diff(wi, wo):

@@ -32,14 +32,20 @@ from sparse_brdf.decoders.layouts import (
     term_values,
 )
 from sparse_brdf.decoders.lookups import GroupedLookup, StrictLookup
+from sparse_brdf.decoders.scene import (
+    MEMORY_BUDGET_MIB,
+    distinct_atoms,
+    material_cost,
+    strict_shared_layout,
+)
 from sparse_brdf.errors import PluginError
 from sparse_brdf.transforms import scale as transform_scale
 from sparse_brdf.transforms import uses_cosine
 
-from .decoders import grouped_x, strict_x, upload_grouped, upload_strict
+from .budget import default_budget, enroll, resolve
+from .decoders import grouped_x, shared_rows, strict_x, upload_grouped, upload_strict
 from .glossy import GlossyBSDF
 from .kernels import (
-    Shape,
     angle_coords,
     bin_weight,
     bin_weight_from_cos,
@@ -50,6 +56,7 @@ from .kernels import (
     nearest_bins,
     point_rho_from_cos,
     rho_from_x,
+    shared_shape,
 )
 from .loading import REQUIRED, bool_prop, choice_prop, load_model, read_props, resolve_file
 
@@ -96,8 +103,16 @@ class SparseBSDF(GlossyBSDF):
          - string
          - ``grouped`` (terms grouped by the atom of one mode, the other two modes
            contracted at load time into an (n_p n_q) x K table: fastest), ``strict`` (loops
-           over the nonzero terms: least memory) or ``auto`` (default: grouped unless its
-           tables exceed ``sparse_brdf.decoders.layouts.AUTO_GROUPED_MAX_BYTES``, 32 MiB).
+           over the nonzero terms, reading the atom rows the ensemble's materials share:
+           least memory) or ``auto`` (default: decided with the scene's other ``auto``
+           materials under its memory budget, :mod:`~mitsuba_plugin.budget`: grouped for
+           the largest speed gain per byte first while the tables fit, and never past
+           ``sparse_brdf.decoders.layouts.AUTO_GROUPED_MAX_BYTES``, 32 MiB).
+       * - memory_budget
+         - float
+         - The scene's budget of per-material decoder data for its ``auto`` materials,
+           in MiB (default: 64, or what ``mitsuba_plugin.memory_budget`` sets; a scene's
+           budget is the smallest its materials state).
        * - layout
          - string
          - How the grouped decoder lays out its rows (see
@@ -127,7 +142,10 @@ class SparseBSDF(GlossyBSDF):
         p = read_props(props, self.plugin, {
             "filename": REQUIRED, "ensemble": None, "decoder": "auto",
             "sampling": PLUGIN_DEFAULTS["sampling"], "interpolate": False,
-            "layout": "auto"})
+            "layout": "auto", "memory_budget": None})
+        if p["memory_budget"] is not None and p["memory_budget"] not in MEMORY_BUDGET_MIB:
+            raise PluginError(f"{self.plugin}: memory_budget={p['memory_budget']!r}: "
+                              f"expected MiB, {MEMORY_BUDGET_MIB.describe()}")
         self.sampling = choice_prop(p["sampling"], LOBES, self.plugin, "sampling")
         self.interpolate = bool_prop(p["interpolate"], self.plugin, "interpolate")
         decoder = choice_prop(p["decoder"], DECODERS, self.plugin, "decoder")
@@ -142,8 +160,7 @@ class SparseBSDF(GlossyBSDF):
         # M^T of the colour basis, traced as constants; None ("rgb"): no mix is traced
         self._mix = colour_mix(model.basis)
         self.n_terms = tuple(int(n) for n in model.n_coeffs)
-        self.decoder = choose_decoder(decoder, model, ens)
-        self._shape = Shape(ops, model.shape)
+        self._shape = shared_shape(ops, model.shape)
         self._cos_on = uses_cosine(model.transform)
         self._use_cos = ops.f(1.0 if self._cos_on else 0.0)
         # the relative transforms' constant factor s of the weight (a Python float: the
@@ -151,10 +168,15 @@ class SparseBSDF(GlossyBSDF):
         self._scale = transform_scale(model.transform)
         self.layout = None
         self._model, self._ens, self._grad, self._ad = model, ens, False, None
-        if self.decoder == "grouped":
-            self._build_grouped(model, ens, layout)
+        self._layout_asked = layout
+        budget = p["memory_budget"]
+        self._budget = (default_budget() if budget is None
+                        else int(float(budget) * 2**20))
+        self._pending = decoder == "auto"
+        if self._pending:  # decided with the scene's other auto materials (budget.py)
+            enroll(self)
         else:
-            self._build_strict(model, ens)
+            self._build(choose_decoder(decoder, model, ens))
         # the coded channels' values, as mi.traverse exposes them (``values_0`` ...)
         self._values = [self._value_array(v) for v in model.values]
         self._setup_sampling(self.sampling, sparse_profile(model, ens), model.shape)
@@ -162,6 +184,31 @@ class SparseBSDF(GlossyBSDF):
             self._rho = self._rho_point
 
     # data ----------------------------------------------------------------------------
+    #: What a material whose decoder waits for its scene's budget does not hold yet:
+    #: reading one decides the pool (:func:`~mitsuba_plugin.budget.resolve`).
+    _LAZY = frozenset({"decoder", "channels", "memory_bytes", "distinct_atoms", "packets",
+                       "grouped_modes", "shared_bytes"})
+
+    def __getattr__(self, name):
+        if name in SparseBSDF._LAZY and self.__dict__.get("_pending"):
+            resolve(self)
+            return self.__dict__[name]
+        raise AttributeError(name)
+
+    def _cost(self):
+        """The :class:`~sparse_brdf.decoders.scene.MaterialCost` the budget weighs."""
+        return material_cost(self._model, self._ens)
+
+    def _build(self, decoder: str) -> None:
+        """Build the buffers of ``decoder`` ("grouped" or "strict")."""
+        self.decoder = decoder
+        self._pending = False
+        self.shared_bytes = 0
+        if decoder == "grouped":
+            self._build_grouped(self._model, self._ens, self._layout_asked)
+        else:
+            self._build_strict(self._model, self._ens)
+
     def _build_grouped(self, model, ens, layout: str) -> None:
         key = _grouped_key(model, ens, layout, self._ops)
         with _GROUPED_LOCK:
@@ -185,14 +232,23 @@ class SparseBSDF(GlossyBSDF):
             self._lookup = GroupedLookup(lay, chans[0], self._mix, self._grouped.tables)
 
     def _build_strict(self, model, ens) -> None:
-        chans = [strict_channel(*channel_terms(model, ens, c)) for c in range(3)]
-        self.channels = chans
-        self._strict = upload_strict(self._ops, strict_layout(chans))
-        self.memory_bytes = sum(self._ops.nbytes(b) for b in (
-            self._strict.values, self._strict.packed, self._strict.rows))
-        self.distinct_atoms = tuple(tuple(r.shape[0] for r in ch.rows) for ch in chans)
-        if not self._ops.jit:
+        self.distinct_atoms = distinct_atoms(model, ens)
+        if not self._ops.jit:  # numpy lookups of the material's own atom rows
+            chans = [strict_channel(*channel_terms(model, ens, c)) for c in range(3)]
+            self.channels = chans
+            self._strict = upload_strict(self._ops, strict_layout(chans))
+            self.memory_bytes = sum(self._ops.nbytes(b) for b in (
+                self._strict.values, self._strict.packed, self._strict.rows))
             self._lookup = StrictLookup(chans, self._mix)
+            return
+        # the atom rows are the ensemble's, uploaded once for every material
+        shared, rows = shared_rows(self._ops, ens)
+        self.channels = None
+        self._strict = upload_strict(self._ops, strict_shared_layout(model, ens, shared),
+                                     rows)
+        self.memory_bytes = sum(self._ops.nbytes(b) for b in (
+            self._strict.values, self._strict.packed))
+        self.shared_bytes = shared.nbytes
 
     # differentiable values -----------------------------------------------------------
     # Both decoders' buffers are linear in the values, but a buffer derived from a
@@ -221,6 +277,8 @@ class SparseBSDF(GlossyBSDF):
         a zero-valued Dr.Jit term through which they flow (see the comment above)."""
         if keys and not any(str(k).startswith("values_") for k in keys):
             return
+        if self._pending:
+            resolve(self)
         try:
             vals = term_values([dr.detach(v) if self._ops.jit else v for v in self._values],
                                self.n_terms)
@@ -228,10 +286,7 @@ class SparseBSDF(GlossyBSDF):
             raise PluginError(f"{self.plugin}: {self.filename!r}: {exc}") from None
         model = dataclasses.replace(self._model, values=vals)
         self._model = model
-        if self.decoder == "grouped":
-            self._build_grouped(model, self._ens, self.layout)
-        else:
-            self._build_strict(model, self._ens)
+        self._build(self.decoder)
         if self.sampling == "lobe":  # the lobe follows the values, as from a file
             self._setup_sampling(self.sampling, sparse_profile(model, self._ens), model.shape)
         self._grad = self._ops.jit and any(dr.grad_enabled(v) for v in self._values)
@@ -266,6 +321,8 @@ class SparseBSDF(GlossyBSDF):
                         grad=(self._values[c], orders[c]))
 
     def _rho(self, wi, wo, active):
+        if self._pending:
+            resolve(self)
         if not self._ops.jit:  # (an instance binds _rho_point itself, see __init__)
             return self._rho_point(wi, wo, active)
         ops, sh = self._ops, self._shape
@@ -308,6 +365,8 @@ class SparseBSDF(GlossyBSDF):
         loops. The default (grouped, nearest bin) is one lookup and one
         :func:`~mitsuba_plugin.kernels.point_rho_from_cos`: every Python call here costs
         a measurable share of the render."""
+        if self._pending:
+            resolve(self)
         ops, sh = self._ops, self._shape
         coords = angle_coords(ops, sh, wi, wo)
         if self.interpolate:

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from ..decoders.layouts import DECODERS, LOBES, PLUGIN_DEFAULTS
+from ..decoders.scene import DEFAULT_MEMORY_BUDGET, MEMORY_BUDGET_MIB
 from ..errors import ImageFileError, UsageError
 from ..evaluation.images import read_exr, read_mask, write_image, write_mask
 from ..evaluation.render import (
@@ -60,7 +61,8 @@ def cmd_render(args: argparse.Namespace) -> int:
         check_parameters(scene, defines, "-D")
     images = [render_scene(scene, materials, spp=args.spp, seed=args.seed, res=args.res,
                            params=defines, sparse_options=opts, sampling=args.sampling,
-                           variant=args.variant) for scene in scenes]
+                           variant=args.variant, memory_budget=args.memory_budget)
+              for scene in scenes]
     mask = None
     if args.mask:
         mask = object_mask(scenes[0], res=(images[0].shape[1], images[0].shape[0]),
@@ -271,13 +273,7 @@ def add_render(sub) -> None:
                         f"looking at an image; {SHARED_PATHS} gives every material the same "
                         "sample paths for one seed and spp, so renders to compare (snr) "
                         "share their noise")
-    r.add_argument("--decoder", default=PLUGIN_DEFAULTS["decoder"], choices=DECODERS,
-                   help="how the sparse_brdf plugin evaluates .sbrdf materials: grouped "
-                        "tables (fastest), strict (a loop over the terms: least memory), or "
-                        "auto: grouped "
-                        "unless its tables would be too large")
-    r.add_argument("--ensemble", help="ensemble .npz for .sbrdf materials "
-                   "(default: the shipped one each file names)")
+    _add_decoder_options(r)
     r.add_argument("-m", "--variant", default=default_of(render_scene, "variant"),
                    choices=VARIANTS, metavar="VARIANT",
                    help="Mitsuba's variant (%(choices)s; the CUDA ones need an NVIDIA "
@@ -289,6 +285,24 @@ def add_render(sub) -> None:
                         "hit a shape of a replaced material), for `sparse-brdf snr --mask` "
                         "(default: none)")
     r.set_defaults(func=cmd_render)
+
+
+def _add_decoder_options(r) -> None:
+    """``render``'s options for the sparse_brdf plugin: decoder, memory budget, ensemble."""
+    r.add_argument("--decoder", default=PLUGIN_DEFAULTS["decoder"], choices=DECODERS,
+                   help="how the sparse_brdf plugin evaluates .sbrdf materials: grouped "
+                        "tables (fastest), strict (a loop over the terms: least memory), or "
+                        "auto: grouped unless its tables would be too large or the "
+                        "scene's --memory-budget is spent")
+    r.add_argument("--memory-budget", type=typed(MEMORY_BUDGET_MIB), metavar="MIB",
+                   default=default_of(render_scene, "memory_budget"),
+                   help="the scene's budget of per-material decoder data, in MiB, for "
+                        "its auto-decoded .sbrdf materials: the fast tables go to the "
+                        "materials that gain most per byte while they fit, the others "
+                        "take the compact decoder (None: the plugin's default, "
+                        f"{DEFAULT_MEMORY_BUDGET // 2**20} MiB)")
+    r.add_argument("--ensemble", help="ensemble .npz for .sbrdf materials "
+                   "(default: the shipped one each file names)")
 
 
 def add_snr(sub) -> None:

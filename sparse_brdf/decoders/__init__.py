@@ -4,6 +4,9 @@
   lobes (``LOBES``) and the plugins' defaults.
 - ``lookups``: numpy lookups of the uploaded data: the kernels' twins and the scalar
   variants' one-point lookups.
+- ``scene``: many materials in one scene: the ensemble's atom rows that every
+  strict-decoded material shares, and the choice of decoder per material under a
+  scene's memory budget.
 """
 
 from .layouts import DECODERS, LAYOUTS, LOBES, PLUGIN_DEFAULTS

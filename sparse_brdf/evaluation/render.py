@@ -204,6 +204,7 @@ def load_scene(
     tabulated_options: Mapping[str, object] | None = None,
     sampling: str | None = None,
     _edit=None,
+    memory_budget: float | None = None,
 ):
     """Load a scene with material overrides (see :func:`render_scene`); returns mi.Scene.
     ``scene_path`` is a path, or the name of a shipped scene (:func:`find_scene`)."""
@@ -222,8 +223,11 @@ def load_scene(
     mitsuba_plugin.register()
     xml = ET.tostring(root, encoding="unicode")
     try:
-        with scene_dir_resolver(scene_path):
-            return mi.load_string(xml, **kwargs)
+        budget = None if memory_budget is None else int(float(memory_budget) * 2**20)
+        with scene_dir_resolver(scene_path), mitsuba_plugin.memory_budget(budget):
+            scene = mi.load_string(xml, **kwargs)
+        mitsuba_plugin.resolve()  # the auto materials' decoders, under the scene's budget
+        return scene
     except Exception as exc:  # noqa: BLE001 - re-raised with the cause's message
         raise RenderError(f"{scene_path}: cannot load the scene: {cause_message(exc)}") from exc
 
@@ -239,6 +243,7 @@ def render_scene(
     sparse_options: Mapping[str, object] | None = None,
     tabulated_options: Mapping[str, object] | None = None,
     sampling: str | None = None,
+    memory_budget: float | None = None,
 ) -> np.ndarray:
     """Render ``scene_path`` (any Mitsuba 3 scene file) in Mitsuba's ``variant`` (one of
     :data:`~sparse_brdf.mitsuba_env.VARIANTS`) and return a linear float32 image of shape
@@ -258,11 +263,17 @@ def render_scene(
     replaced materials' BSDF sampling (None: the plugins' default, ``"lobe"``).
     With ``sampling="cosine"`` (:data:`SHARED_PATHS`) the same ``seed`` and ``spp`` give
     the same sample paths for every material, as comparisons of renders need.
+    ``memory_budget`` (MiB, None: the plugin's default, 64) is the scene's budget of
+    per-material decoder data: its ``sparse_brdf`` materials whose decoder is ``auto``
+    get the fast (grouped) tables, largest speed gain per byte first, while they fit,
+    and the compact (strict) decoder otherwise (docs/rendering.md, "Scenes with many
+    materials").
     """
     import mitsuba as mi  # lazy: Mitsuba is slow to import (see the module doc)
 
     scene = load_scene(scene_path, materials, spp, seed, res, variant, params,
-                       sparse_options, tabulated_options, sampling)
+                       sparse_options, tabulated_options, sampling,
+                       memory_budget=memory_budget)
     try:
         img = mi.render(scene, spp=int(spp), seed=int(seed))
         out = np.array(img, dtype=np.float32)
