@@ -24,9 +24,10 @@ import numpy as np
 from harness import header, parser, write_json
 
 from sparse_brdf.coding.budget import encode_to_bytes
-from sparse_brdf.coding.encode import PAPER_OPTIONS, encode
+from sparse_brdf.coding.encode import encode
 from sparse_brdf.coding.ensemble import resolve_ensemble
 from sparse_brdf.coding.fileformat import as_stored, to_bytes
+from sparse_brdf.coding.spec import PAPER_OPTIONS
 from sparse_brdf.metrics import cosine_weighted_snr
 from sparse_brdf.paths import DEMO_MATERIALS_DIR
 from sparse_brdf.sources.load import load_brdf

@@ -22,10 +22,11 @@ from .acquisition.recovery import encode_samples
 from .brdf import BRDF
 from .coding.budget import encode_to_bytes
 from .coding.coefficients import SparseBRDF
-from .coding.encode import DEFAULT_N_COEFFS, ENCODE_OPTIONS, PAPER_OPTIONS, encode
+from .coding.encode import encode
 from .coding.ensemble import Ensemble
 from .coding.fileformat import decode_file, load_sbrdf, save_sbrdf
 from .coding.interpolate import interpolate
+from .coding.spec import DEFAULT_N_COEFFS, ENCODE_OPTIONS, PAPER_OPTIONS, EncodeSpec
 from .compared.neural import NeuralFit, train_nbrdf
 from .compared.protocol import ComparedModel, CompressedBRDF
 from .errors import BRDFFileError, EnsembleMismatchError, InvalidBRDFError, SparseBRDFError
@@ -52,7 +53,7 @@ __version__ = "0.1.0"
 
 __all__ = [
     "BRDF", "BRDFFileError", "ComparedModel", "CompressedBRDF", "Corpus",
-    "DEFAULT_N_COEFFS", "ENCODE_OPTIONS", "Ensemble",
+    "DEFAULT_N_COEFFS", "ENCODE_OPTIONS", "EncodeSpec", "Ensemble",
     "EnsembleMismatchError", "FlipResult", "PAPER_OPTIONS",
     "InvalidBRDFError", "Material", "NeuralFit", "SNRForms", "Samples", "SparseBRDF",
     "SparseBRDFError", "TRANSFORMS", "cosine_weighted_snr", "decode_file", "encode",

@@ -33,9 +33,10 @@ import numpy as np
 from .benchmark.bench import Bench
 from .benchmark.bench_config import BenchConfig
 from .benchmark.report import noise_floor_means, scenes_of, summary_table
-from .coding.encode import DEFAULT_N_COEFFS, encode
+from .coding.encode import encode
 from .coding.ensemble import Ensemble
 from .coding.fileformat import save_sbrdf
+from .coding.spec import DEFAULT_N_COEFFS
 from .fileio import atomic_path, atomic_write
 from .metrics import OBJECT_ONLY, WHOLE_IMAGE, cosine_weighted_snr, rae
 from .sources.corpora import get_corpus

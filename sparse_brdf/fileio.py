@@ -206,6 +206,17 @@ def check_writable(path: str | os.PathLike, what: str = "output") -> Path:
     return path
 
 
+def check_new_output(path: str | os.PathLike, suffixes: Iterable[str], kind: str = "",
+                     inputs: Iterable[str | os.PathLike | None] = (),
+                     option: str = "-o") -> Path:
+    """An output checked once, before any work: its suffix (:func:`check_suffix`), neither
+    a folder nor one of ``inputs`` (:func:`check_output`), and writable
+    (:func:`check_writable`). Returns it as a Path."""
+    check_suffix(path, suffixes, option, kind)
+    check_output(path, inputs)
+    return check_writable(path)
+
+
 @contextlib.contextmanager
 def staged(paths: Iterable[str | os.PathLike]) -> Iterator[list[Path]]:
     """Temporary paths beside each of ``paths`` (same suffix), to write a command's

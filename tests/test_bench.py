@@ -23,7 +23,7 @@ from sparse_brdf.benchmark.bench_config import (
 from sparse_brdf.benchmark.charts import pareto
 from sparse_brdf.benchmark.compare import compare_results, format_worse
 from sparse_brdf.benchmark.provenance import environment_provenance
-from sparse_brdf.coding.encode import ENCODE_OPTIONS
+from sparse_brdf.coding.spec import ENCODE_OPTIONS
 from sparse_brdf.compared.specs import make_model
 from sparse_brdf.errors import MissingDataError
 from sparse_brdf.evaluation.scenes import parse_scene_spec

@@ -9,11 +9,11 @@ import pytest
 from conftest import SMALL, random_orthonormal
 from sparse_brdf.brdf import BRDF
 from sparse_brdf.coding.coefficients import SparseBRDF
-from sparse_brdf.coding.encode import DEFAULT_N_COEFFS, PAPER_OPTIONS
 from sparse_brdf.coding.encode import encode as _encode
 from sparse_brdf.coding.ensemble import Ensemble
 from sparse_brdf.coding.fileformat import file_size, load_sbrdf, save_sbrdf
 from sparse_brdf.coding.projection import project_all, project_pruned, select
+from sparse_brdf.coding.spec import DEFAULT_N_COEFFS, PAPER_OPTIONS
 from sparse_brdf.coding.tensor import reconstruct, sparse_to_dense
 from sparse_brdf.coords import angles_to_dirs, geometric_valid, grid_angles
 from sparse_brdf.errors import BRDFFileError, EnsembleMismatchError

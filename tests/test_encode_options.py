@@ -11,9 +11,9 @@ import pytest
 
 from conftest import SMALL
 from sparse_brdf.cli import main
-from sparse_brdf.coding.encode import ENCODE_OPTIONS, PAPER_OPTIONS, check_options
 from sparse_brdf.coding.encode import encode as _encode
 from sparse_brdf.coding.fileformat import load_sbrdf, save_sbrdf
+from sparse_brdf.coding.spec import ENCODE_OPTIONS, PAPER_OPTIONS, check_options
 from sparse_brdf.compared import baselines
 from sparse_brdf.compared.specs import make_model
 from sparse_brdf.coords import bin_solid_angle, geometric_valid

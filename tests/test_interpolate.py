@@ -9,10 +9,10 @@ import pytest
 
 from conftest import SMALL
 from sparse_brdf.cli import main
-from sparse_brdf.coding.encode import PAPER_OPTIONS
 from sparse_brdf.coding.encode import encode as _encode
 from sparse_brdf.coding.fileformat import load_sbrdf, save_sbrdf
 from sparse_brdf.coding.interpolate import interpolate
+from sparse_brdf.coding.spec import PAPER_OPTIONS
 from sparse_brdf.sources.load import load_brdf
 
 encode = functools.partial(_encode, **PAPER_OPTIONS)

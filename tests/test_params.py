@@ -17,7 +17,7 @@ from sparse_brdf.acquisition.files import plan
 from sparse_brdf.acquisition.recovery import encode_samples
 from sparse_brdf.benchmark.ranking import merge_results
 from sparse_brdf.cli.files import encode_samples_file
-from sparse_brdf.coding import encode as encode_module
+from sparse_brdf.coding import spec as encode_module
 from sparse_brdf.coding.budget import check_budget, encode_to_bytes
 from sparse_brdf.coding.encode import encode
 from sparse_brdf.coding.fileformat import check_version

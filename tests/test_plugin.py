@@ -11,9 +11,10 @@ import pytest
 
 from conftest import SMALL, random_orthonormal
 from sparse_brdf.coding.coefficients import SparseBRDF
-from sparse_brdf.coding.encode import PAPER_OPTIONS, encode
+from sparse_brdf.coding.encode import encode
 from sparse_brdf.coding.ensemble import Ensemble
 from sparse_brdf.coding.fileformat import load_sbrdf, save_sbrdf
+from sparse_brdf.coding.spec import PAPER_OPTIONS
 from sparse_brdf.coding.tensor import hosvd_factors, mode_grams
 from sparse_brdf.coords import (
     angles_to_dirs,

@@ -603,12 +603,12 @@ def test_sigint_during_encode(tmp_path):
         "import sys\n"
         "import sparse_brdf.cli as cli\n"
         "from sparse_brdf.cli import files\n"  # where encode_file looks the encoder up
-        "real = files.encode\n"
+        "real = files.encode_with\n"
         "def encode_until_interrupted(*a, **k):\n"
         "    print('encoding', flush=True)\n"
         "    while True:\n"
         "        real(*a, **k)\n"
-        "files.encode = encode_until_interrupted\n"
+        "files.encode_with = encode_until_interrupted\n"
         f"sys.exit(cli.main(['encode', {str(src)!r}, '-o', {str(out / 'c.sbrdf')!r}, "
         "'--fill-iters', '2']))\n")
     p = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,

@@ -22,7 +22,7 @@ from sparse_brdf.cli import main
 from sparse_brdf.coding import budget
 from sparse_brdf.coding.budget import encode_to_bytes, fit_bytes, truncate
 from sparse_brdf.coding.coefficients import SparseBRDF
-from sparse_brdf.coding.encode import encode, encode_sized
+from sparse_brdf.coding.encode import encode, encode_with
 from sparse_brdf.coding.ensemble import Ensemble
 from sparse_brdf.coding.fileformat import (
     VERSION,
@@ -36,6 +36,7 @@ from sparse_brdf.coding.fileformat import (
     step_exponent,
     to_bytes,
 )
+from sparse_brdf.coding.spec import EncodeSpec
 from sparse_brdf.compared.specs import make_model
 from sparse_brdf.errors import BRDFFileError, EnsembleMismatchError
 from sparse_brdf.sources.load import load_brdf
@@ -203,8 +204,9 @@ def test_demo_material_size_and_quantisation():
     """A real material at 262 coefficients per channel with the shipped ensemble: at most
     4 bytes per coefficient (header included; measured about 1.9) and quantisation moves
     the cosine-weighted SNR by < 0.1 dB (docs/file-format.md, Measured)."""
-    from sparse_brdf.coding.encode import PAPER_OPTIONS, encode
+    from sparse_brdf.coding.encode import encode
     from sparse_brdf.coding.ensemble import resolve_ensemble
+    from sparse_brdf.coding.spec import PAPER_OPTIONS
     from sparse_brdf.metrics import cosine_weighted_snr
     from sparse_brdf.paths import DEMO_MATERIALS_DIR
 
@@ -296,20 +298,21 @@ class _Steer:
         return truncate(model, self.keep)
 
 
-def test_encode_sized_codes_the_revised_count_and_refits_the_trim(small_ensemble):
+def test_encode_with_codes_the_revised_count_and_refits_the_trim(small_ensemble):
     """The fill's later rounds use the count ``recount`` returns, the last fit's support
     is trimmed and its values fitted again; ``size=None`` is ``encode``."""
     brdf = load_brdf("mitsuba:plastic-red-ggx-0.3", shape=SMALL)
     steer = _Steer(7, 15)
-    m = encode_sized(brdf, small_ensemble, 40, steer)
+    m = encode_with(brdf, EncodeSpec.build(small_ensemble, 40), steer)
     stats = m.stats["transforms"][m.transform]
     # per transform: a recount after the first fit (3 x 40, joint budget) and the second
     # (3 x 7), then the trim of the third fit's 21
     assert sorted(steer.seen) == sorted([("recount", 120), ("recount", 21), ("trim", 21)] * 2)
     assert int(m.n_coeffs.sum()) == 15 and stats["recount"] == [7, 7]
     assert stats["fill"]["fits"] == 4  # three rounds and the refit of the trimmed support
-    cut = truncate(encode_sized(brdf, small_ensemble, 40, _Steer(7, 21),
-                                transform=m.transform), 15)  # the same support, not refitted
+    cut = truncate(encode_with(brdf, EncodeSpec.build(small_ensemble, 40,
+                                                      transform=m.transform),
+                               _Steer(7, 21)), 15)  # the same support, not refitted
     assert all(np.array_equal(np.sort(a), np.sort(b))
                for a, b in zip(cut.locations, m.locations, strict=True))
     y = forward(brdf.channel_first(), m.transform, brdf.valid)
@@ -319,13 +322,13 @@ def test_encode_sized_codes_the_revised_count_and_refits_the_trim(small_ensemble
                             ** 2))
 
     assert valid_residual(m) < valid_residual(cut)  # the refit lowers it
-    plain, same = encode(brdf, small_ensemble, 40), encode_sized(brdf, small_ensemble, 40,
-                                                                 None)
+    plain = encode(brdf, small_ensemble, 40)
+    same = encode_with(brdf, EncodeSpec.build(small_ensemble, 40), None)
     for a, b in zip(plain.locations + plain.values, same.locations + same.values,
                     strict=True):
         np.testing.assert_array_equal(a, b)
     steer = _Steer(7, 15)
-    m0 = encode_sized(brdf, small_ensemble, 40, steer, fill="missing")
+    m0 = encode_with(brdf, EncodeSpec.build(small_ensemble, 40, fill="missing"), steer)
     assert not steer.seen and int(m0.n_coeffs.sum()) == 120  # no fill rounds: not steered
 
 

@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..coding.encode import ENCODE_OPTIONS
 from ..coding.ensemble import Ensemble, resolve_ensemble
+from ..coding.spec import ENCODE_OPTIONS
 from ..compared.baselines import PCAModel
 from ..errors import MissingDataError
 from ..sources.cache import cache_dir, content_key

@@ -19,9 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..coding.encode import ENCODE_OPTIONS
 from ..coding.ensemble import Ensemble
 from ..coding.projection import _coded_channels, project_all
+from ..coding.spec import ENCODE_OPTIONS
 from ..fileio import atomic_write
 
 #: Coefficients per material and dictionary that the prior sees.

@@ -23,24 +23,23 @@ predicts the held-out samples better.
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..brdf import BRDF
-from ..coding.budget import PARAMETERS as BUDGET
-from ..coding.budget import encode_to_bytes, fit_bytes
+from ..coding.budget import encode_to_bytes_with, fit_bytes
 from ..coding.coefficients import SparseBRDF
-from ..coding.encode import DEFAULT_N_COEFFS, ENCODE_OPTIONS, encode
-from ..coding.ensemble import Ensemble, resolve_ensemble
+from ..coding.encode import encode_with
+from ..coding.ensemble import Ensemble
+from ..coding.spec import DEFAULT_N_COEFFS, ENCODE_OPTIONS, EncodeSpec
 from ..coding.tensor import top_k
 from ..errors import UsageError
 from ..parallel import parallel_map
 from ..params import SEED, Interval, check, check_choice
-from ..transforms import TRANSFORMS, check_transform
+from ..transforms import TRANSFORMS
 from . import _pools, defaults
 from .defaults import PRIORS
 from .measurements import Samples
@@ -242,8 +241,9 @@ def encode_samples(samples: Samples, ensemble: Ensemble | str | None = None,
     cross-validation on held-out samples; the full table is never used. The result is an
     ordinary model: ``save_sbrdf``, ``decode``, ``blend`` and the plugins read it.
 
-    The ensemble, the coefficient count and the prior are resolved and checked here,
-    once; everything below takes the resolved objects.
+    The ensemble, the coefficient count, the byte budget and the transforms (an
+    :class:`~sparse_brdf.coding.spec.EncodeSpec`), the other options and the prior are
+    resolved and checked here, once; everything below takes the resolved objects.
 
     Parameters
     ----------
@@ -302,12 +302,12 @@ def encode_samples(samples: Samples, ensemble: Ensemble | str | None = None,
     MissingDataError
         For the default prior when the training corpus is not on this machine.
     """
-    ens = resolve_ensemble(ensemble)
-    n = min(check("n_coeffs", n_coeffs, PARAMETERS["n_coeffs"]), math.prod(ens.shape))
+    spec = EncodeSpec.build(ensemble, n_coeffs, n_bytes, transform=transform,
+                            basis=ENCODE_OPTIONS["basis"])
+    ens, n = spec.ensemble, spec.n_coeffs
     check("folds", folds, PARAMETERS["folds"])
     check("candidates", candidates, PARAMETERS["candidates"])
     check("seed", seed, PARAMETERS["seed"])
-    names = ens.transforms if transform == "auto" else (check_transform(transform),)
     if not isinstance(samples, Samples):
         raise UsageError(f"encode_samples: expected Samples, got {type(samples).__name__} "
                          "(read a file with sparse_brdf.read_samples)")
@@ -321,13 +321,13 @@ def encode_samples(samples: Samples, ensemble: Ensemble | str | None = None,
         raise UsageError(f"encode_samples: the atom prior is of ensemble "
                          f"{prior.ensemble_id}, not {ens.id}")
     t0 = time.perf_counter()
-    model = _recover(samples, ens, n, names, folds, candidates, seed, prior)
+    model = _recover(samples, ens, n, spec.transforms, folds, candidates, seed, prior)
     if n_bytes is not None:
-        model = fit_bytes(model, check("n_bytes", n_bytes, BUDGET["n_bytes"]))
+        model = fit_bytes(model, n_bytes, spec.version)
     model.stats["seconds"] = time.perf_counter() - t0
     if prior is None or not pca_fallback:
         return model
-    return _pca_fallback(model, samples, ens, n_coeffs, n_bytes, folds, seed, training)
+    return _pca_fallback(model, samples, spec, folds, seed, training)
 
 
 def _recover(samples: Samples, ens: Ensemble, n: int, names: tuple[str, ...], folds: int,
@@ -364,11 +364,12 @@ def _recover(samples: Samples, ens: Ensemble, n: int, names: tuple[str, ...], fo
     return model
 
 
-def _pca_fallback(model: SparseBRDF, samples: Samples, ens: Ensemble, n_coeffs: int,
-                  n_bytes: int | None, folds: int, seed: int,
-                  training: Sequence | None) -> SparseBRDF:
+def _pca_fallback(model: SparseBRDF, samples: Samples, spec: EncodeSpec, folds: int,
+                  seed: int, training: Sequence | None) -> SparseBRDF:
     """``model``, or the full-table encoding of the PCA baseline's reconstruction from the
-    same samples when its held-out cosine-weighted error is the smaller."""
+    same samples when its held-out cosine-weighted error is the smaller (the encoder's
+    defaults, the transform chosen among the ensemble's)."""
+    ens = spec.ensemble
     basis = defaults.trained_pca(training)
     if basis.mask_.shape[:3] != ens.shape:
         return model
@@ -379,8 +380,9 @@ def _pca_fallback(model: SparseBRDF, samples: Samples, ens: Ensemble, n_coeffs: 
     if pca_error >= own:
         return model
     table = BRDF(pca.reconstruct(), np.array(basis.mask_[..., 0]), name=samples.name)
-    alt = (encode_to_bytes(table, ens, n_bytes) if n_bytes is not None
-           else encode(table, ens, n_coeffs))
+    full = replace(spec, transform="auto", transforms=ens.transforms)
+    alt = (encode_to_bytes_with(table, full) if spec.n_bytes is not None
+           else encode_with(table, full))
     alt.stats = {**model.stats, "fallback": {"model": "pca", "n_coeffs": pca.info["n_coeffs"],
                                              "cv_cosine_error": pca_error,
                                              "sparse_cv_cosine_error": own}}

@@ -35,9 +35,10 @@ from ..acquisition.measurements import Samples
 from ..acquisition.pca import pca_from_samples
 from ..acquisition.recovery import encode_samples
 from ..brdf import BRDF
-from ..coding.encode import DEFAULT_N_COEFFS, encode
+from ..coding.encode import encode
 from ..coding.ensemble import resolve_ensemble
 from ..coding.fileformat import VERSION, save_sbrdf
+from ..coding.spec import DEFAULT_N_COEFFS
 from ..errors import ConfigError, SparseBRDFError, one_line
 from ..evaluation.images import read_exr, write_exr
 from ..evaluation.render import SHARED_PATHS, object_mask, render_scene

@@ -38,9 +38,10 @@ from pathlib import Path
 import numpy as np
 
 from ..brdf import BRDF
-from ..coding.encode import ENCODE_OPTIONS, error_curve
+from ..coding.encode import error_curve
 from ..coding.ensemble import resolve_ensemble
 from ..coding.fileformat import VERSION, save_sbrdf
+from ..coding.spec import ENCODE_OPTIONS
 from ..compared.compact import Compact
 from ..compared.protocol import ComparedModel, check_compressed, table_of
 from ..errors import (

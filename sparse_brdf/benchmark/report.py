@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..coding.encode import DEFAULT_N_COEFFS, pick_transform
+from ..coding.encode import pick_transform
+from ..coding.spec import DEFAULT_N_COEFFS
 from ..evaluation.images import read_exr
 from ..fileio import atomic_path, atomic_write
 from ..metrics import OBJECT_ONLY, WHOLE_IMAGE

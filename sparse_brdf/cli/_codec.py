@@ -8,21 +8,18 @@ import json
 import math
 import sys
 import time
-from pathlib import Path
 
 from ..coding import budget as budget_module
 from ..coding.budget import encode_to_bytes
-from ..coding.encode import DEFAULT_FILL_ITERS, PAPER_OPTIONS, check_n_coeffs, encode
-from ..coding.ensemble import resolve_ensemble
-from ..coding.fileformat import decode_file, load_sbrdf, save_sbrdf
+from ..coding.encode import encode
+from ..coding.fileformat import decode_file
 from ..coding.interpolate import PARAMETERS as INTERPOLATE
-from ..coding.interpolate import interpolate
+from ..coding.interpolate import blend_files, interpolate
+from ..coding.spec import DEFAULT_FILL_ITERS, PAPER_OPTIONS
 from ..coords import GRID_BINS
 from ..errors import (
     BRDFFileError,
-    EnsembleMismatchError,
     InvalidBRDFError,
-    OutputError,
     UsageError,
 )
 from ..parallel import executor
@@ -31,7 +28,6 @@ from ._options import (
     COEFFS,
     ENCODE,
     MERL,
-    SBRDF,
     add_source_help,
     add_symmetrize,
     add_where,
@@ -52,10 +48,7 @@ def cmd_encode(args: argparse.Namespace) -> int:
         options.update(PAPER_OPTIONS)
     if args.symmetrize is not None:
         options["symmetrize"] = args.symmetrize
-    if is_batch(args.source):
-        if Path(args.output).is_file():
-            raise OutputError(f"-o {args.output}: a batch writes a folder (one .sbrdf per "
-                              "material and its summary), not a file")
+    if is_batch(args.source):  # encode_batch checks its output folder and options, once
         if args.bytes is not None:
             raise UsageError("--bytes: byte budgets encode one material at a time (not a "
                              "batch yet); give --coeffs for a batch")
@@ -64,7 +57,7 @@ def cmd_encode(args: argparse.Namespace) -> int:
                                    {"n_coeffs": args.coeffs, **options}, ex)
         _note_capped(args, summary["grid"])
         return _report_batch(args, summary)
-    check_outputs([(args.output, SBRDF, "-o")], [args.source, args.ensemble])
+    # encode_file checks the output and the options, once, before any work
     path, model = encode_file(args.source, args.output, args.ensemble, args.coeffs,
                               args.bytes, **options)
     _note_capped(args, model.shape)
@@ -128,25 +121,10 @@ def cmd_decode(args: argparse.Namespace) -> int:
 
 def cmd_blend(args: argparse.Namespace) -> int:
     """``blend``: two ``.sbrdf`` files of one ensemble and transform, interpolated."""
-    check_outputs([(args.output, SBRDF, "-o")], [args.a, args.b, args.ensemble])
-    try:  # the shipped ensemble A names, unless one is given
-        ens = resolve_ensemble(args.ensemble, for_id=load_sbrdf(args.a).ensemble_id)
-    except EnsembleMismatchError as exc:
-        raise EnsembleMismatchError(f"{args.a}: {exc}") from exc
-    n = None if args.coeffs is None else check_n_coeffs(args.coeffs, ens)
-    _note_capped(args, ens.shape)
-    a = load_sbrdf(args.a, ens)
-    try:
-        b = load_sbrdf(args.b, ens)
-    except EnsembleMismatchError as exc:
-        raise EnsembleMismatchError(
-            f"{args.b}: encoded with another ensemble than {args.a} ({ens.id}): blending "
-            f"needs one ensemble; re-encode the material of {args.b} with it (sparse-brdf "
-            f"encode SOURCE -o NEW.sbrdf --ensemble {args.ensemble or ens.id})") from exc
-    if a.transform != b.transform:
-        raise UsageError(f"cannot blend {args.a} ({a.transform}) with {args.b} "
-                         f"({b.transform}): encode both with the same --transform")
-    out = save_sbrdf(args.output, interpolate(a, b, args.alpha, ens, n))
+    # blend_files checks the output, the ensemble, the count and the pair, once
+    out, model = blend_files(args.a, args.b, args.output, args.alpha, args.ensemble,
+                             args.coeffs)
+    _note_capped(args, model.shape)
     print(f"wrote {out}")
     return 0
 

@@ -11,16 +11,17 @@ from __future__ import annotations
 import argparse
 import inspect
 
-from ..coding import encode as encode_module
+from ..coding import spec as encode_spec
+from ..coding.fileformat import SBRDF_FILE
 from ..coords import GRID_BINS
 from ..evaluation.images import IMAGE_SUFFIXES, MASK_SUFFIXES
 from ..evaluation.render import RENDER_PARAMETERS
-from ..fileio import check_output, check_suffix, check_writable
+from ..fileio import check_new_output
 from ..params import Interval
 from ..training import train as train_module
 
 #: The declared parameters the options take their bounds and choices from.
-ENCODE, TRAIN, RENDER = (encode_module.PARAMETERS, train_module.PARAMETERS, RENDER_PARAMETERS)
+ENCODE, TRAIN, RENDER = (encode_spec.PARAMETERS, train_module.PARAMETERS, RENDER_PARAMETERS)
 #: Coefficients per channel: at most the MERL grid's entries (no channel holds more).
 COEFFS = ENCODE["n_coeffs"].capped(GRID_BINS.hi)
 
@@ -48,7 +49,7 @@ def default_of(func, name: str):
 
 
 #: The kinds of file the commands write: their suffixes and what they are called.
-SBRDF = ((".sbrdf",), "a .sbrdf coefficient file")
+SBRDF = SBRDF_FILE
 MERL = ((".binary",), "a MERL .binary file")
 ENSEMBLE_NPZ = ((".npz",), "an ensemble .npz file")
 SAMPLES_FILE = ((".csv", ".npz"), "a samples .csv or .npz file")
@@ -65,9 +66,7 @@ def check_outputs(outputs, inputs) -> None:
     for out, (suffixes, kind), option in outputs:
         if not out:
             continue
-        check_suffix(out, suffixes, option, kind)
-        check_output(out, [*inputs, *done])
-        check_writable(out)
+        check_new_output(out, suffixes, kind, [*inputs, *done], option)
         done.append(out)
 
 

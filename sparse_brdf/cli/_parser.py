@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import textwrap
 
-from ..coding.encode import DEFAULT_N_COEFFS
+from ..coding.spec import DEFAULT_N_COEFFS
 from ..errors import one_line
 from ._bench import add_bench_commands
 from ._codec import add_blend, add_decode, add_encode

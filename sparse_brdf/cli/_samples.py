@@ -13,14 +13,10 @@ from ..acquisition import PRIORS
 from ..acquisition import recovery as acquire_module
 from ..acquisition.files import PLACEMENTS, plan, read_samples
 from ..coding import budget as budget_module
+from ..coding.fileformat import save_sbrdf
 from ..coords import GRID_BINS
 from ._options import SAMPLES_FILE, SBRDF, check_outputs, default_of, typed
-from .files import (
-    PLAN_PAIRS,
-    encode_samples_file,
-    plan_samples_file,
-    samples_constant,
-)
+from .files import PLAN_PAIRS, check_measured, plan_samples_file, samples_constant
 
 
 def cmd_encode_samples(args: argparse.Namespace) -> int:
@@ -32,8 +28,11 @@ def cmd_encode_samples(args: argparse.Namespace) -> int:
         print(f"sparse-brdf: warning: {args.samples}: every sample has the same value "
               f"{samples.rgb[0].tolist()}: a Lambertian material, or values not measured "
               "(a plan's zeros or one value copied into every row)", file=sys.stderr)
-    path, model = encode_samples_file(samples, args.output, args.ensemble, args.coeffs,
-                                      args.bytes, seed=args.seed, prior=args.prior)
+    check_measured(samples)
+    # encode_samples resolves the ensemble, checks the counts and resolves the prior, once
+    model = acquire_module.encode_samples(samples, args.ensemble, args.coeffs, args.bytes,
+                                          seed=args.seed, prior=args.prior)
+    path = save_sbrdf(args.output, model)
     st = model.stats
     print(f"wrote {path} ({path.stat().st_size} bytes) from {st['samples']} samples: "
           f"{model.transform}, coefficients {model.n_coeffs.tolist()}, dictionaries "
@@ -86,7 +85,7 @@ def add_samples_commands(sub) -> None:
                     default=default_of(acquire_module.encode_samples, "seed"),
                     help="seed of the cross-validation folds (default %(default)s)")
     es.add_argument("--prior", choices=PRIORS,
-                    default=default_of(encode_samples_file, "prior"),
+                    default=default_of(acquire_module.encode_samples, "prior"),
                     help="default: each dictionary restricted to the atoms the training "
                          "split's materials use, fitted toward their values (computed once "
                          "and cached; needs the merl data); none: every atom, no prior "

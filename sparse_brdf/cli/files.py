@@ -2,8 +2,9 @@
 
 ``sparse-brdf encode SOURCE -o OUT.sbrdf`` (:func:`encode_file`) loads one material,
 encodes it (at a coefficient count, or to a byte budget) and writes its file atomically;
-it checks its inputs first (the output is neither a folder nor one of the inputs, the
-count fits the ensemble's grid) and resolves the ensemble once.
+it checks its inputs first (the output: a ``.sbrdf`` name, neither a folder nor one of
+the inputs, writable; the request as an :class:`~sparse_brdf.coding.spec.EncodeSpec`:
+the ensemble resolved once, the counts and options checked once).
 
 ``sparse-brdf encode DIR_OR_GLOB -o OUT_DIR`` (:func:`encode_batch`) encodes every
 material it finds (``.binary`` and ``.h5``; a glob may also match ``.sbrdf`` files) to
@@ -44,13 +45,14 @@ import numpy as np
 from ..acquisition.files import plan, read_samples, write_samples
 from ..acquisition.measurements import Samples
 from ..acquisition.recovery import encode_samples
-from ..coding.budget import encode_to_bytes
+from ..coding.budget import encode_to_bytes_with
 from ..coding.coefficients import SparseBRDF
-from ..coding.encode import DEFAULT_N_COEFFS, check_n_coeffs, encode, encoder_ensemble
-from ..coding.ensemble import Ensemble, resolve_ensemble
-from ..coding.fileformat import load_sbrdf, save_sbrdf
+from ..coding.encode import encode_with
+from ..coding.ensemble import Ensemble
+from ..coding.fileformat import SBRDF_FILE, load_sbrdf, save_sbrdf
+from ..coding.spec import DEFAULT_N_COEFFS, EncodeSpec
 from ..errors import BRDFFileError, EnsembleMismatchError, MissingFileError, OutputError, UsageError
-from ..fileio import atomic_write, check_output
+from ..fileio import atomic_write, check_new_output, check_output
 from ..metrics import cosine_weighted_snr
 from ..parallel import Executor, InProcess
 from ..params import Interval, check
@@ -78,11 +80,13 @@ def encode_file(source: str | os.PathLike, output: str | os.PathLike,
     source : path or ``mitsuba:<name>``
         The material.
     output : path
-        The ``.sbrdf`` file; refused if it is a folder or one of the inputs.
+        The ``.sbrdf`` file; refused if it is not named ``.sbrdf``, is a folder, is one of
+        the inputs or cannot be written.
     ensemble : Ensemble, path or id, optional
-        Resolved once (``coding.ensemble.resolve_ensemble``; default: the shipped one).
+        Resolved once (:meth:`~sparse_brdf.coding.spec.EncodeSpec.build`; default: the
+        shipped one).
     n_coeffs : int
-        Coefficients per channel, at most (checked against the ensemble's grid).
+        Coefficients per channel, at most (capped at the ensemble's grid).
     n_bytes : int, optional
         A byte budget for the whole file (``coding.budget.encode_to_bytes``) instead of
         ``n_coeffs``.
@@ -97,12 +101,12 @@ def encode_file(source: str | os.PathLike, output: str | os.PathLike,
     (Path, SparseBRDF)
         The file written and the model it holds (with the encoder's ``stats``).
     """
-    out = check_output(output, [source, None if isinstance(ensemble, Ensemble) else ensemble])
-    ens = encoder_ensemble(ensemble, options)
-    n_coeffs = check_n_coeffs(n_coeffs, ens)
+    out = check_new_output(output, *SBRDF_FILE, [source, None if isinstance(
+        ensemble, Ensemble) else ensemble])
+    spec = EncodeSpec.build(ensemble, n_coeffs, n_bytes, **options)
     brdf = load_brdf(source, symmetrize=symmetrize)
-    model = (encode_to_bytes(brdf, ens, n_bytes, **options) if n_bytes is not None
-             else encode(brdf, ens, n_coeffs, **options))
+    model = (encode_to_bytes_with(brdf, spec) if spec.n_bytes is not None
+             else encode_with(brdf, spec))
     return save_sbrdf(out, model), model
 
 
@@ -136,19 +140,18 @@ def batch_sources(pattern: str | os.PathLike) -> list[Path]:
     return files
 
 
-def encode_material(source: str, ensemble: Ensemble, options: dict) -> dict:
-    """Load and encode one material; its summary row, with the model under ``"model"``
-    (runs on a worker: every error is caught and reported, never raised)."""
+def encode_material(source: str, spec: EncodeSpec, symmetrize: bool | None = None) -> dict:
+    """Load and encode one material by a resolved request; its summary row, with the model
+    under ``"model"`` (runs on a worker: every error is caught and reported, never
+    raised)."""
     row: dict = {"source": source}
-    options = dict(options)
-    symmetrize = options.pop("symmetrize", None)
     try:
         t0 = time.perf_counter()
         brdf = load_brdf(source, symmetrize=symmetrize)
         t1 = time.perf_counter()
-        model = encode(brdf, ensemble, **options)
+        model = encode_with(brdf, spec)
         t2 = time.perf_counter()
-        rec = model.decode(ensemble, valid=brdf.valid).values
+        rec = model.decode(spec.ensemble, valid=brdf.valid).values
         row.update(status="encoded", model=model, transform=model.transform,
                    coefficients=int(model.n_coeffs.sum()), load_s=t1 - t0, seconds=t2 - t1,
                    snr_proxy_db=cosine_weighted_snr(brdf.values, rec, brdf.valid))
@@ -220,21 +223,27 @@ def encode_batch(pattern: str | os.PathLike, out_dir: str | os.PathLike,
     (``n_coeffs``, ``transform``, ``selector``, ...), and ``symmetrize`` as
     :func:`~sparse_brdf.sources.load.load_brdf` takes it. ``ex``: where the work runs
     (default in-process). Returns the summary (``summary.json``'s content): ``rows`` in
-    input order, and the counts ``encoded``, ``skipped``, ``failed``. The ensemble is
-    resolved once, and the options checked before any material is read.
+    input order, and the counts ``encoded``, ``skipped``, ``failed``. The output folder,
+    the sources and the request (:class:`~sparse_brdf.coding.spec.EncodeSpec`: the
+    ensemble resolved, the options checked) are checked once, before any material is read.
     """
     from tqdm.auto import tqdm  # lazy: tqdm.auto adds ~40 ms to `sparse-brdf --help`
 
     t0 = time.perf_counter()
+    out = Path(out_dir)
+    if out.is_file():
+        raise OutputError(f"-o {out_dir}: a batch writes a folder (one .sbrdf per material "
+                          "and its summary), not a file")
     ex = ex or InProcess()
     files = batch_sources(pattern)
     options = dict(options or {})
-    ens = encoder_ensemble(ensemble, options)
+    symmetrize = options.pop("symmetrize", None)
+    spec = EncodeSpec.build(ensemble, **options)
+    ens = spec.ensemble
     if options.get("n_coeffs") is not None:
-        options["n_coeffs"] = check_n_coeffs(options["n_coeffs"], ens)
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise OutputError(f"{out}: a batch's output must be a folder, not a file")
+        options["n_coeffs"] = spec.n_coeffs
+    if symmetrize is not None:
+        options["symmetrize"] = symmetrize
     out.mkdir(parents=True, exist_ok=True)
     key = _run_key(ens, options)
     before = _previous(out, key)
@@ -248,12 +257,12 @@ def encode_batch(pattern: str | os.PathLike, out_dir: str | os.PathLike,
             todo.append(i)
     meta = {**key, "pattern": os.fspath(pattern), "where": ex.describe(),
             "grid": list(ens.shape)}
-    handle = ex.scatter(ens)
+    handle = ex.scatter(spec)
     write_summary(out, rows, {**meta, "seconds": 0.0})
     bar = tqdm(total=len(todo), desc="encode", unit="material", disable=not progress)
     written = time.perf_counter()
     for j, row in ex.as_completed(encode_material, [str(files[i]) for i in todo], handle,
-                                  options):
+                                  symmetrize):
         i = todo[j]
         path = out / f"{files[i].stem}.sbrdf"
         model = row.pop("model", None)
@@ -295,9 +304,10 @@ def encode_samples_file(source: str | os.PathLike | Samples, output: str | os.Pa
     source : path or Samples
         The samples file, or samples it was read into (``read_samples``).
     output : path
-        The ``.sbrdf`` file; refused if it is a folder or one of the inputs.
+        The ``.sbrdf`` file; refused if it is not named ``.sbrdf``, is a folder, is one of
+        the inputs or cannot be written.
     ensemble : Ensemble, path or id, optional
-        Resolved once, here (default: the shipped one).
+        Resolved once, by ``encode_samples`` (default: the shipped one).
     n_coeffs : int
         Coefficients per channel, at most (a joint budget of 3 ``n_coeffs``).
     n_bytes : int, optional
@@ -314,16 +324,22 @@ def encode_samples_file(source: str | os.PathLike | Samples, output: str | os.Pa
         The file written and the model it holds (with its ``stats``).
     """
     given = isinstance(source, Samples)
-    out = check_output(output, [source.source if given else source,
-                                None if isinstance(ensemble, Ensemble) else ensemble])
-    ens = resolve_ensemble(ensemble)
+    out = check_new_output(output, *SBRDF_FILE, [source.source if given else source,
+                                                 None if isinstance(ensemble, Ensemble)
+                                                 else ensemble])
     samples = source if given else read_samples(source)
+    check_measured(samples)
+    # encode_samples resolves the ensemble, checks the counts and resolves the prior, once
+    model = encode_samples(samples, ensemble, n_coeffs, n_bytes, seed=seed, prior=prior)
+    return save_sbrdf(out, model), model
+
+
+def check_measured(samples: Samples) -> None:
+    """:class:`~sparse_brdf.errors.UsageError` when every sample value is 0 (a plan whose
+    values were not filled in): nothing to encode."""
     if not np.any(samples.rgb):
         raise UsageError(f"{samples.source or samples.name}: every sample value is 0: nothing "
                          "to encode (fill in the measured r,g,b of the plan)")
-    # encode_samples checks n_coeffs and resolves the prior, once
-    model = encode_samples(samples, ens, n_coeffs, n_bytes, seed=seed, prior=prior)
-    return save_sbrdf(out, model), model
 
 
 def plan_samples_file(output: str | os.PathLike, n: int, placement: str = "stratified",

@@ -4,7 +4,9 @@ ensemble, and its file.
 - ``tensor``: mode products, top-k, HOSVD, Procrustes (the numeric kernels);
   ``pruning``: the pruned projection the encoder and the trainer share.
 - ``ensemble``: the :class:`Ensemble` container and the shipped ensembles.
-- ``encode``: the encoder (options, model selection, the entry point); ``projection``:
+- ``spec``: what an encoding is asked for: the encoder's parameters, their defaults and
+  :class:`EncodeSpec`, the request resolved and checked once at each public entry point.
+- ``encode``: the encoder (model selection, the entry point); ``projection``:
   its search (every dictionary's largest coefficients, the selection, re-coding);
   ``fill``: the solver that gives invalid bins free values; ``budget``: encoding to a
   byte budget.
@@ -18,9 +20,10 @@ level has them: ``sparse_brdf.encode``, ``sparse_brdf.interpolate``.
 
 from .budget import encode_to_bytes
 from .coefficients import SparseBRDF
-from .encode import DEFAULT_N_COEFFS, ENCODE_OPTIONS, PAPER_OPTIONS
 from .ensemble import Ensemble, resolve_ensemble
 from .fileformat import decode_file, load_sbrdf, save_sbrdf
+from .spec import DEFAULT_N_COEFFS, ENCODE_OPTIONS, PAPER_OPTIONS, EncodeSpec
 
-__all__ = ["DEFAULT_N_COEFFS", "ENCODE_OPTIONS", "Ensemble", "PAPER_OPTIONS", "SparseBRDF",
+__all__ = ["DEFAULT_N_COEFFS", "ENCODE_OPTIONS", "EncodeSpec", "Ensemble", "PAPER_OPTIONS",
+           "SparseBRDF",
            "decode_file", "encode_to_bytes", "load_sbrdf", "resolve_ensemble", "save_sbrdf"]

@@ -7,7 +7,7 @@ dictionaries being orthonormal, removes s^2 of squared error in the coded domain
 coefficients kept are the largest |s| over the three channels (:func:`fit_bytes`).
 
 How (``docs/file-format.md``, "Byte budgets"): one encoding
-(:func:`~sparse_brdf.coding.encode.encode_sized`), whose dictionary search and first
+(:func:`~sparse_brdf.coding.encode.encode_with`), whose dictionary search and first
 least-squares fit use a coefficient count estimated from the budget (``first_count``).
 Between the fill's fits, the file of the current fit is measured and the next round is
 coded at the count that would fill the budget, aimed ``OVERSHOOT`` above it; after the
@@ -29,21 +29,14 @@ import numpy as np
 
 from ..brdf import BRDF
 from ..errors import UsageError
-from ..params import Interval
 from .coefficients import SparseBRDF
-from .encode import (
-    ENCODE_OPTIONS,
-    check_options,
-    choose_transform,
-    encode,
-    encode_sized,
-    encoder_ensemble,
-)
+from .encode import choose_transform, encode_with
 from .ensemble import Ensemble
 from .fileformat import VERSION, as_stored, check_version, min_file_size, to_bytes
+from .spec import N_BYTES, EncodeSpec
 
 #: The byte budget of a file (at least its header, name and checksum: :func:`check_budget`).
-PARAMETERS = {"n_bytes": Interval(int, 1)}
+PARAMETERS = {"n_bytes": N_BYTES}
 #: First guess of the bytes per coefficient beyond the fixed part, per file version, as
 #: ``(a, b)``: a - b ln(total coefficients). Version 2 compresses: measured 2.2-2.4 bytes
 #: at 180 coefficients, 1.8-1.9 at 1,200 and 1.5-1.7 at 7,500 on six merl training
@@ -64,7 +57,7 @@ MAX_TRIM = 0.0
 #: How far above the budget the count of the fill's next round is aimed: the file of a
 #: round's fit is measured, and the next round's values (hence their compressed size)
 #: differ by a few per cent, so the count aims a little high and the last fit is trimmed
-#: to the budget and fitted again (:func:`~sparse_brdf.coding.encode.encode_sized`).
+#: to the budget and fitted again (:func:`~sparse_brdf.coding.encode.encode_with`).
 OVERSHOOT = 0.05
 #: The share of the budget (beyond the file's fixed part) the last fit is trimmed below
 #: the budget, so that its refit's new values still fit and the result is not trimmed
@@ -104,6 +97,11 @@ def fit_bytes(model: SparseBRDF, n_bytes: int, version: int = VERSION) -> Sparse
     bracket from the count the bytes would hold in proportion, then bisection in it.
     """
     check_budget(model.name, n_bytes, version)
+    return _fit_bytes(model, n_bytes, version)
+
+
+def _fit_bytes(model: SparseBRDF, n_bytes: int, version: int) -> SparseBRDF:
+    """:func:`fit_bytes` on a checked budget."""
     total = int(model.n_coeffs.sum())
 
     def size(k: int) -> int:
@@ -145,6 +143,11 @@ def check_budget(name: str, n_bytes: int, version: int = VERSION) -> None:
     """:class:`~sparse_brdf.errors.UsageError` (a ValueError) unless a file of ``version``
     named ``name`` can hold a coefficient in ``n_bytes`` (the message names ``--bytes``)."""
     check_version(version)
+    _check_floor(name, n_bytes, version)
+
+
+def _check_floor(name: str, n_bytes: int, version: int) -> None:
+    """:func:`check_budget` for a checked version."""
     floor = min_file_size(len(name.encode("utf-8")[:255]), version)
     if not isinstance(n_bytes, (int, np.integer)) or n_bytes <= floor:
         raise UsageError(f"--bytes {n_bytes}: a version-{version} .sbrdf file of {name!r} "
@@ -189,28 +192,40 @@ def encode_to_bytes(brdf: BRDF, ensemble: Ensemble | None = None, n_bytes: int |
     UsageError
         Without ``n_bytes``, with ``n_coeffs``, for an unknown version, or for a budget
         too small to hold a coefficient.
+
+    See Also
+    --------
+    encode_to_bytes_with : the same on a resolved :class:`~sparse_brdf.coding.spec.EncodeSpec`.
     """
     if "n_coeffs" in encode_options or n_bytes is None:
         raise UsageError("encode_to_bytes: give a byte budget n_bytes (and no n_coeffs)")
-    check_budget(brdf.name, n_bytes, version)
-    ens = encoder_ensemble(ensemble, encode_options)
+    spec = EncodeSpec.build(ensemble, n_bytes=n_bytes, version=version, **encode_options)
+    return encode_to_bytes_with(brdf, spec)
+
+
+def encode_to_bytes_with(brdf: BRDF, spec: EncodeSpec) -> SparseBRDF:
+    """:func:`encode_to_bytes` on a resolved request (``spec.n_bytes`` set; trusted, as
+    :meth:`~sparse_brdf.coding.spec.EncodeSpec.build` checked it): only whether this
+    material's file holds a coefficient in the budget is checked (its name's bytes count).
+    """
+    n_bytes, version, ens = spec.n_bytes, spec.version, spec.ensemble
+    _check_floor(brdf.name, n_bytes, version)
     floor = min_file_size(len(brdf.name.encode("utf-8")[:255]), version)
     atoms = int(np.prod(ens.shape))
     n = _clip(math.ceil(first_count(n_bytes - floor, version) / 3), atoms)
-    joint = check_options(**{k: v for k, v in encode_options.items()
-                             if k in ENCODE_OPTIONS})["budget"] == "joint"
+    joint = spec.joint
     size = _ByteSize(n_bytes, version, floor, atoms, joint) if RECOUNT else None
-    model = encode_sized(brdf, ens, n, size, **encode_options)
+    model = encode_with(brdf, dataclasses.replace(spec, n_coeffs=n), size)
     if "recount" in model.stats["transforms"][model.transform]:  # one encoding did it
-        return _finish(brdf, ens, model, fit_bytes(model, n_bytes, version), n_bytes,
+        return _finish(brdf, ens, model, _fit_bytes(model, n_bytes, version), n_bytes,
                        version, 1)
     # no fill rounds to recount in: encode again at the count that fitted (or larger)
     passes: dict[int, tuple[SparseBRDF, SparseBRDF]] = {}  # count -> (encoded, fitted)
-    passes[n] = (model, fit_bytes(model, n_bytes, version))
+    passes[n] = (model, _fit_bytes(model, n_bytes, version))
     n, trimmed = _next_count(*passes[n], n, n_bytes, floor, version, atoms, False, joint)
     while len(passes) < MAX_PASSES and n not in passes:
-        model = encode(brdf, ens, n, **encode_options)
-        passes[n] = (model, fit_bytes(model, n_bytes, version))
+        model = encode_with(brdf, dataclasses.replace(spec, n_coeffs=n))
+        passes[n] = (model, _fit_bytes(model, n_bytes, version))
         n, trimmed = _next_count(*passes[n], n, n_bytes, floor, version, atoms, trimmed,
                                  joint)
     # the pass at the count the search settled on (else the last)
@@ -244,8 +259,8 @@ class _ByteSize:
         slack = (0 if self.version == 1
                  else max(4, math.ceil(REFIT_SLACK * (self.n_bytes - self.floor))))
         total = int(model.n_coeffs.sum())
-        keep = int(fit_bytes(model, max(self.n_bytes - slack, self.floor + 1),
-                             self.version).n_coeffs.sum())
+        keep = int(_fit_bytes(model, max(self.n_bytes - slack, self.floor + 1),
+                              self.version).n_coeffs.sum())
         return truncate(model, keep) if keep < total else model
 
 
@@ -303,5 +318,5 @@ def _finish(brdf: BRDF, ens: Ensemble, model: SparseBRDF, fit: SparseBRDF, n_byt
     return out
 
 
-__all__ = ["BYTES_GUESS", "check_budget", "encode_to_bytes", "first_count", "fit_bytes",
-           "truncate"]
+__all__ = ["BYTES_GUESS", "check_budget", "encode_to_bytes", "encode_to_bytes_with",
+           "first_count", "fit_bytes", "truncate"]

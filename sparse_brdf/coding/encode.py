@@ -18,14 +18,11 @@ basis with a joint budget of 3 ``n_coeffs``. ``PAPER_OPTIONS`` gives the paper's
 
 from __future__ import annotations
 
-import os
-from collections.abc import Mapping
-
 import numpy as np
 
 from ..brdf import BRDF
 from ..coords import geometric_valid
-from ..errors import EnsembleMismatchError, UsageError
+from ..errors import EnsembleMismatchError
 from ..metrics import (
     cosine_weighted_snr,
     gamma_mse,
@@ -35,57 +32,16 @@ from ..metrics import (
     render_proxy_error,
 )
 from ..parallel import parallel_map
-from ..params import Interval, check, check_choice
-from ..paths import DEFAULT_ENSEMBLE_ID, PAPER_ENSEMBLE_ID
-from ..transforms import (
-    COLOUR_BASES,
-    TRANSFORMS,
-    check_basis,
-    check_transform,
-    inverse,
-)
+from ..params import check_choice
+from ..transforms import inverse
 from .coefficients import SparseBRDF
-from .ensemble import Ensemble, resolve_ensemble
+from .ensemble import Ensemble
 from .fill import SizeControl, fill_invalid
 from .projection import _coded_channels, _Options, _search, project_all, select
+from .spec import DEFAULT_N_COEFFS, ENCODE_OPTIONS, SELECTORS, EncodeSpec
 
-DEFAULT_N_COEFFS = 262
-
-#: How ``encode(transform="auto")`` picks the transform (``docs/method.md``, "Encoding").
-SELECTORS: tuple[str, str] = ("gamma-mse", "render")
 #: The ``stats["transforms"][t]`` entry each selector minimises.
 SELECTOR_KEYS = {"gamma-mse": "gamma_mse", "render": "render_proxy"}
-#: Which bins ``encode`` fills from the model instead of fitting them as zeros.
-FILLS: tuple[str, str] = ("missing", "invalid")
-#: Fill rounds when ``fill_iters`` is not given: full re-searches for "missing",
-#: least-squares fits on the chosen dictionaries for "invalid"
-#: (:func:`~sparse_brdf.coding.fill.fill_invalid`).
-DEFAULT_FILL_ITERS = {"missing": 3, "invalid": 3}
-#: How the coefficients are budgeted: ``n_coeffs`` per channel, or 3 ``n_coeffs`` over
-#: the three channels.
-BUDGETS: tuple[str, str] = ("channel", "joint")
-#: The keyword options of :func:`encode` beyond the paper's, with their defaults: the
-#: render-proxy selector, free invalid bins and the opponent basis (docs/results.md,
-#: "Accuracy at equal coefficients", measures each).
-ENCODE_OPTIONS = {"selector": "render", "fill": "invalid", "fill_iters": None,
-                  "basis": "opponent", "budget": None}
-#: The paper's encoder as options of :func:`encode` (``sparse:N:paper`` in a bench).
-PAPER_OPTIONS = {"selector": "gamma-mse", "fill": "missing", "basis": "rgb"}
-#: Every parameter of :func:`encode` a user sets, declared once (:mod:`sparse_brdf.params`):
-#: the CLI's choices and bounds, a bench spec's options and the checks below read it.
-#: ``n_coeffs`` beyond a grid's entries per channel is capped to them.
-PARAMETERS = {
-    "n_coeffs": Interval(int, 1),
-    "max_error": Interval(float, 0.0, 1.0, closed="left"),
-    "transform": ("auto", *TRANSFORMS),
-    "selector": SELECTORS,
-    "fill": FILLS,
-    "fill_iters": Interval(int, 0, 1000),
-    "basis": COLOUR_BASES,
-    "budget": BUDGETS,
-}
-
-
 def pick_transform(stats: dict[str, dict], selector: str = "gamma-mse") -> str:
     """The transform rule (``docs/method.md``, "Encoding"): the smaller gamma-mapped MSE
     (``selector="gamma-mse"``) or the smaller render-proxy error (``"render"``)."""
@@ -128,10 +84,11 @@ def error_curve(brdf: BRDF, ens: Ensemble, counts: list[int]) -> dict:
 
 def choose_transform(brdf: BRDF, models: dict[str, SparseBRDF], ens: Ensemble,
                      selector: str = "gamma-mse") -> SparseBRDF:
-    """The model that ``selector`` prefers (:func:`pick_transform`); ``stats`` gets every
+    """The model that ``selector`` prefers (:func:`pick_transform`'s rule; ``selector`` as
+    an :class:`~sparse_brdf.coding.spec.EncodeSpec` resolved it); ``stats`` gets every
     model's value of the selector's error, and the chosen model's errors in full
     (gamma-mapped MSE, MSE, RAE, render-proxy error on valid bins)."""
-    key = SELECTOR_KEYS[check_choice("selector", selector, SELECTORS)]
+    key = SELECTOR_KEYS[selector]
     valid = brdf.valid
     ref_full = brdf.channel_first()
     ref = ref_full[:, valid]  # (3, n_valid): mask once, then flat metrics
@@ -153,7 +110,7 @@ def choose_transform(brdf: BRDF, models: dict[str, SparseBRDF], ens: Ensemble,
     names = list(models)
     sel = dict(zip(names, parallel_map(lambda t: errors(t, (key,)), names, limit_blas=False),
                    strict=True))
-    chosen = pick_transform(sel, selector)
+    chosen = min(sel, key=lambda t: sel[t][key])  # pick_transform, the selector checked
     rest = tuple(k for k in SELECTOR_KEYS.values() if k != key) + ("mse", "rae")
     if chosen not in flat:  # mask the chosen decode once, not per metric ("rest" has mse)
         flat[chosen] = full[chosen][:, valid]
@@ -247,41 +204,43 @@ def encode(
         If the BRDF's grid is not the ensemble's.
     UsageError
         For an option out of its range or choices.
+
+    See Also
+    --------
+    EncodeSpec.build : the request resolved and checked, once; :func:`encode_with` runs it.
     """
-    return encode_sized(brdf, ensemble, n_coeffs, None, max_error=max_error,
-                        transform=transform, fill_iters=fill_iters, selector=selector,
-                        fill=fill, basis=basis, budget=budget)
+    spec = EncodeSpec.build(ensemble, n_coeffs, max_error=max_error, transform=transform,
+                            fill_iters=fill_iters, selector=selector, fill=fill,
+                            basis=basis, budget=budget)
+    return encode_with(brdf, spec)
 
 
-def encode_sized(
-    brdf: BRDF,
-    ensemble: Ensemble | None,
-    n_coeffs: int,
-    size: SizeControl | None,
-    **options,
-) -> SparseBRDF:
-    """:func:`encode`, with the coefficient count steered while the fill runs.
+def encode_with(brdf: BRDF, spec: EncodeSpec, size: SizeControl | None = None) -> SparseBRDF:
+    """:func:`encode` on a resolved request, with the coefficient count steered while the
+    fill runs.
 
-    With ``fill="invalid"`` and fill rounds to run, ``size.recount(model)`` is called for
-    each transform's model after each least-squares fit but the last; the next round
-    re-codes that transform's filled channels at the count it returns (smaller or larger
-    than ``n_coeffs``), so the support that results is chosen and fitted for that count.
-    After the last fit, ``size.trim(model)`` gives the final support; if it dropped
-    coefficients, the values of the rest are fitted to the valid bins again, as every fill
-    round fits them. This is how :func:`~sparse_brdf.coding.budget.encode_to_bytes` meets a
-    byte budget in one encoding: ``recount`` estimates from the file of the current fit
-    the count that fills the budget (a little over it), and ``trim`` keeps the largest
-    coefficients that fit. Otherwise (``fill="missing"``, ``fill_iters=0``, a BRDF without
-    invalid bins, ``size=None``) this is :func:`encode`.
+    ``spec`` is trusted (:meth:`EncodeSpec.build` checked it); only the BRDF's grid is
+    checked against its ensemble. With ``fill="invalid"`` and fill rounds to run,
+    ``size.recount(model)`` is called for each transform's model after each least-squares
+    fit but the last; the next round re-codes that transform's filled channels at the
+    count it returns (smaller or larger than ``spec.n_coeffs``), so the support that
+    results is chosen and fitted for that count. After the last fit, ``size.trim(model)``
+    gives the final support; if it dropped coefficients, the values of the rest are fitted
+    to the valid bins again, as every fill round fits them. This is how
+    :func:`~sparse_brdf.coding.budget.encode_to_bytes` meets a byte budget in one
+    encoding: ``recount`` estimates from the file of the current fit the count that fills
+    the budget (a little over it), and ``trim`` keeps the largest coefficients that fit.
+    Otherwise (``fill="missing"``, ``fill_iters=0``, a BRDF without invalid bins,
+    ``size=None``) this is :func:`encode`.
 
     Parameters
     ----------
-    brdf, ensemble, n_coeffs
-        As :func:`encode`; ``n_coeffs`` is the count of the search and the first fit.
+    brdf : BRDF
+        As :func:`encode`.
+    spec : EncodeSpec
+        The request; ``spec.n_coeffs`` is the count of the search and the first fit.
     size : SizeControl or None
         ``recount(model) -> int`` (at least 1) and ``trim(model) -> SparseBRDF``.
-    **options
-        :func:`encode`'s other keywords.
 
     Returns
     -------
@@ -289,72 +248,17 @@ def encode_sized(
         As :func:`encode`; with ``size`` and fill rounds, ``stats["recount"]`` holds each
         transform's counts from ``recount``, in order.
     """
-    max_error = options.pop("max_error", None)
-    transform = options.pop("transform", "auto")
-    ens = encoder_ensemble(ensemble, options)
+    ens = spec.ensemble
     check_grid_matches(brdf, ens)
-    check("n_coeffs", n_coeffs, PARAMETERS["n_coeffs"])
-    if max_error is not None:
-        check("max_error", max_error, PARAMETERS["max_error"])
-    kw = check_options(**options)
-    opts = _Options(n_coeffs, max_error, kw["fill"], kw["fill_iters"], kw["basis"],
-                    kw["budget"] == "joint")
-    names = ens.transforms if transform == "auto" else (check_transform(transform),)
+    opts = _Options(spec.n_coeffs, spec.max_error, spec.fill, spec.fill_iters, spec.basis,
+                    spec.joint)
     if opts.fill == "invalid":
-        models = fill_invalid(brdf, ens, names, opts, size)
+        models = fill_invalid(brdf, ens, spec.transforms, opts, size)
     else:
-        models = {t: _encode_one(brdf, ens, t, opts) for t in names}
-    model = choose_transform(brdf, models, ens, kw["selector"])
-    model.stats["options"] = kw
+        models = {t: _encode_one(brdf, ens, t, opts) for t in spec.transforms}
+    model = choose_transform(brdf, models, ens, spec.selector)
+    model.stats["options"] = spec.options
     return model
-
-
-def encoder_ensemble(ensemble: Ensemble | str | os.PathLike | None,
-                     options: Mapping[str, object]) -> Ensemble:
-    """The ensemble an encoding with ``options`` runs on.
-
-    ``ensemble`` resolved (:func:`~sparse_brdf.coding.ensemble.resolve_ensemble`); when
-    none is named (None or ""), the shipped default, except for the paper's encoder
-    (``options`` holding ``PAPER_OPTIONS``): it encodes over the shipped ensemble trained
-    for the paper's transforms (``paths.PAPER_ENSEMBLE_ID``), so that ``--paper`` keeps
-    the paper's model. A named ensemble is always the one used."""
-    if (not ensemble and DEFAULT_ENSEMBLE_ID != PAPER_ENSEMBLE_ID
-            and all(options.get(k) == v for k, v in PAPER_OPTIONS.items())):
-        return Ensemble.shipped(PAPER_ENSEMBLE_ID)
-    return resolve_ensemble(ensemble)
-
-
-def check_n_coeffs(n_coeffs: int, ensemble: Ensemble) -> int:
-    """``n_coeffs``, a maximum per channel, capped at the coefficients of one channel on
-    the ensemble's grid (:func:`encode` keeps no more than a channel holds either).
-
-    Raises
-    ------
-    UsageError
-        If ``n_coeffs`` is below 1 (naming ``--coeffs``).
-    """
-    check("--coeffs", n_coeffs, PARAMETERS["n_coeffs"])
-    return min(int(n_coeffs), int(np.prod(ensemble.shape)))
-
-
-def check_options(**options) -> dict:
-    """:func:`encode`'s options (``ENCODE_OPTIONS``), checked, with every default
-    resolved: ``budget`` from ``basis``, ``fill_iters`` from ``fill``. Unknown names and
-    values raise ValueError."""
-    unknown = sorted(set(options) - set(ENCODE_OPTIONS))
-    if unknown:
-        raise UsageError(f"unknown encoding option(s) {', '.join(unknown)}: expected "
-                         f"{', '.join(ENCODE_OPTIONS)}")
-    o = {**ENCODE_OPTIONS, **options}
-    check_choice("selector", o["selector"], SELECTORS)
-    check_choice("fill", o["fill"], FILLS)
-    check_basis(o["basis"])
-    o["budget"] = check_choice(
-        "budget", o["budget"] or ("channel" if o["basis"] == "rgb" else "joint"), BUDGETS)
-    if o["fill_iters"] is None:
-        o["fill_iters"] = DEFAULT_FILL_ITERS[o["fill"]]
-    o["fill_iters"] = check("fill_iters", o["fill_iters"], PARAMETERS["fill_iters"])
-    return o
 
 
 def _encode_one(brdf: BRDF, ens: Ensemble, transform: str, o: _Options) -> SparseBRDF:

@@ -48,6 +48,9 @@ MAGIC = b"SBRDF\r\n\x1a"
 VERSION = 2
 #: Every version this reader knows (and the writer can write).
 VERSIONS = (1, 2)
+#: A coefficient file as an output: its suffixes and what it is called (an output's
+#: checks, ``fileio.check_new_output``).
+SBRDF_FILE = ((".sbrdf",), "a .sbrdf coefficient file")
 
 
 def check_version(version: int) -> int:

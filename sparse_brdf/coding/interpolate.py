@@ -17,14 +17,18 @@ different transforms are refused.
 from __future__ import annotations
 
 import functools
+import os
+from pathlib import Path
 
 import numpy as np
 
-from ..errors import UsageError
+from ..errors import EnsembleMismatchError, UsageError
+from ..fileio import check_new_output
 from ..params import Interval, check
 from ..transforms import colour_matrix
 from .coefficients import SparseBRDF
 from .ensemble import Ensemble, resolve_ensemble
+from .fileformat import SBRDF_FILE, load_sbrdf, save_sbrdf
 from .tensor import reconstruct, sparse_to_dense, top_k
 
 #: The blend's parameters: ``alpha`` in [0, 1]; ``n_coeffs`` at most the grid's entries.
@@ -74,13 +78,73 @@ def interpolate(
     ens = resolve_ensemble(ensemble)
     a.check_ensemble(ens)
     b.check_ensemble(ens)
-    if a.transform != b.transform:
-        raise UsageError(f"cannot blend {a.name} ({a.transform}) with {b.name} "
-                         f"({b.transform}): encode both with the same --transform")
+    _check_transforms(a, a.name, b, b.name)
     check("alpha", alpha, PARAMETERS["alpha"])
     if n_coeffs is not None:
         check("n_coeffs (at most the grid's entries)", n_coeffs,
               PARAMETERS["n_coeffs"].capped(int(np.prod(a.shape))))
+    return _blend(a, b, alpha, ens, n_coeffs)
+
+
+def blend_files(a: str | os.PathLike, b: str | os.PathLike, output: str | os.PathLike,
+                alpha: float, ensemble: Ensemble | str | os.PathLike | None = None,
+                n_coeffs: int | None = None) -> tuple[Path, SparseBRDF]:
+    """Blend two ``.sbrdf`` files (:func:`interpolate`) into the ``.sbrdf`` file ``output``
+    (``sparse-brdf blend``), every input checked once, before the work; errors name the
+    files.
+
+    Parameters
+    ----------
+    a, b : path
+        The two coefficient files, of one ensemble and one transform.
+    output : path
+        The result's ``.sbrdf`` file (written atomically); refused if it is not named
+        ``.sbrdf``, is a folder, is one of the inputs or cannot be written.
+    alpha : float
+        As :func:`interpolate`.
+    ensemble : Ensemble, path or id, optional
+        Default: the shipped ensemble ``a`` names.
+    n_coeffs : int, optional
+        As :func:`interpolate`, but a count beyond the grid's entries is capped to them.
+
+    Returns
+    -------
+    (Path, SparseBRDF)
+        The file written and the blend.
+    """
+    out = check_new_output(output, *SBRDF_FILE, [a, b, None if isinstance(
+        ensemble, Ensemble) else ensemble])
+    try:  # the shipped ensemble A names, unless one is given
+        ens = resolve_ensemble(ensemble, for_id=load_sbrdf(a).ensemble_id)
+    except EnsembleMismatchError as exc:
+        raise EnsembleMismatchError(f"{a}: {exc}") from exc
+    if n_coeffs is not None:
+        n_coeffs = min(check("--coeffs", n_coeffs, PARAMETERS["n_coeffs"]),
+                       int(np.prod(ens.shape)))
+    check("alpha", alpha, PARAMETERS["alpha"])
+    first = load_sbrdf(a, ens)
+    try:
+        second = load_sbrdf(b, ens)
+    except EnsembleMismatchError as exc:
+        raise EnsembleMismatchError(
+            f"{b}: encoded with another ensemble than {a} ({ens.id}): blending needs one "
+            f"ensemble; re-encode the material of {b} with it (sparse-brdf encode SOURCE -o "
+            f"NEW.sbrdf --ensemble {ensemble or ens.id})") from exc
+    _check_transforms(first, a, second, b)
+    model = _blend(first, second, alpha, ens, n_coeffs)
+    return save_sbrdf(out, model), model
+
+
+def _check_transforms(a: SparseBRDF, a_name, b: SparseBRDF, b_name) -> None:
+    """UsageError unless the two materials share their transform (named as given)."""
+    if a.transform != b.transform:
+        raise UsageError(f"cannot blend {a_name} ({a.transform}) with {b_name} "
+                         f"({b.transform}): encode both with the same --transform")
+
+
+def _blend(a: SparseBRDF, b: SparseBRDF, alpha: float, ens: Ensemble,
+           n_coeffs: int | None) -> SparseBRDF:
+    """:func:`interpolate` on checked inputs."""
     same = a.basis == b.basis
     # B's coded channels -> A's: R = M_A M_B^T (the identity, exactly, for one basis)
     mix = np.eye(3) if same else colour_matrix(a.basis) @ colour_matrix(b.basis).T

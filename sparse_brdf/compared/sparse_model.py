@@ -12,16 +12,16 @@ from __future__ import annotations
 from ..brdf import BRDF
 from ..coding.budget import PARAMETERS as BUDGET_PARAMETERS
 from ..coding.budget import encode_to_bytes
-from ..coding.encode import (
+from ..coding.encode import encode
+from ..coding.fileformat import VERSION, as_stored, check_version, to_bytes
+from ..coding.spec import (
     DEFAULT_N_COEFFS,
     ENCODE_OPTIONS,
     PAPER_OPTIONS,
     check_options,
-    encode,
     encoder_ensemble,
 )
-from ..coding.encode import PARAMETERS as ENCODE_PARAMETERS
-from ..coding.fileformat import VERSION, as_stored, check_version, to_bytes
+from ..coding.spec import PARAMETERS as ENCODE_PARAMETERS
 from ..params import check, check_choice
 from .compact import BRDFModel, Compact
 

@@ -40,8 +40,8 @@ import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from ..coding.encode import DEFAULT_N_COEFFS, PAPER_OPTIONS
 from ..coding.fileformat import VERSION, VERSIONS
+from ..coding.spec import DEFAULT_N_COEFFS, PAPER_OPTIONS
 from ..errors import UsageError
 from ..params import check_choice
 from ._outside import load_outside_model, parse_value

@@ -35,9 +35,10 @@ import numpy as np
 from ..brdf import BRDF
 from ..coding.budget import encode_to_bytes
 from ..coding.coefficients import SparseBRDF
-from ..coding.encode import DEFAULT_N_COEFFS, encode
+from ..coding.encode import encode
 from ..coding.ensemble import Ensemble, resolve_ensemble
 from ..coding.fileformat import save_sbrdf, to_bytes
+from ..coding.spec import DEFAULT_N_COEFFS
 from ..decoders.layouts import channel_terms, grouped_bytes, strict_channel
 from ..errors import OutputError, UsageError
 from ..evaluation.render import SHARED_PATHS, object_mask, render_scene
