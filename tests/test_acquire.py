@@ -69,7 +69,7 @@ def test_interpolated_atoms_at_the_bins_are_the_atoms(ens):
         assert np.allclose(op.rows(u, m)[keep], u[bins[m][keep]], atol=1e-4)
     # the adjoint: <A s, r> = <s, A^T r> for a random s, r
     rng = np.random.default_rng(0)
-    atoms = acquire._Atoms(op, ens.dictionary(1))
+    atoms = acquire.Atoms(op, ens.dictionary(1))
     loc = rng.choice(int(np.prod(SMALL)), 50, replace=False)
     s, r = rng.standard_normal(50), rng.standard_normal(500)
     lhs = float(r @ (atoms.columns(loc, slice(None)).astype(np.float64) @ s))

@@ -197,14 +197,15 @@ def test_commands_tune_malloc_unless_the_user_does():
     import ctypes
     import sys
 
-    from sparse_brdf.cli import MALLOC_SETTINGS, _malloc_settings
+    from sparse_brdf.cli import MALLOC_SETTINGS
+    from sparse_brdf.cli._process import malloc_settings
 
     every = [(p, v) for p, v, _ in MALLOC_SETTINGS]
-    assert _malloc_settings({}) == every
-    assert _malloc_settings({"GLIBC_TUNABLES": "glibc.malloc.arena_max=2"}) == []
-    assert _malloc_settings({"GLIBC_TUNABLES": "glibc.pthread.rseq=0"}) == every
+    assert malloc_settings({}) == every
+    assert malloc_settings({"GLIBC_TUNABLES": "glibc.malloc.arena_max=2"}) == []
+    assert malloc_settings({"GLIBC_TUNABLES": "glibc.pthread.rseq=0"}) == every
     var = MALLOC_SETTINGS[0][2]
-    assert _malloc_settings({var: "1"}) == every[1:]
+    assert malloc_settings({var: "1"}) == every[1:]
     if sys.platform.startswith("linux"):
         mallopt = ctypes.CDLL(None).mallopt
         assert all(mallopt(ctypes.c_int(p), ctypes.c_int(v)) == 1 for p, v in every)

@@ -89,7 +89,7 @@ def test_fit_resumes_from_its_checkpoint(case, monkeypatch):
     kw = dict(iterations=6, lr=0.05, spp=SPP, seed=0, progress=False, checkpoint_every=2)
     whole = fit_images(case["scene"], views, case["start"],
                        checkpoint_dir=case["work"] / "ckpt-whole", **kw)
-    step, calls = module._step, []
+    step, calls = module.take_step, []
 
     def interrupted(*args, **kwargs):
         calls.append(1)
@@ -98,10 +98,10 @@ def test_fit_resumes_from_its_checkpoint(case, monkeypatch):
         return step(*args, **kwargs)
 
     ckpt = case["work"] / "ckpt"
-    monkeypatch.setattr(module, "_step", interrupted)
+    monkeypatch.setattr(module, "take_step", interrupted)
     with pytest.raises(KeyboardInterrupt):
         fit_images(case["scene"], views, case["start"], checkpoint_dir=ckpt, **kw)
-    monkeypatch.setattr(module, "_step", step)
+    monkeypatch.setattr(module, "take_step", step)
     again = fit_images(case["scene"], views, case["start"], checkpoint_dir=ckpt, **kw)
     assert whole.resumed_from == 0 and again.resumed_from == 4
     np.testing.assert_allclose(again.snr_db, whole.snr_db, atol=1e-4)

@@ -31,14 +31,14 @@ from ..parallel import parallel_map
 from .measurements import Samples
 from .prior import AtomPrior
 from .sensing import (
+    Atoms,
+    Choice,
     Operator,
-    _Atoms,
-    _Choice,
-    _trim,
     coded_values,
     cosine_error,
     linear_values,
     stage_sizes,
+    trim_to_budget,
 )
 
 #: Prior weights lambda tried (squared coded units per unit sample weight).
@@ -64,7 +64,7 @@ class _Pool:
     prec: np.ndarray
 
 
-def _pool(atoms: _Atoms, prior: AtomPrior, transform: str, c: int, k: int,
+def _pool(atoms: Atoms, prior: AtomPrior, transform: str, c: int, k: int,
           p: int | None = None) -> _Pool:
     loc, mu, var = (a[:p] for a in prior.pool(transform, c, k))
     var = np.maximum(var, VAR_FLOOR * float(np.mean(var)) + 1e-12)
@@ -131,8 +131,8 @@ def _cross_validate(pool: _Pool, y, w, fold, sizes):
 
 
 @dataclass
-class PoolChoice(_Choice):
-    """A channel's choice (:class:`~sparse_brdf.acquisition.recovery._Choice`) with its order
+class PoolChoice(Choice):
+    """A channel's choice (:class:`~sparse_brdf.acquisition.recovery.Choice`) with its order
     and lambda."""
 
     order: str = "prior"
@@ -152,7 +152,7 @@ def screen(samples: Samples, op: Operator, ens: Ensemble, prior: AtomPrior,
     ys = {t: coded_values(samples, t, basis) for t in transforms}
 
     def one(k):
-        atoms = _Atoms(op, ens.dictionary(k))
+        atoms = Atoms(op, ens.dictionary(k))
         out = {}
         for t in transforms:
             for c in range(3):
@@ -184,7 +184,7 @@ def _channel(op, ens, prior, transform, c, dicts, y, w, fold, t_max) -> PoolChoi
     if not sizes:
         return best
     for k in dicts:
-        pool = _pool(_Atoms(op, ens.dictionary(k)), prior, transform, c, k, FIT_ATOMS)
+        pool = _pool(Atoms(op, ens.dictionary(k)), prior, transform, c, k, FIT_ATOMS)
         sz = [s for s in sizes if s <= pool.loc.size] or [pool.loc.size]
         pred = _cross_validate(pool, y, w, fold, sz)
         err = np.sum(w[:, None, None, None] * (pred - y[:, None, None, None]) ** 2, axis=0)
@@ -213,7 +213,7 @@ def fit_transform(samples: Samples, op: Operator, ens: Ensemble, prior: AtomPrio
                              tasks))
     choices = [min((ch for (c2, _), ch in zip(tasks, done, strict=True) if c2 == c),
                    key=lambda ch: ch.error) for c in range(3)]
-    idx = _trim(choices, 3 * n)
+    idx = trim_to_budget(choices, 3 * n)
     pred = np.zeros_like(y)
     for c, (ch, i) in enumerate(zip(choices, idx, strict=True)):
         ch.size, ch.error = ch.sizes[i], ch.curve[i]
@@ -231,7 +231,7 @@ def final_values(op: Operator, ens: Ensemble, prior: AtomPrior, transform: str,
         ch = fit["choices"][c]
         if ch.size == 0:
             return np.zeros(0, np.int64), np.zeros(0, np.float32)
-        pool = _pool(_Atoms(op, ens.dictionary(ch.dictionary)), prior, transform, c,
+        pool = _pool(Atoms(op, ens.dictionary(ch.dictionary)), prior, transform, c,
                      ch.dictionary, FIT_ATOMS)
         sizes = ch.sizes[1:ch.sizes.index(ch.size) + 1]
         sup, vals = path(*normal_equations(pool.cols, fit["y"][c], w), pool,

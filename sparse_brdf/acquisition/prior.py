@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..coding.ensemble import Ensemble
-from ..coding.projection import _coded_channels, project_all
+from ..coding.projection import coded_channels, project_all
 from ..coding.spec import ENCODE_OPTIONS
 from ..fileio import atomic_write
 
@@ -99,7 +99,7 @@ def compute_prior(ens: Ensemble, brdfs: list, transforms: tuple[str, ...] | None
         b = item.load(ens.shape) if hasattr(item, "load") else item
         names.append(b.name)
         for t in transforms:
-            p = project_all(b, ens, t, coeffs, y=_coded_channels(b, t, basis))
+            p = project_all(b, ens, t, coeffs, y=coded_channels(b, t, basis))
             for c in range(3):
                 for j in range(k):
                     got[t, c, j][0].append(p.idx[c][j])

@@ -47,19 +47,19 @@ from .pca import pca_fit
 from .prior import AtomPrior
 from .sensing import (
     DEFAULT_FOLDS,
+    Atoms,
+    Choice,
     Operator,
-    _Atoms,
-    _Choice,
-    _trim,
     coded_values,
     cosine_error,
     fold_of,
     linear_values,
     project,
     stage_sizes,
+    trim_to_budget,
 )
 
-__all__ = ["GreedyPath", "Operator", "_Atoms", "encode_samples", "stage_sizes"]
+__all__ = ["GreedyPath", "Operator", "Atoms", "encode_samples", "stage_sizes"]
 
 #: Every parameter of :func:`encode_samples` a user sets, declared once.
 PARAMETERS = {
@@ -104,7 +104,7 @@ def _solve(gram: np.ndarray, rhs: np.ndarray, lam: float) -> np.ndarray:
         return np.linalg.lstsq(gram + lam * np.eye(n), rhs, rcond=None)[0]
 
 
-def greedy_path(atoms: _Atoms, y: np.ndarray, w: np.ndarray, train: np.ndarray,
+def greedy_path(atoms: Atoms, y: np.ndarray, w: np.ndarray, train: np.ndarray,
                 sizes: list[int], hold: np.ndarray | None = None) -> GreedyPath:
     """Stagewise OMP on the samples ``train`` (row indices): at each stage the atoms of
     largest |A^T W r| / ||column|| join until the support has ``sizes[j]`` atoms, then the
@@ -165,7 +165,7 @@ def screen(op: Operator, y: np.ndarray, w: np.ndarray, ens: Ensemble, n: int,
     return [[int(k) for k in np.argsort(-energy[c], kind="stable")[:keep]] for c in range(3)]
 
 
-def cross_validate(atoms: _Atoms, y: np.ndarray, w: np.ndarray, fold: np.ndarray,
+def cross_validate(atoms: Atoms, y: np.ndarray, w: np.ndarray, fold: np.ndarray,
                    t_max: int) -> tuple[list[int], np.ndarray, np.ndarray]:
     """The greedy path fitted on all folds but one, for each fold: the path's sizes, the
     held-out squared error at each size (summed over the folds) and the held-out
@@ -186,18 +186,18 @@ def cross_validate(atoms: _Atoms, y: np.ndarray, w: np.ndarray, fold: np.ndarray
 
 
 def _channel(op: Operator, ens: Ensemble, dicts: list[int], y: np.ndarray, w: np.ndarray,
-             fold: np.ndarray, t_max: int) -> _Choice:
+             fold: np.ndarray, t_max: int) -> Choice:
     """The best (dictionary, support size) of one coded channel by cross-validation; size 0
     (the channel left empty) is a candidate too."""
     zero = float(np.sum(w * y * y))
-    best = _Choice(dicts[0], 0, zero, [zero], [0], np.zeros((y.size, 1)))
+    best = Choice(dicts[0], 0, zero, [zero], [0], np.zeros((y.size, 1)))
     if zero == 0.0 or t_max < 1:
         return best
     for k in dicts:
-        sizes, err, pred = cross_validate(_Atoms(op, ens.dictionary(k)), y, w, fold, t_max)
+        sizes, err, pred = cross_validate(Atoms(op, ens.dictionary(k)), y, w, fold, t_max)
         j = int(np.argmin(err))
         if err[j] < best.error:
-            best = _Choice(k, sizes[j], float(err[j]), [zero, *map(float, err)],
+            best = Choice(k, sizes[j], float(err[j]), [zero, *map(float, err)],
                            [0, *sizes], np.concatenate([np.zeros((y.size, 1)), pred], 1))
     return best
 
@@ -212,7 +212,7 @@ def _fit_transform(samples: Samples, op: Operator, ens: Ensemble, transform: str
     t_max = max(0, min(3 * n, int(MAX_SUPPORT_FRACTION * n_train)))
     cands = screen(op, y, w, ens, max(t_max, 1), candidates)
     choices = [_channel(op, ens, cands[c], y[c], w, fold, t_max) for c in range(3)]
-    idx = _trim(choices, 3 * n)
+    idx = trim_to_budget(choices, 3 * n)
     pred = np.zeros_like(y)
     for c, (ch, i) in enumerate(zip(choices, idx, strict=True)):
         ch.size, ch.error = ch.sizes[i], ch.curve[i]
@@ -400,7 +400,7 @@ def _final(samples: Samples, op: Operator, ens: Ensemble, transform: str, basis:
         if ch.size == 0:
             return np.zeros(0, np.int64), np.zeros(0, np.float32)
         sizes = ch.sizes[1:ch.sizes.index(ch.size) + 1]
-        path = greedy_path(_Atoms(op, ens.dictionary(ch.dictionary)), y[c], w, rows, sizes)
+        path = greedy_path(Atoms(op, ens.dictionary(ch.dictionary)), y[c], w, rows, sizes)
         v = path.values[-1]
         order = np.argsort(-np.abs(v), kind="stable")
         return path.support[:v.size][order], v[order].astype(np.float32)

@@ -84,7 +84,7 @@ def project(g: np.ndarray, u1: np.ndarray, u2: np.ndarray, u3: np.ndarray) -> np
     return (u2.T @ t).reshape(n2, n1, n3).transpose(1, 0, 2)
 
 
-class _Atoms:
+class Atoms:
     """One dictionary seen through an operator: interpolated atom rows of every sample,
     the columns of the sensing matrix on a support, and the adjoint."""
 
@@ -163,7 +163,7 @@ def fold_of(n: int, folds: int, seed: int) -> np.ndarray:
 
 
 @dataclass
-class _Choice:
+class Choice:
     """A channel's cross-validated choice: dictionary, support size, CV error, the CV error
     at every size of the path (``curve`` at ``sizes``, from size 0) and the held-out
     predictions at every size, (N, stages + 1): every sample predicted by the fold that
@@ -177,7 +177,7 @@ class _Choice:
     predicted: np.ndarray
 
 
-def _trim(choices: list[_Choice], cap: int) -> list[int]:
+def trim_to_budget(choices: list[Choice], cap: int) -> list[int]:
     """Support sizes per channel within a joint budget of ``cap`` coefficients: while the
     total is over, the channel losing least held-out error per coefficient steps back
     along its path."""

@@ -57,7 +57,7 @@ from ..parallel import Executor, InProcess
 from ..sources.merl import write_merl
 from .bench_config import (
     BenchConfig,
-    _check_training_set,
+    check_training_set,
     evaluated_materials,
     file_stem,
     learners_training_set,
@@ -279,7 +279,7 @@ class Bench:
         train = self.training_materials(evaluated)
         overlap = {material_key(m) for m in train} & {material_key(m) for m in evaluated}
         assert not overlap, f"training and evaluated materials overlap: {sorted(overlap)}"
-        _check_training_set(self.cfg, needs, train)
+        check_training_set(self.cfg, needs, train)
         brdfs = [m.load() for m in train]
         for m in needs:
             m.fit(brdfs)

@@ -243,7 +243,7 @@ def learners_training_set(cfg: BenchConfig, evaluated) -> list:
     return train[: cfg.pca_train_max]
 
 
-def _check_training_set(cfg: BenchConfig, learners: list, train: list) -> None:
+def check_training_set(cfg: BenchConfig, learners: list, train: list) -> None:
     """:class:`ConfigError` naming the config unless the models that learn (PCA) have at
     least 2 training materials that the bench does not evaluate."""
     if learners and len(train) < 2:
@@ -300,7 +300,7 @@ def check_config(cfg: BenchConfig) -> dict:
     learners = [m for m in models + smodels if m.learns]
     with _naming(cfg, "corpora"):
         train = learners_training_set(cfg, mats) if learners else []
-    _check_training_set(cfg, learners, train)
+    check_training_set(cfg, learners, train)
     scenes, skipped = [], {}
     for name in cfg.scenes if cfg.render else []:
         with _naming(cfg, "scenes"):

@@ -17,6 +17,5 @@ from ._entry import EXIT_BUG, main
 from ._options import COEFFS
 from ._parser import EPILOG, build_parser, parsers
 from ._process import MALLOC_SETTINGS
-from ._process import _malloc_settings as _malloc_settings  # kept importable for the tests
 
 __all__ = ["COEFFS", "EPILOG", "EXIT_BUG", "MALLOC_SETTINGS", "build_parser", "main", "parsers"]

@@ -38,7 +38,7 @@ MALLOC_SETTINGS = ((-3, 32 << 20, "MALLOC_MMAP_THRESHOLD_"),  # M_MMAP_THRESHOLD
                    (-1, 1 << 30, "MALLOC_TRIM_THRESHOLD_"))   # M_TRIM_THRESHOLD
 
 
-def _malloc_settings(environ: Mapping[str, str]) -> list[tuple[int, int]]:
+def malloc_settings(environ: Mapping[str, str]) -> list[tuple[int, int]]:
     """The :data:`MALLOC_SETTINGS` to apply: none where the user tunes glibc's malloc
     (``GLIBC_TUNABLES`` naming ``glibc.malloc``), else each one its own variable does not
     set."""
@@ -48,7 +48,7 @@ def _malloc_settings(environ: Mapping[str, str]) -> list[tuple[int, int]]:
 
 
 def keep_freed_memory() -> None:
-    """Apply :func:`_malloc_settings` through glibc's ``mallopt`` (Linux with glibc; a
+    """Apply :func:`malloc_settings` through glibc's ``mallopt`` (Linux with glibc; a
     no-op elsewhere). On the 2-core benchmark machine this made a whole ``encode`` 4-7 %
     faster (docs/benchmarks.md, "Whole commands after cutting fixed costs")."""
     if not sys.platform.startswith("linux"):
@@ -57,5 +57,5 @@ def keep_freed_memory() -> None:
         mallopt = ctypes.CDLL(None).mallopt
     except (OSError, AttributeError):
         return
-    for param, value in _malloc_settings(os.environ):
+    for param, value in malloc_settings(os.environ):
         mallopt(ctypes.c_int(param), ctypes.c_int(value))

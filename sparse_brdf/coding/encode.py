@@ -37,7 +37,7 @@ from ..transforms import inverse
 from .coefficients import SparseBRDF
 from .ensemble import Ensemble
 from .fill import SizeControl, fill_invalid
-from .projection import _coded_channels, _Options, _search, project_all, select
+from .projection import CodingOptions, coded_channels, project_all, search, select
 from .spec import DEFAULT_N_COEFFS, ENCODE_OPTIONS, SELECTORS, EncodeSpec
 
 #: The ``stats["transforms"][t]`` entry each selector minimises.
@@ -250,7 +250,7 @@ def encode_with(brdf: BRDF, spec: EncodeSpec, size: SizeControl | None = None) -
     """
     ens = spec.ensemble
     check_grid_matches(brdf, ens)
-    opts = _Options(spec.n_coeffs, spec.max_error, spec.fill, spec.fill_iters, spec.basis,
+    opts = CodingOptions(spec.n_coeffs, spec.max_error, spec.fill, spec.fill_iters, spec.basis,
                     spec.joint)
     if opts.fill == "invalid":
         models = fill_invalid(brdf, ens, spec.transforms, opts, size)
@@ -261,11 +261,11 @@ def encode_with(brdf: BRDF, spec: EncodeSpec, size: SizeControl | None = None) -
     return model
 
 
-def _encode_one(brdf: BRDF, ens: Ensemble, transform: str, o: _Options) -> SparseBRDF:
+def _encode_one(brdf: BRDF, ens: Ensemble, transform: str, o: CodingOptions) -> SparseBRDF:
     """Encode with one transform; unmeasured bins above the horizon are filled from the
     model (EM, ``fill="missing"``)."""
-    y = _coded_channels(brdf, transform, o.basis)
-    model = _search(brdf, ens, transform, y, o)
+    y = coded_channels(brdf, transform, o.basis)
+    model = search(brdf, ens, transform, y, o)
     missing = geometric_valid(brdf.shape) & ~brdf.valid
     if not missing.any():
         return model
@@ -275,7 +275,7 @@ def _encode_one(brdf: BRDF, ens: Ensemble, transform: str, o: _Options) -> Spars
     # filling the transformed R, G, B (the basis is a per-bin 3 x 3 mix).
     for _ in range(o.fill_iters):
         y[:, missing] = model.coded(ens)[:, missing]
-        model = _search(brdf, ens, transform, y, o)
+        model = search(brdf, ens, transform, y, o)
     model.stats["fill"] = {"rounds": o.fill_iters}
     return model
 

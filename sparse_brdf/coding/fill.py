@@ -14,13 +14,13 @@ from ..parallel import parallel_map
 from .coefficients import SparseBRDF
 from .ensemble import Ensemble
 from .projection import (
-    _budget_stats,
-    _code_many,
-    _coded_channels,
-    _coded_many,
-    _energies_many,
-    _Options,
-    _search_many,
+    CodingOptions,
+    budget_stats,
+    code_many,
+    coded_channels,
+    coded_many,
+    energies_many,
+    search_many,
 )
 
 
@@ -36,17 +36,17 @@ class SizeControl(Protocol):
 
 
 def fill_invalid(brdf: BRDF, ens: Ensemble, transforms: tuple[str, ...],
-                 o: _Options, size: SizeControl | None = None) -> dict[str, SparseBRDF]:
+                 o: CodingOptions, size: SizeControl | None = None) -> dict[str, SparseBRDF]:
     """Encode with every invalid bin a free value (``docs/method.md``, "Encoding"), one
     model per transform.
 
     Minimises the residual on valid bins only, ||P_V (Y - U S)||^2 over sparse S, by hard
     thresholding pursuit on the dictionaries the search chose
-    (:func:`~sparse_brdf.coding.projection._search`, run once on the zero-filled
+    (:func:`~sparse_brdf.coding.projection.search`, run once on the zero-filled
     channels): the values of the current support are the least squares fit to the valid
     bins (:func:`_fit_supports`, conjugate gradients); the invalid bins of Y are then set
     to that reconstruction, the channels re-projected on their dictionaries and the
-    largest |s| kept (:func:`~sparse_brdf.coding.projection._code_many`) as the next
+    largest |s| kept (:func:`~sparse_brdf.coding.projection.code_many`) as the next
     support.
     Stops when the support repeats or after ``o.fill_iters`` fits. The mask is the same
     for the three channels, so filling the coded channels is filling the transformed
@@ -58,9 +58,9 @@ def fill_invalid(brdf: BRDF, ens: Ensemble, transforms: tuple[str, ...],
     """
     invalid = ~brdf.valid
     ys = dict(zip(transforms, parallel_map(  # invalid bins are 0
-        lambda t: _coded_channels(brdf, t, o.basis), transforms), strict=True))
-    valid_energies = _energies_many(ys)  # before any filling
-    models = _search_many(brdf, ens, ys, o)
+        lambda t: coded_channels(brdf, t, o.basis), transforms), strict=True))
+    valid_energies = energies_many(ys)  # before any filling
+    models = search_many(brdf, ens, ys, o)
     if not invalid.any() or o.fill_iters == 0:
         return models
     searched = {t: m.stats for t, m in models.items()}
@@ -76,7 +76,7 @@ def fill_invalid(brdf: BRDF, ens: Ensemble, transforms: tuple[str, ...],
             history[t].append(float(r.sum()))
         if fit == o.fill_iters - 1:
             break
-        for t, coded in zip(active, _coded_many([models[t] for t in active], ens),
+        for t, coded in zip(active, coded_many([models[t] for t in active], ens),
                             strict=True):
             np.copyto(ys[t], coded, where=invalid)  # fill the invalid bins
         revised = set()
@@ -87,7 +87,7 @@ def fill_invalid(brdf: BRDF, ens: Ensemble, transforms: tuple[str, ...],
                 if n != counts[t]:
                     counts[t] = n
                     revised.add(t)
-        recoded = _code_many([(ys[t], models[t], None) for t in active], ens, o,
+        recoded = code_many([(ys[t], models[t], None) for t in active], ens, o,
                              [counts[t] for t in active])
         for t, new in zip(list(active), recoded, strict=True):
             if t not in revised and all(np.array_equal(np.sort(a), np.sort(b))
@@ -106,13 +106,13 @@ def fill_invalid(brdf: BRDF, ens: Ensemble, transforms: tuple[str, ...],
                                                 invalid, ens), strict=True):
             models[t], residual[t] = m, r
             history[t].append(float(r.sum()))
-    filled_energies = _energies_many(ys)
+    filled_energies = energies_many(ys)
     for t, m in models.items():
         valid_energy = valid_energies[t]
         m.stats = {
             "relative_residual": [float(r / n) if n > 0 else 0.0
                                   for r, n in zip(residual[t], valid_energy, strict=True)],
-            "budget": _budget_stats(m, filled_energies[t]),
+            "budget": budget_stats(m, filled_energies[t]),
             "projections_completed": searched[t]["projections_completed"],
             "fill": {"fits": len(history[t]), "valid_residual": history[t],
                      "valid_residual_unfilled": float(np.sum(

@@ -63,14 +63,14 @@ def _energies(y: np.ndarray) -> np.ndarray:
     return np.array([_energy(ch) for ch in y])
 
 
-def _energies_many(ys: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+def energies_many(ys: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """:func:`_energies` of each entry's channels, side by side on the thread pool."""
     tasks = [(t, c) for t in ys for c in range(3)]
     e = list(parallel_map(lambda tc: _energy(ys[tc[0]][tc[1]]), tasks))
     return {t: np.array(e[3 * i: 3 * i + 3]) for i, t in enumerate(ys)}
 
 
-def _coded_many(models: list[SparseBRDF], ens: Ensemble) -> list[np.ndarray]:
+def coded_many(models: list[SparseBRDF], ens: Ensemble) -> list[np.ndarray]:
     """``m.coded(ens)`` of each model, the 3 x len(models) channels side by side on the
     thread pool."""
     tasks = [(m, c) for m in models for c in range(3)]
@@ -175,7 +175,7 @@ def project_pruned_many(brdf: BRDF, ens: Ensemble, ys: dict[str, np.ndarray],
     keys = [(t, c, k) for t, c in channels for k in range(n_dicts)]
     groups = [([(t, c, k) for k in range(n_dicts)], norms[(t, c)], np.inf)
               for t, c in channels]
-    search = PrunedSearch.start(keys, n3, n, max_error).run(groups, chunk,
+    pruned = PrunedSearch.start(keys, n3, n, max_error).run(groups, chunk,
                                                             mapper=parallel_map)
     k_keep = min(n, n1 * n2 * n3)
     out = {}
@@ -184,10 +184,10 @@ def project_pruned_many(brdf: BRDF, ens: Ensemble, ys: dict[str, np.ndarray],
         residual = np.full((3, n_dicts, k_keep), np.inf)
         idx_out = [[np.zeros(0, np.int64) for _ in range(n_dicts)] for _ in range(3)]
         val_out = [[np.zeros(0, np.float32) for _ in range(n_dicts)] for _ in range(3)]
-        for tt, c, k in search.survivors():
+        for tt, c, k in pruned.survivors():
             if tt != t:
                 continue
-            idx, val = search.top[(t, c, k)]
+            idx, val = pruned.top[(t, c, k)]
             e = val.astype(np.float32) ** 2
             idx_out[c][k], val_out[c][k] = idx, val
             residual[c, k, :idx.size] = norm[c] - np.cumsum(e, dtype=np.float64)
@@ -232,7 +232,7 @@ def select(p: Projections, n_coeffs: int, max_error: float | None = None,
 
 
 @dataclass(frozen=True)
-class _Options:
+class CodingOptions:
     """The coding options of one :func:`encode` call."""
 
     n: int
@@ -243,22 +243,22 @@ class _Options:
     joint: bool
 
 
-def _coded_channels(brdf: BRDF, transform: str, basis: str) -> np.ndarray:
+def coded_channels(brdf: BRDF, transform: str, basis: str) -> np.ndarray:
     """The channels to code: ``to_basis`` of the transformed R, G, B, a fresh array."""
     return to_basis(forward(brdf.channel_first(), transform, brdf.valid), basis)
 
 
-def _search(brdf: BRDF, ens: Ensemble, transform: str, y: np.ndarray,
-            o: _Options) -> SparseBRDF:
+def search(brdf: BRDF, ens: Ensemble, transform: str, y: np.ndarray,
+            o: CodingOptions) -> SparseBRDF:
     """Each coded channel's dictionary by the (pruned) search over the ensemble, and its
     coefficients: the selection's own, or with a joint budget, re-coded on the chosen
-    dictionaries (:func:`_code_many`)."""
-    return _search_many(brdf, ens, {transform: y}, o)[transform]
+    dictionaries (:func:`code_many`)."""
+    return search_many(brdf, ens, {transform: y}, o)[transform]
 
 
-def _search_many(brdf: BRDF, ens: Ensemble, ys: dict[str, np.ndarray],
-                 o: _Options) -> dict[str, SparseBRDF]:
-    """:func:`_search` of the channels of several transforms (name: channels), their
+def search_many(brdf: BRDF, ens: Ensemble, ys: dict[str, np.ndarray],
+                 o: CodingOptions) -> dict[str, SparseBRDF]:
+    """:func:`search` of the channels of several transforms (name: channels), their
     projections side by side on the thread pool."""
     ps = project_pruned_many(brdf, ens, ys, o.n, o.max_error)
     models = {}
@@ -266,25 +266,25 @@ def _search_many(brdf: BRDF, ens: Ensemble, ys: dict[str, np.ndarray],
         models[t] = select(p, o.n, o.max_error, brdf.name)
         models[t].basis = o.basis
     if o.joint:
-        coded = _code_many([(ys[t], models[t], ps[t].norms) for t in ys], ens, o)
+        coded = code_many([(ys[t], models[t], ps[t].norms) for t in ys], ens, o)
         models = dict(zip(ys, coded, strict=True))
     else:
         for t, m in models.items():
-            m.stats["budget"] = _budget_stats(m, ps[t].norms)
+            m.stats["budget"] = budget_stats(m, ps[t].norms)
     for t, m in models.items():
         # (channel, dictionary) projections completed; the others were pruned
         m.stats["projections_completed"] = int(np.isfinite(ps[t].residual[:, :, 0]).sum())
     return models
 
 
-def _budget_stats(m: SparseBRDF, norms: np.ndarray) -> dict:
+def budget_stats(m: SparseBRDF, norms: np.ndarray) -> dict:
     total = float(np.sum(norms))
     return {"coefficients": m.n_coeffs.tolist(),
             "energy_share": [float(x / total) if total > 0 else 0.0 for x in norms]}
 
 
-def _code_many(jobs: list[tuple[np.ndarray, SparseBRDF, np.ndarray | None]], ens: Ensemble,
-               o: _Options, counts: list[int] | None = None) -> list[SparseBRDF]:
+def code_many(jobs: list[tuple[np.ndarray, SparseBRDF, np.ndarray | None]], ens: Ensemble,
+               o: CodingOptions, counts: list[int] | None = None) -> list[SparseBRDF]:
     """Re-code each job's channels y (3, n1, n2, n3) on the dictionaries its model m chose
     (a job: y, m, the channels' energies or None): each channel projected on its own
     dictionary, then the largest |s| kept, ``o.n`` per channel, or with a joint budget 3
@@ -306,8 +306,8 @@ def _code_many(jobs: list[tuple[np.ndarray, SparseBRDF, np.ndarray | None]], ens
     return [_keep(y, m, done[3 * j: 3 * j + 3], opts[j]) for j, (y, m, _) in enumerate(jobs)]
 
 
-def _keep(y: np.ndarray, m: SparseBRDF, top: list, o: _Options) -> SparseBRDF:
-    """The coefficients :func:`_code_many` keeps of each channel's largest (``top``: per
+def _keep(y: np.ndarray, m: SparseBRDF, top: list, o: CodingOptions) -> SparseBRDF:
+    """The coefficients :func:`code_many` keeps of each channel's largest (``top``: per
     channel, flat indices, values and the channel's energy)."""
     shape = tuple(y.shape[1:])
     norms = np.array([e for _, _, e in top])
@@ -333,7 +333,7 @@ def _keep(y: np.ndarray, m: SparseBRDF, top: list, o: _Options) -> SparseBRDF:
     kept = np.array([float(np.sum(v.astype(np.float64) ** 2)) for v in vals])
     out.stats = {"relative_residual": [max(float(n - k), 0.0) / n if n > 0 else 0.0
                                        for n, k in zip(norms, kept, strict=True)],
-                 "budget": _budget_stats(out, norms)}
+                 "budget": budget_stats(out, norms)}
     return out
 
 

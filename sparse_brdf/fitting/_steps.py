@@ -22,7 +22,7 @@ VALUE_KEYS = ("values_0", "values_1", "values_2")
 
 
 @dataclass
-class _Scene:
+class FitScene:
     scene: object
     params: object
     keys: list
@@ -31,7 +31,7 @@ class _Scene:
     seed: int
 
 
-def _write_checkpoint(path: Path, it: int, opt, snr: list[float], fp: str,
+def write_checkpoint(path: Path, it: int, opt, snr: list[float], fp: str,
                       extra: Mapping[str, np.ndarray] | None = None) -> None:
     arrays = {"iteration": np.array(it), "snr_db": np.array(snr, np.float64),
               "fingerprint": np.array(fp), **(extra or {})}
@@ -45,7 +45,7 @@ def _write_checkpoint(path: Path, it: int, opt, snr: list[float], fp: str,
         np.savez(tmp, **arrays)
 
 
-def _read_checkpoint(path: Path, opt, fp: str):
+def read_checkpoint(path: Path, opt, fp: str):
     """(iteration, snr history, every array of the file) restored into ``opt``; a
     checkpoint of another fit is refused in one line."""
     import mitsuba as mi  # lazy: Mitsuba is slow to import (see the module doc)
@@ -71,7 +71,7 @@ class _BudgetSpent(Exception):
     """Raised inside the L-BFGS objective once the evaluation budget is spent."""
 
 
-def _evaluate(views: list[_Scene], values: Sequence[np.ndarray], seed: int, grad_seed: int,
+def _evaluate(views: list[FitScene], values: Sequence[np.ndarray], seed: int, grad_seed: int,
               spp: int, log_loss: bool = False) -> tuple[float, list]:
     """The loss at ``values`` (the three channels' values, host arrays) and its gradient
     (three Dr.Jit Floats): the mean over the views of the relative squared error, or with
@@ -115,7 +115,7 @@ def _evaluate(views: list[_Scene], values: Sequence[np.ndarray], seed: int, grad
     return float(np.mean(losses)), grads
 
 
-def _primal_loss(views: list[_Scene], values: Sequence[np.ndarray], spp: int,
+def _primal_loss(views: list[FitScene], values: Sequence[np.ndarray], spp: int,
                  log_loss: bool = False) -> float:
     """The views' mean relative squared error ``sum (img - ref)^2 / sum ref^2`` at
     ``values``, or (``log_loss``) the mean of its natural logarithm, as in
@@ -137,13 +137,13 @@ def _primal_loss(views: list[_Scene], values: Sequence[np.ndarray], spp: int,
     return float(np.mean(losses))
 
 
-class _Monitor:
+class Monitor:
     """Every ``every`` evaluations: ``callback(evaluations, values)`` (three float32
     arrays) and the SNR (dB, in the form of the fit's loss, :func:`_snr_of`: of
     the views' mean relative squared error) of the validation ``views`` at the iterate;
     keeps the iterate they like best (early stopping on views the fit never sees)."""
 
-    def __init__(self, views: list[_Scene], callback, every: int, spp: int,
+    def __init__(self, views: list[FitScene], callback, every: int, spp: int,
                  log_loss: bool = False) -> None:
         self.views, self.callback, self.every, self.spp = views, callback, every, spp
         self.log_loss = log_loss
@@ -202,7 +202,7 @@ def _snr_of(objective: float, log_loss: bool = False) -> float:
     return float(-10.0 * np.log10(max(objective, 1e-30)))
 
 
-def _step(views: list[_Scene], opt, scales, seed: int, grad_seed: int, spp: int,
+def take_step(views: list[FitScene], opt, scales, seed: int, grad_seed: int, spp: int,
           log_loss: bool = False, prior_weight: float = 0.0,
           u0: np.ndarray | None = None) -> float:
     """One Adam step over all views (:func:`_evaluate`, then the chain rule through
@@ -224,7 +224,7 @@ def _step(views: list[_Scene], opt, scales, seed: int, grad_seed: int, spp: int,
     return _snr_of(loss, log_loss)
 
 
-def _lbfgs(views: list[_Scene], u0: np.ndarray, scales: np.ndarray, sizes: list[int],
+def _lbfgs(views: list[FitScene], u0: np.ndarray, scales: np.ndarray, sizes: list[int],
            evaluations: int, seed: int, spp: int, on_eval,
            log_loss: bool = False, prior_weight: float = 0.0,
            centre: np.ndarray | None = None) -> np.ndarray:
@@ -268,7 +268,7 @@ def _lbfgs(views: list[_Scene], u0: np.ndarray, scales: np.ndarray, sizes: list[
     return best["u"]
 
 
-def _run_lbfgs(scenes, opt, scales, done, iterations, snr, seed, spp, bar, ckpt, every,
+def run_lbfgs(scenes, opt, scales, done, iterations, snr, seed, spp, bar, ckpt, every,
                fp, log_loss, prior_weight, u0, monitor) -> None:
     """The L-BFGS fit from ``opt``'s values (``u``), writing the best ``u`` back into
     ``opt`` and, every ``every`` evaluations, into the checkpoint (Adam's moments are
@@ -297,11 +297,11 @@ def _run_lbfgs(scenes, opt, scales, done, iterations, snr, seed, spp, bar, ckpt,
         bar.update(1)
         if ckpt is not None and (state["n"] % every == 0 or state["n"] == iterations):
             put(state["u"])
-            _write_checkpoint(ckpt, state["n"], opt, snr, fp, monitor.state())
+            write_checkpoint(ckpt, state["n"], opt, snr, fp, monitor.state())
 
     u = _lbfgs(scenes, state["u"], sc, sizes, iterations - done, seed, spp, on_eval,
                log_loss, prior_weight, u0)
     monitor(state["n"], np.split(u * sc, cuts), force=True)  # the returned iterate
     put(u)
     if ckpt is not None and state["n"] > done:  # finished (or converged): a rerun is done
-        _write_checkpoint(ckpt, iterations, opt, snr, fp, monitor.state())
+        write_checkpoint(ckpt, iterations, opt, snr, fp, monitor.state())

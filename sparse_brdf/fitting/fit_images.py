@@ -49,12 +49,12 @@ from ..mitsuba_env import DEFAULT_VARIANT
 from ..params import Interval, check
 from ._steps import (
     VALUE_KEYS,
-    _Monitor,
-    _read_checkpoint,
-    _run_lbfgs,
-    _Scene,
-    _step,
-    _write_checkpoint,
+    FitScene,
+    Monitor,
+    read_checkpoint,
+    run_lbfgs,
+    take_step,
+    write_checkpoint,
 )
 
 #: Defaults of the fit: iterations, Adam's first learning rate, its last as a fraction of
@@ -189,7 +189,7 @@ def _load_views(scene, views, material, start_path, spp, seed, variant, options)
         norm = float(np.sum(np.square(img, dtype=np.float64)))
         if norm <= 0:
             raise ImageFileError(f"{v.name}: the reference image is black")
-        out.append(_Scene(sc, params, _value_keys(params, material), mi.TensorXf(img), norm,
+        out.append(FitScene(sc, params, _value_keys(params, material), mi.TensorXf(img), norm,
                           vseed))
     return out
 
@@ -335,7 +335,7 @@ def fit_images(  # long: the fit loop with its checkpointing and progress bar
         options = {"decoder": decoder, **({"ensemble": ens_path} if ens_path else {})}
         scenes = _load_views(scene, views, material, start_path, spp, seed, variant,
                              options)
-        monitor = _Monitor(_load_views(scene, validation, material, start_path, spp, seed,
+        monitor = Monitor(_load_views(scene, validation, material, start_path, spp, seed,
                                        variant, options),
                            None if callback is None else
                            (lambda n, vals: callback(n, replace(model, values=vals))),
@@ -361,7 +361,7 @@ def fit_images(  # long: the fit loop with its checkpointing and progress bar
         ckpt = Path(checkpoint_dir) / "fit-images.npz" if checkpoint_dir else None
         done, snr = 0, []
         if ckpt is not None and ckpt.is_file():
-            done, snr, data = _read_checkpoint(ckpt, opt, fp)
+            done, snr, data = read_checkpoint(ckpt, opt, fp)
             monitor.restore(data, done)
         elif ckpt is not None:
             ckpt.parent.mkdir(parents=True, exist_ok=True)
@@ -377,7 +377,7 @@ def fit_images(  # long: the fit loop with its checkpointing and progress bar
                    desc="fit-images", unit="it")
         if optimizer == "lbfgs":
             try:
-                _run_lbfgs(scenes, opt, scales, done, iterations, snr, seed, spp, bar,
+                run_lbfgs(scenes, opt, scales, done, iterations, snr, seed, spp, bar,
                            ckpt, checkpoint_every, fp, loss == "log", prior_weight, u0,
                            monitor)
             except RuntimeError as exc:
@@ -390,7 +390,7 @@ def fit_images(  # long: the fit loop with its checkpointing and progress bar
                 opt.set_learning_rate(lr * lr_end ** (it / max(iterations - 1, 1)))
                 try:
                     gseed = seed if shared_paths else seed + 1 + it * len(scenes)
-                    snr.append(_step(scenes, opt, scales, seed, gseed, spp, loss == "log",
+                    snr.append(take_step(scenes, opt, scales, seed, gseed, spp, loss == "log",
                                      prior_weight, u0))
                     monitor(it + 1, current(), force=it + 1 == iterations)
                 except RuntimeError as exc:
@@ -400,7 +400,7 @@ def fit_images(  # long: the fit loop with its checkpointing and progress bar
                 bar.update(1)
                 if ckpt is not None and ((it + 1) % checkpoint_every == 0
                                          or it + 1 == iterations):
-                    _write_checkpoint(ckpt, it + 1, opt, snr, fp, monitor.state())
+                    write_checkpoint(ckpt, it + 1, opt, snr, fp, monitor.state())
         finally:
             bar.close()
         seconds = time.perf_counter() - t0
