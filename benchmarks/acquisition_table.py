@@ -22,7 +22,7 @@ from harness import header, machine, parser, write_json
 
 from sparse_brdf import Ensemble, encode, encode_samples, get_corpus, pca_from_samples
 from sparse_brdf.acquisition.defaults import default_prior, trained_pca
-from sparse_brdf.acquisition.files import measure_nbrdf, measure_table, plan
+from sparse_brdf.acquisition.planning import measure_nbrdf, measure_table, plan
 from sparse_brdf.metrics import cosine_weighted_snr
 
 

@@ -14,10 +14,10 @@ decode/render -> evaluate.
 >>> net = sb.train_nbrdf(brdf, time_budget=120)          # a Neural-BRDF network (675 floats)
 """
 
-from .acquisition.files import plan as plan_samples
 from .acquisition.files import read_samples, write_samples
 from .acquisition.measurements import Samples
 from .acquisition.pca import pca_from_samples
+from .acquisition.planning import plan as plan_samples
 from .acquisition.recovery import encode_samples
 from .brdf import BRDF
 from .coding.budget import encode_to_bytes

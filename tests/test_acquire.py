@@ -9,13 +9,9 @@ from test_reliability import fails, run
 
 from conftest import SMALL, random_orthonormal
 from sparse_brdf.acquisition import recovery as acquire
-from sparse_brdf.acquisition.files import (
-    measure_table,
-    plan,
-    read_samples,
-    write_samples,
-)
+from sparse_brdf.acquisition.files import read_samples, write_samples
 from sparse_brdf.acquisition.measurements import Samples
+from sparse_brdf.acquisition.planning import measure_table, plan
 from sparse_brdf.acquisition.recovery import Operator, encode_samples
 from sparse_brdf.brdf import BRDF
 from sparse_brdf.coding.coefficients import SparseBRDF

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from conftest import SMALL
-from sparse_brdf.acquisition.files import measure_table, plan
 from sparse_brdf.acquisition.pca import pca_from_samples
+from sparse_brdf.acquisition.planning import measure_table, plan
 from sparse_brdf.errors import UsageError
 from sparse_brdf.metrics import cosine_weighted_snr
 from sparse_brdf.sources.corpora import get_corpus

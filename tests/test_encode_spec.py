@@ -21,7 +21,7 @@ from sparse_brdf import (
     interpolate,
     save_sbrdf,
 )
-from sparse_brdf.acquisition.files import measure_table, plan
+from sparse_brdf.acquisition.planning import measure_table, plan
 from sparse_brdf.cli import main
 from sparse_brdf.cli.files import encode_batch, encode_file
 from sparse_brdf.coding.ensemble import Ensemble

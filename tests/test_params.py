@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from sparse_brdf import cli
-from sparse_brdf.acquisition.files import plan
+from sparse_brdf.acquisition.planning import plan
 from sparse_brdf.acquisition.recovery import encode_samples
 from sparse_brdf.benchmark.ranking import merge_results
 from sparse_brdf.cli.files import encode_samples_file

@@ -831,8 +831,9 @@ def test_a_closed_stdout_is_not_an_error():
 def _samples_csv(path: Path, rgb) -> Path:
     """A samples CSV of 40 uniform direction pairs, every row the value ``rgb`` except the
     first, which holds ``rgb`` times the first row's factor given by ``rgb`` itself."""
-    from sparse_brdf.acquisition.files import plan, write_samples
+    from sparse_brdf.acquisition.files import write_samples
     from sparse_brdf.acquisition.measurements import Samples
+    from sparse_brdf.acquisition.planning import plan
 
     wi, wo = plan(40, "uniform", 0)
     values = np.broadcast_to(np.asarray(rgb, np.float64), (40, 3)).copy()

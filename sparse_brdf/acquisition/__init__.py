@@ -18,9 +18,10 @@ from .defaults import (
     trained_pca,
     training_materials,
 )
-from .files import plan, read_samples, write_samples
+from .files import read_samples, write_samples
 from .measurements import Samples
 from .pca import pca_from_samples
+from .planning import plan
 from .prior import AtomPrior
 from .recovery import encode_samples
 

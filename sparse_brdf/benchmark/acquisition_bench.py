@@ -4,7 +4,7 @@ scenes against the full table (``docs/results.md``, "Encoding from samples").
 
 Each cell is one fit: a material, a method (``sparse``: :func:`encode_samples` with its
 atom prior and PCA fallback; ``pca``: :func:`pca_from_samples`), a placement
-(:func:`~sparse_brdf.acquisition.files.plan`), a sample count N, a sample seed and a noise
+(:func:`~sparse_brdf.acquisition.planning.plan`), a sample count N, a sample seed and a noise
 level. Samples are simulated from the material's Neural-BRDF network at the pairs
 themselves (``measure = "nbrdf"``: a continuous BRDF, as an instrument measures it) or
 from its table (``"table"``: each pair gets its bin's value). Every cell is rendered in
@@ -30,9 +30,9 @@ from pathlib import Path
 import numpy as np
 
 from ..acquisition import defaults
-from ..acquisition.files import PLACEMENTS, add_noise, measure_nbrdf, measure_table, plan
 from ..acquisition.measurements import Samples
 from ..acquisition.pca import pca_from_samples
+from ..acquisition.planning import PLACEMENTS, add_noise, measure_nbrdf, measure_table, plan
 from ..acquisition.recovery import encode_samples
 from ..brdf import BRDF
 from ..coding.encode import encode

@@ -11,7 +11,8 @@ import numpy as np
 
 from ..acquisition import PRIORS
 from ..acquisition import recovery as acquire_module
-from ..acquisition.files import PLACEMENTS, plan, read_samples
+from ..acquisition.files import read_samples
+from ..acquisition.planning import PLACEMENTS, plan
 from ..coding import budget as budget_module
 from ..coding.fileformat import save_sbrdf
 from ..coords import GRID_BINS

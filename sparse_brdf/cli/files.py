@@ -42,8 +42,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..acquisition.files import plan, read_samples, write_samples
+from ..acquisition.files import read_samples, write_samples
 from ..acquisition.measurements import Samples
+from ..acquisition.planning import plan
 from ..acquisition.recovery import encode_samples
 from ..coding.budget import encode_to_bytes_with
 from ..coding.coefficients import SparseBRDF
@@ -344,7 +345,7 @@ def check_measured(samples: Samples) -> None:
 
 def plan_samples_file(output: str | os.PathLike, n: int, placement: str = "stratified",
                       seed: int = 0) -> Path:
-    """Write the direction pairs to measure (``acquisition.files.plan``) as a CSV samples file
+    """Write the direction pairs to measure (``acquisition.planning.plan``) as a CSV samples file
     whose values are 0, to be replaced by the measurements.
 
     Parameters
