@@ -20,6 +20,7 @@ their Dr.Jit twin (``mitsuba_plugin.kernels.nbrdf_rho``).
 
 from __future__ import annotations
 
+import functools
 import os
 from pathlib import Path
 
@@ -124,18 +125,28 @@ def tabulate(layers: Layers, shape: tuple[int, int, int] = MERL_SHAPE,
     valid : ndarray of ``shape``, bool
         The bins above the horizon (:func:`~sparse_brdf.coords.geometric_valid`).
     """
-    valid = geometric_valid(shape)
-    th, td, pd = grid_angles(shape)
+    valid, x = _grid_inputs(tuple(int(n) for n in shape))
     values = np.zeros((*shape, 3), np.float32)
-    x = network_inputs(th[valid], td[valid], pd[valid])
     if not symmetric:
         values[valid] = evaluate(layers, x)
-        return values, valid
+        return values, valid.copy()
     acc = np.zeros((len(x), 3), np.float64)
     for sx, sy in SYMMETRIES:
         acc += evaluate(layers, x * np.array([1, 1, 1, sx, sy, 1], np.float32))
     values[valid] = (acc / len(SYMMETRIES)).astype(np.float32)
-    return values, valid
+    return values, valid.copy()
+
+
+@functools.lru_cache(maxsize=2)
+def _grid_inputs(shape: tuple[int, int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """The bins above the horizon of a grid and the network's inputs there (read-only;
+    the same for every network: made once per grid, not once per material)."""
+    valid = geometric_valid(shape)
+    th, td, pd = grid_angles(shape)
+    x = network_inputs(th[valid], td[valid], pd[valid])
+    for a in (valid, x):
+        a.flags.writeable = False
+    return valid, x
 
 
 #: The sign changes (of the difference vector's x and y) under which an isotropic,

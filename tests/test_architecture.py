@@ -170,16 +170,10 @@ def test_no_module_answers_names_it_does_not_hold():
     assert out == "True"
 
 
-# Private names imported across modules that other work is regrouping now; each entry is
-# "importing module: imported module.name". Remove an entry when its module is regrouped
-# (the test fails on an entry that no longer occurs, so the list only shrinks).
-PRIVATE_IMPORTS_ALLOWED = {
-    # the trainer's per-shard tasks, private to training/_codes.py
-    "sparse_brdf.training.train: sparse_brdf.training._codes._shard_assign",
-    "sparse_brdf.training.train: sparse_brdf.training._codes._shard_code",
-    "sparse_brdf.training.train: sparse_brdf.training._codes._shard_reseed",
-    "sparse_brdf.training.train: sparse_brdf.training._codes._shard_seed_errors",
-}
+# Private names imported across modules, allowed with a reason; each entry is
+# "importing module: imported module.name" (the test fails on an entry that no longer
+# occurs, so the list only shrinks).
+PRIVATE_IMPORTS_ALLOWED: set[str] = set()
 
 
 def _is_module(dotted: str) -> bool:

@@ -194,7 +194,7 @@ def test_training_stops_when_a_worker_dies_and_resumes(cluster, reference_id, tm
     out, ckpt = tmp_path / "ens.npz", tmp_path / "ckpt"
     args = _train_args(out, ckpt, "--scheduler", cluster.client.scheduler.address)
     capsys.readouterr()
-    with WorkerKiller(cluster, "_shard_", when=ckpt / "tau-8.npz") as killer:
+    with WorkerKiller(cluster, "shard_", when=ckpt / "tau-8.npz") as killer:
         status = main(args)
     assert killer.killed is not None, "no worker was killed: the test did not test"
     err = capsys.readouterr().err  # progress bars, then the message

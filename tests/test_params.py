@@ -140,6 +140,7 @@ MIRRORS = {
     ("train", "dicts"): (train_ensemble, "n_dicts"),
     ("train", "iterations"): (train_ensemble, "n_iter"),
     ("train", "seed"): (train_ensemble, "seed"),
+    ("train", "warm_start"): (train_ensemble, "warm_start"),
     ("train", "reassign_every"): (train_dictionaries, "reassign_every"),
     ("train", "tol"): (train_dictionaries, "tol"),
     ("train", "max_moved"): (train_dictionaries, "max_moved"),

@@ -128,6 +128,52 @@ def test_seeded_init_is_deterministic_and_resumes(small_training, tmp_path):
         train_dictionaries(small_training, 16, init="kmeans", progress=False)
 
 
+@pytest.mark.train
+def test_warm_start_begins_where_the_previous_sparsity_ended(small_training, tmp_path):
+    """A warm-started sparsity starts from the previous one's dictionaries and clusters,
+    coded at its own tau: it ends below a cold start's objective in as many iterations,
+    its objective never rises, and a run cut after its first iteration resumes to the
+    same dictionaries."""
+    x = small_training
+    kw = dict(taus=(8, 24), n_dicts=3, n_iter=3, seed=2, progress=False, tol=0)
+    cold = train_ensemble(x, warm_start=False, **kw)
+    warm = train_ensemble(x, **kw)  # the default
+    assert warm.meta["warm_start"] is True and cold.meta["warm_start"] is False
+    # the first sparsity is trained as without a warm start
+    assert ([h["objective"] for h in cold.meta["history"]["8"]]
+            == [h["objective"] for h in warm.meta["history"]["8"]])
+    hw, hc = warm.meta["history"]["24"], cold.meta["history"]["24"]
+    assert hw[-1]["objective"] < 0.95 * hc[-1]["objective"]  # measured: 0.88
+    objs = [h["objective"] for h in hw]
+    assert all(b <= a * (1 + 1e-5) for a, b in zip(objs, objs[1:], strict=False))
+    # the tau-8 state, then tau 24 started from it: a checkpointed, resumed run matches
+    st8 = train_dictionaries(x, 8, n_dicts=3, n_iter=3, seed=1, progress=False, tol=0)
+    start = (st8.u1, st8.u2, st8.u3, st8.labels)
+    one = dict(n_dicts=3, n_iter=3, seed=3, progress=False, tol=0, start=start)
+    a = train_dictionaries(x, 24, **one)
+    ck = tmp_path / "ck.npz"
+    train_dictionaries(x, 24, checkpoint=ck, callback=lambda s: s.iteration == 1, **one)
+    b = train_dictionaries(x, 24, checkpoint=ck, **one)
+    np.testing.assert_array_equal(a.u1, b.u1)
+    np.testing.assert_array_equal(a.labels, b.labels)
+    # another start is another run: its checkpoint is refused
+    other = (st8.u1, st8.u2, st8.u3, (st8.labels + 1) % 3)
+    with pytest.raises(ValueError, match="another training run"):
+        train_dictionaries(x, 24, checkpoint=ck, **{**one, "start": other})
+
+
+def test_a_warm_start_that_does_not_fit_is_refused(small_training):
+    x = small_training[:6]
+    n1, n2, n3 = x.shape[1:]
+    eye = [np.broadcast_to(np.eye(n, dtype=np.float32), (2, n, n)) for n in (n1, n2, n3)]
+    with pytest.raises(ValueError, match="mode-2 matrices"):
+        train_dictionaries(x, 4, n_dicts=2, progress=False,
+                           start=(eye[0], eye[2], eye[2], np.zeros(6, int)))
+    with pytest.raises(ValueError, match="labels"):
+        train_dictionaries(x, 4, n_dicts=2, progress=False,
+                           start=(*eye, np.full(6, 2)))
+
+
 def test_stopping_rule():
     def h(obj, moved=0, assigned=False):
         return {"objective": obj, "moved": moved, "assigned": assigned}

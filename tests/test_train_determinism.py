@@ -32,12 +32,14 @@ from sparse_brdf.training.train import train_ensemble
 
 pytestmark = pytest.mark.numerics
 
-#: Per case of :func:`_train`: each sparsity's objective after each iteration.
+#: Per case of :func:`_train`: each sparsity's objective after each iteration (pinned
+#: 2026-12-07 when the trainer began coding from the update's last product and the
+#: second sparsity began warm, from the first's dictionaries: 5-6 % lower at tau 48).
 EXPECTED = {
-    "masked-seeded": {"16": [6071.4233666042255, 5443.544977039515, 5097.796315116813],
-                      "48": [3384.702959920659, 2964.076748916321, 2744.30517882383]},
-    "unmasked-random": {"16": [6423.206832408905, 6225.604632854462, 6094.25118637085],
-                        "48": [3134.2653279304504, 3032.129642188549, 2977.572200655937]},
+    "masked-seeded": {"16": [6071.425218710479, 5445.681147902634, 5095.680741104812],
+                      "48": [3182.0478206720713, 2804.439873891966, 2606.992519415953]},
+    "unmasked-random": {"16": [6423.205699920654, 6226.237699985504, 6094.296370983124],
+                        "48": [2990.617799460888, 2899.690829575062, 2852.433078467846]},
 }
 
 

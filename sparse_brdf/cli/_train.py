@@ -59,6 +59,7 @@ def cmd_train(args: argparse.Namespace) -> int:
                          reassign_every=args.reassign_every, masked=args.masked,
                          missing=data.missing, init=args.init, tol=args.tol,
                          max_moved=args.max_moved, shard_tensors=args.shard_tensors,
+                         warm_start=args.warm_start,
                          workers=args.workers, scheduler=args.scheduler)
     if args.extend:
         ens = Ensemble.load(args.extend).union(ens)
@@ -112,6 +113,11 @@ def add_train(sub) -> None:
     t.add_argument("--init", default=default_of(train_dictionaries, "init"), choices=TRAIN["init"],
                    help="initial clusters: seeded (k-means++ in the training error) or "
                         "random balanced")
+    t.add_argument("--warm-start", action=argparse.BooleanOptionalAction,
+                   default=default_of(train_ensemble, "warm_start"),
+                   help="start each sparsity after the first from the previous one's "
+                        "dictionaries and clusters (no new seeding or unpruned first "
+                        "clustering: docs/ensemble.md)")
     t.add_argument("--seed", type=typed(TRAIN["seed"]), default=default_of(train_ensemble, "seed"),
                    help="seed of the initial clusters: the same seed gives the same ensemble")
     t.add_argument("--grid", nargs=3, type=typed(GRID_SIDE),

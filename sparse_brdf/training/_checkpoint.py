@@ -28,6 +28,7 @@ class TrainState:
     iteration: int = 0
     history: list = field(default_factory=list)
     init_seconds: float = 0.0  # time taken by the initialisation
+    coded: bool = False  # the codes belong to the current dictionaries (a warm start's)
 
 
 def run_options(extra: dict, masked: bool, init: str) -> dict | None:

@@ -12,6 +12,7 @@ import numpy as np
 from ..coding.pruning import PrunedSearch, slice_order
 from ..coding.tensor import hosvd_factors, mode_grams, project, top_k
 from ..parallel import blas_single_thread, parallel_map
+from ._shards import drop_cache, shard_coefficients
 from ._tensor_store import TensorStore
 
 
@@ -156,19 +157,20 @@ def _assign_all(data: TensorStore, state_u, tau, progress, known=None) -> tuple[
     return labels, idx_all, val_all, errors, all_err
 
 
-def _shard_assign(sh: TensorStore, known, tau, u1, u2, u3) -> tuple:
+def shard_assign(sh: TensorStore, known, tau, u1, u2, u3) -> tuple:
     """Cluster the shard's tensors (:func:`_assign_all`), without the error matrix."""
     return _assign_all(sh, (u1, u2, u3), tau, False, known)[:4]
 
 
-def _shard_code(sh: TensorStore, labels, tau, u1, u2, u3) -> tuple:
-    """Sparse-code each tensor of the shard in its own cluster's dictionary; masked, then
-    refill its free bins from the new code. Returns the codes and errors."""
+def shard_code(sh: TensorStore, labels, tau, u1, u2, u3) -> tuple:
+    """Sparse-code each tensor of the shard in its own cluster's dictionary (from the
+    update's cached W3 where there is one); masked, then refill its free bins from the
+    new code. Returns the codes and errors."""
 
     def one(i):
         j = labels[i]
         u = (u1[j], u2[j], u3[j])
-        return _code_tensor(sh, i, project(sh[i], *u), tau, u)
+        return _code_tensor(sh, i, shard_coefficients(sh, i, u), tau, u)
 
     n = len(sh)
     idx, val, err = np.zeros((n, tau), np.int32), np.zeros((n, tau), np.float32), np.zeros(n)
@@ -176,10 +178,11 @@ def _shard_code(sh: TensorStore, labels, tau, u1, u2, u3) -> tuple:
         idx[i], val[i], err[i] = a, v, e
         if fill is not None:
             sh.set_fill(i, fill)
+    drop_cache(sh)
     return idx, val, err
 
 
-def _shard_seed_errors(sh: TensorStore, err, tau, upto, f1, f2, f3) -> np.ndarray:
+def shard_seed_errors(sh: TensorStore, err, tau, upto, f1, f2, f3) -> np.ndarray:
     """Each tensor's error under a seed dictionary (f1, f2, f3), or inf when it cannot
     beat ``err`` (:func:`_seed_labels`)."""
     d = _Dicts.of(f1[None], f2[None], f3[None])
@@ -192,7 +195,7 @@ def _shard_seed_errors(sh: TensorStore, err, tau, upto, f1, f2, f3) -> np.ndarra
     return np.array(list(parallel_map(seed_error, range(len(sh)))), np.float64)
 
 
-def _shard_reseed(sh: TensorStore, i: int, tau) -> tuple:
+def shard_reseed(sh: TensorStore, i: int, tau) -> tuple:
     """Tensor i's own HOSVD dictionary and its code there (for an empty cluster)."""
     with blas_single_thread():  # the same bits in any process
         xi = sh[i]

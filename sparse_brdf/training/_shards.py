@@ -23,10 +23,24 @@ from ._tensor_store import TensorStore
 #: same order wherever the shards run: results are the same bit for bit in-process and
 #: on any cluster.
 SHARD_TENSORS = 32
-#: Bytes of mode-3 partial products the dictionary update may keep, in one process,
-#: between its first two passes (:func:`shard_partials`); beyond this they are
-#: recomputed instead (same results).
-MAX_CACHE_BYTES = 3 * 1024**3
+
+
+def _cache_budget(lo: int = 1 << 30, hi: int = 8 << 30) -> int:
+    """A third of the memory available when the package is imported (``MemAvailable``
+    of ``/proc/meminfo``), within [1, 8] GiB; 3 GiB where that cannot be read."""
+    try:
+        with open("/proc/meminfo") as f:
+            kib = next(int(line.split()[1]) for line in f if line.startswith("MemAvailable"))
+    except (OSError, StopIteration, ValueError, IndexError):
+        return 3 << 30
+    return int(min(max(kib * 1024 // 3, lo), hi))
+
+
+#: Bytes of partial products the dictionary update may keep, in one process, for its
+#: next pass or the coding step (:func:`shard_partials`); beyond this they are
+#: recomputed instead (same results, bit for bit). The default training set (936
+#: tensors of 90 x 90 x 180) needs 5.5 GB to keep them all.
+MAX_CACHE_BYTES = _cache_budget()
 _cache_lock = threading.Lock()
 _cache_used = [0]  # bytes of partial products cached in this process
 
@@ -51,10 +65,44 @@ def shard_refill(sh: TensorStore, labels, idx, val, u1, u2, u3) -> None:
 
 
 def drop_cache(sh: TensorStore) -> None:
-    """Forget the shard's cached mode-3 products."""
+    """Forget the shard's cached partial products."""
     with _cache_lock:
         _cache_used[0] -= sum(a.nbytes for a in sh.cache.values())
     sh.cache = {}
+
+
+def _cached(sh: TensorStore, key, compute, keep: bool):
+    """``compute()``, or the shard's cached result under ``key`` (then forgotten); kept
+    under ``key`` if ``keep`` and the byte budget allows."""
+    if key in sh.cache:
+        a = sh.cache.pop(key)
+        with _cache_lock:
+            _cache_used[0] -= a.nbytes
+        return a
+    a = compute()
+    if keep:
+        with _cache_lock:
+            keep = _cache_used[0] + a.nbytes <= MAX_CACHE_BYTES
+            _cache_used[0] += a.nbytes if keep else 0
+        if keep:
+            sh.cache[key] = a
+    return a
+
+
+def modes12_product(x: np.ndarray, u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
+    """W3 = X x1 U1^T x2 U2^T of a tensor (n1, n2, n3), float32: the dictionary update's
+    product for mode 3, and the coefficients before their mode-3 product (the trainer
+    codes each tensor as W3 x3 U3^T, from the W3 its last update pass made)."""
+    n1, n2, n3 = x.shape
+    return np.matmul(u2.T, (u1.T @ x.reshape(n1, n2 * n3)).reshape(n1, n2, n3))
+
+
+def shard_coefficients(sh: TensorStore, i: int, u) -> np.ndarray:
+    """Tensor i's coefficients (n1, n2, n3) in dictionary ``u`` = (U1, U2, U3), from the
+    W3 of its last update pass if cached (:func:`shard_partials`)."""
+    n1, n2, n3 = sh.shape
+    w = _cached(sh, ("w3", i), lambda: modes12_product(sh[i], u[0], u[1]), keep=False)
+    return (w.reshape(n1 * n2, n3) @ u[2]).reshape(n1, n2, n3)
 
 
 def shard_partials(sh: TensorStore, labels, codes_idx, codes_val, mode, n_dicts,
@@ -63,8 +111,9 @@ def shard_partials(sh: TensorStore, labels, codes_idx, codes_val, mode, n_dicts,
     a float64 (n, n) sum over the cluster's tensors in the shard, None for none.
 
     The passes for U1 and U2 both start from A = X x3 U3^T with the same U3, so A is
-    kept from the first pass for the second (up to ``MAX_CACHE_BYTES`` per process);
-    the results are the same as recomputing it.
+    kept from the first pass for the second; the pass for U3 keeps its W3 for the coding
+    step that follows (:func:`shard_coefficients`). Up to ``MAX_CACHE_BYTES`` per
+    process; the results are the same as recomputing them.
     """
     n1, n2, n3 = shape = sh.shape
 
@@ -73,45 +122,29 @@ def shard_partials(sh: TensorStore, labels, codes_idx, codes_val, mode, n_dicts,
         np.add.at(m, (np.arange(len(pos)), pos), val)
         return m
 
-    def mode3_product(i, u3j):
-        """A = X_i x3 U3^T as an (n1 n2, n3) matrix, from the cache when there."""
-        if i in sh.cache:
-            a = sh.cache.pop(i)
-            with _cache_lock:
-                _cache_used[0] -= a.nbytes
-            return a
-        a = sh[i].reshape(n1 * n2, n3) @ u3j
-        if mode == 0:
-            with _cache_lock:
-                keep = _cache_used[0] + a.nbytes <= MAX_CACHE_BYTES
-                _cache_used[0] += a.nbytes if keep else 0
-            if keep:
-                sh.cache[i] = a
-        return a
-
     def contrib(i):
         j = labels[i]
         a, b, c = np.unravel_index(codes_idx[i], shape)
         s = codes_val[i]
+        if mode < 2:  # A = X x3 U3^T as an (n1 n2, n3) matrix
+            am = _cached(sh, ("a", i), lambda: sh[i].reshape(n1 * n2, n3) @ u3[j],
+                         keep=mode == 0)
         if mode == 0:  # W1 = X x2 U2^T x3 U3^T, Z1[:, a_t] += s_t W1[:, b_t, c_t]
-            w = np.matmul(u2[j].T, mode3_product(i, u3[j]).reshape(n1, n2, n3))
+            w = np.matmul(u2[j].T, am.reshape(n1, n2, n3))
             return w[:, b, c] @ onehot(a, s, n1)
         if mode == 1:  # W2 = X x1 U1^T x3 U3^T, Z2[:, b_t] += s_t W2[a_t, :, c_t]
-            w = (u1[j].T @ mode3_product(i, u3[j]).reshape(n1, n2 * n3)).reshape(n1, n2, n3)
+            w = (u1[j].T @ am.reshape(n1, n2 * n3)).reshape(n1, n2, n3)
             return w[a, :, c].T @ onehot(b, s, n2)
         # W3 = X x1 U1^T x2 U2^T, Z3[:, c_t] += s_t W3[a_t, b_t, :]
-        w = np.matmul(u2[j].T, (u1[j].T @ sh[i].reshape(n1, n2 * n3)).reshape(n1, n2, n3))
+        w = _cached(sh, ("w3", i), lambda: modes12_product(sh[i], u1[j], u2[j]), keep=True)
         return w[a, b, :].T @ onehot(c, s, n3)
 
-    if mode == 0:
-        drop_cache(sh)
+    drop_cache(sh)  # what an earlier pass left (a tensor not coded since, a cap reached)
     z: list = [None] * n_dicts
     order = np.argsort(labels, kind="stable")  # by cluster, then by tensor
     for i, part in zip(order, parallel_map(contrib, order), strict=True):
         j = labels[i]  # each cluster's sum in the order of its members, wherever it runs
         z[j] = part.astype(np.float64) if z[j] is None else z[j] + part
-    if mode > 0:
-        drop_cache(sh)
     return z
 
 

@@ -25,6 +25,7 @@ bit for bit (``docs/scale-out.md``).
 
 from __future__ import annotations
 
+import hashlib
 import os
 import time
 from collections.abc import Callable, Sequence
@@ -39,7 +40,7 @@ from ..parallel import Executor, InProcess, parallel_map
 from ..parallel import executor as open_executor
 from ..params import SEED, Interval, check, check_choice
 from ._checkpoint import TrainState, fingerprint, load_checkpoint, run_options, save_checkpoint
-from ._codes import _shard_assign, _shard_code, _shard_reseed, _shard_seed_errors
+from ._codes import shard_assign, shard_code, shard_reseed, shard_seed_errors
 from ._shards import (
     SHARD_TENSORS,
     Shards,
@@ -78,7 +79,7 @@ PARAMETERS = {
 def _code_own(data: Shards, state: TrainState, tau, hs) -> None:
     """Sparse-code each tensor in its own cluster's dictionary (``hs``: the scattered
     mode matrices); masked, its free bins are then refilled from the new code."""
-    out = data.run(_shard_code, data.slices(state.labels), tau, *hs, desc="code")
+    out = data.run(shard_code, data.slices(state.labels), tau, *hs, desc="code")
     state.codes_idx, state.codes_val, state.errors = (cat(out, k) for k in range(3))
 
 
@@ -127,7 +128,7 @@ def _reseed_empty(data: Shards, state: TrainState, tau) -> int:
         if donors.size == 0:
             break
         i = int(donors[np.argmax(state.errors[donors])])
-        (f1, f2, f3), idx, val, err, fill = data.run_one(i, _shard_reseed, tau)
+        (f1, f2, f3), idx, val, err, fill = data.run_one(i, shard_reseed, tau)
         state.u1[j], state.u2[j], state.u3[j] = f1, f2, f3
         if err <= state.errors[i]:
             state.labels[i] = j
@@ -193,7 +194,7 @@ def _seed_labels(data: Shards, tau, n_dicts, rng) -> np.ndarray:
         p = weights / weights.sum() if weights.sum() > 0 else None
         s = int(rng.choice(n, p=p))
         hs = data.scatter(*hosvd_factors(data.run_one(s, shard_gram)))
-        e = np.concatenate(data.run(_shard_seed_errors, data.slices(err), tau, upto, *hs,
+        e = np.concatenate(data.run(shard_seed_errors, data.slices(err), tau, upto, *hs,
                                     desc=f"seed {j + 1}"))
         data.release(hs)
         e[s] = -1.0  # a seed stays with its own dictionary
@@ -220,10 +221,11 @@ def _check_training_args(x, tau: int, n_dicts: int, init: str = DEFAULT_INIT,
 def _recluster(data: Shards, state: TrainState, tau, hs) -> int:
     """Cluster every tensor against every dictionary (in place); return how many moved."""
     old = state.labels.copy()
-    # after the first iteration the state's codes belong to the current dictionaries
+    # after the first iteration (or a warm start) the state's codes belong to the
+    # current dictionaries
     known = (data.slices(state.labels, state.codes_idx, state.codes_val, state.errors)
-             if state.iteration > 0 else [None] * len(data.bounds))
-    out = data.run(_shard_assign, [(k,) for k in known], tau, *hs, desc="assign")
+             if state.iteration > 0 or state.coded else [None] * len(data.bounds))
+    out = data.run(shard_assign, [(k,) for k in known], tau, *hs, desc="assign")
     state.labels, state.codes_idx, state.codes_val, state.errors = (
         cat(out, k) for k in range(4))
     return int(np.sum(old != state.labels))
@@ -300,6 +302,7 @@ def train_dictionaries(
     max_moved: float = DEFAULT_MAX_MOVED,
     executor: Executor | None = None,
     shard_tensors: int = SHARD_TENSORS,
+    start: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> TrainState:
     """Train ``n_dicts`` dictionaries under sparsity ``tau`` on tensors ``x``.
 
@@ -349,6 +352,11 @@ def train_dictionaries(
         summation order (the result is the same on any executor for one size). 0: one
         shard of every tensor, the order of the trainer before shards existed, which
         trained the shipped default ensemble (``docs/ensemble.md``).
+    start : (u1, u2, u3, labels), optional
+        Start from these dictionaries (K mode matrices of each mode) and clusters (N,)
+        instead of ``init``: a warm start, as :func:`train_ensemble` gives each sparsity
+        the previous one's result. The tensors are first coded at ``tau`` in their own
+        dictionaries, so the first clustering is pruned against known errors.
 
     Returns
     -------
@@ -376,8 +384,11 @@ def train_dictionaries(
         options = run_options(data.extra, masked, init)
         if shard_tensors != SHARD_TENSORS:  # (the default keeps earlier checkpoints valid)
             options = {**(options or {}), "shard_tensors": int(shard_tensors)}
+        if start is not None:
+            start = _check_start(start, len(x), n_dicts, data.shape)
+            options = {**(options or {}), "start": _digest_arrays(start)}
         run = fingerprint(x, data.raw_norms, tau, n_dicts, seed, options)
-        state = _start(data, checkpoint, run, tau, n_dicts, seed, init)
+        state = _start(data, checkpoint, run, tau, n_dicts, seed, init, start)
         bar = tqdm(total=n_iter, initial=state.iteration, desc=f"tau={tau}", unit="it",
                    disable=not progress)
         while state.iteration < n_iter and not _converged(state.history, tol, max_moved,
@@ -395,17 +406,52 @@ def train_dictionaries(
     return state
 
 
-def _start(data: Shards, checkpoint, run: str, tau, n_dicts, seed, init) -> TrainState:
-    """The state a run starts from: its checkpoint (the tensors' fills restored), or a
-    new initialisation."""
+def _start(data: Shards, checkpoint, run: str, tau, n_dicts, seed, init,
+           start=None) -> TrainState:
+    """The state a run starts from: its checkpoint (the tensors' fills restored), a warm
+    ``start`` coded at ``tau``, or a new initialisation."""
     state = load_checkpoint(checkpoint, run) if checkpoint else None
-    if state is None:
-        t0 = time.perf_counter()
-        state = _init_state(data, tau, n_dicts, np.random.default_rng(seed), init)
-        state.init_seconds = time.perf_counter() - t0
-    else:
+    if state is not None:
         _refill_all(data, state)
+        return state
+    t0 = time.perf_counter()
+    if start is None:
+        state = _init_state(data, tau, n_dicts, np.random.default_rng(seed), init)
+    else:
+        u1, u2, u3, labels = (np.array(a) for a in start)
+        n = len(data)
+        state = TrainState(u1, u2, u3, labels.astype(np.int64),
+                           np.zeros((n, tau), np.int32), np.zeros((n, tau), np.float32),
+                           np.zeros(n))
+        hs = data.scatter(state.u1, state.u2, state.u3)
+        _code_own(data, state, tau, hs)
+        data.release(hs)
+        state.coded = True
+    state.init_seconds = time.perf_counter() - t0
     return state
+
+
+def _check_start(start, n: int, n_dicts: int, shape) -> tuple:
+    """A warm start's arrays as float32 mode matrices and int64 labels; raise on ones that
+    do not fit the data or ``n_dicts``."""
+    u1, u2, u3, labels = start
+    u = [np.asarray(a, np.float32) for a in (u1, u2, u3)]
+    labels = np.asarray(labels, np.int64)
+    for m, (a, size) in enumerate(zip(u, shape, strict=True)):
+        if a.shape != (n_dicts, size, size):
+            raise UsageError(f"start: mode-{m + 1} matrices of shape {a.shape}, expected "
+                             f"{(n_dicts, size, size)}")
+    if labels.shape != (n,) or (n and (labels.min() < 0 or labels.max() >= n_dicts)):
+        raise UsageError(f"start: labels must be {n} cluster numbers in [0, {n_dicts})")
+    return (*u, labels)
+
+
+def _digest_arrays(arrays) -> str:
+    """sha256 of arrays' bytes (a warm start, in a checkpoint's fingerprint)."""
+    h = hashlib.sha256()
+    for a in arrays:
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()
 
 
 def train_ensemble(
@@ -419,6 +465,7 @@ def train_ensemble(
     meta: dict | None = None,
     workers: int | None = None,
     scheduler: str | None = None,
+    warm_start: bool = True,
     **kwargs,
 ) -> Ensemble:
     """Train ``n_dicts`` dictionaries per sparsity in ``taus`` and unite them.
@@ -450,6 +497,11 @@ def train_ensemble(
     workers, scheduler : int, str, optional
         Where the per-tensor work runs (``parallel.executor``: N local Dask workers, or a
         scheduler's address; default: in this process).
+    warm_start : bool
+        Start each sparsity after the first from the previous one's dictionaries and
+        clusters (``start`` of :func:`train_dictionaries`) instead of a new
+        initialisation: no seeding and no unpruned first clustering
+        (``docs/ensemble.md`` measures what it saves and costs).
     **kwargs
         Passed to :func:`train_dictionaries` (``masked``, ``missing``, ``init``,
         ``reassign_every``, ``tol``, ``max_moved``).
@@ -469,10 +521,13 @@ def train_ensemble(
     t0 = time.perf_counter()
     with open_executor(workers, scheduler) as ex:
         where = ex.describe()
+        st = None
         for tau, s in zip(taus, seeds, strict=True):
             ckpt = Path(checkpoint_dir) / f"tau-{tau}.npz" if checkpoint_dir else None
+            start = (st.u1, st.u2, st.u3, st.labels) if warm_start and st else None
             st = train_dictionaries(x, int(tau), n_dicts, n_iter, seed=int(s),
-                                    checkpoint=ckpt, progress=progress, executor=ex, **kwargs)
+                                    checkpoint=ckpt, progress=progress, executor=ex,
+                                    start=start, **kwargs)
             parts.append(Ensemble(st.u1, st.u2, st.u3, np.full(n_dicts, tau)))
             histories[str(tau)] = st.history
             init_seconds[str(tau)] = st.init_seconds
@@ -485,7 +540,8 @@ def train_ensemble(
                "reassign_every": int(kwargs.get("reassign_every", DEFAULT_REASSIGN_EVERY)),
                "tol": float(kwargs.get("tol", DEFAULT_TOL)),
                "max_moved": float(kwargs.get("max_moved", DEFAULT_MAX_MOVED)),
-               "shard_tensors": int(kwargs.get("shard_tensors", SHARD_TENSORS))}
+               "shard_tensors": int(kwargs.get("shard_tensors", SHARD_TENSORS)),
+               "warm_start": bool(warm_start)}
     ens.meta = {**(meta or {}), "taus": list(map(int, taus)), "n_dicts_per_tau": n_dicts,
                 "n_iter": n_iter, "seed": seed, "n_tensors": int(len(x)), **options,
                 "seconds": time.perf_counter() - t0, "init_seconds": init_seconds,
