@@ -10,6 +10,7 @@ decode/render -> evaluate.
 >>> paper = sb.encode(brdf, **sb.PAPER_OPTIONS)          # the paper's encoder
 >>> sb.save_sbrdf("gold.sbrdf", model)                   # about 1.6 kB (version 2)
 >>> small = sb.encode_to_bytes(brdf, n_bytes=1000)       # a file of at most 1000 bytes
+>>> summary = sb.encode_batch("materials/", "coded/")    # a folder: .sbrdf files, summary
 >>> rec = model.decode(sb.Ensemble.default())            # back to a BRDF
 >>> net = sb.train_nbrdf(brdf, time_budget=120)          # a Neural-BRDF network (675 floats)
 """
@@ -19,6 +20,7 @@ from .acquisition.measurements import Samples
 from .acquisition.pca import pca_from_samples
 from .acquisition.planning import plan as plan_samples
 from .acquisition.recovery import encode_samples
+from .batch import encode_batch
 from .brdf import BRDF
 from .coding.budget import encode_to_bytes
 from .coding.coefficients import SparseBRDF
@@ -57,7 +59,7 @@ __all__ = [
     "EnsembleMismatchError", "FlipResult", "PAPER_OPTIONS",
     "InvalidBRDFError", "Material", "NeuralFit", "SNRForms", "Samples", "SparseBRDF",
     "SparseBRDFError", "TRANSFORMS", "cosine_weighted_snr", "decode_file", "encode",
-    "encode_samples", "encode_to_bytes", "gamma_mse", "hdr_flip",
+    "encode_batch", "encode_samples", "encode_to_bytes", "gamma_mse", "hdr_flip",
     "get_corpus",
     "interpolate", "inverse_transform", "list_corpora", "load_brdf", "load_sbrdf",
     "mitsuba_catalog", "pca_from_samples", "plan_samples", "rae", "read_samples",

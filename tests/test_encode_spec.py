@@ -22,8 +22,9 @@ from sparse_brdf import (
     save_sbrdf,
 )
 from sparse_brdf.acquisition.planning import measure_table, plan
+from sparse_brdf.batch import encode_batch
 from sparse_brdf.cli import main
-from sparse_brdf.cli.files import encode_batch, encode_file
+from sparse_brdf.cli.files import encode_file
 from sparse_brdf.coding.ensemble import Ensemble
 from sparse_brdf.coding.interpolate import blend_files
 from sparse_brdf.errors import UsageError

@@ -21,10 +21,10 @@ import numpy as np
 import pytest
 
 from conftest import SMALL
+from sparse_brdf.batch import encode_batch
 from sparse_brdf.benchmark.bench import Bench
 from sparse_brdf.benchmark.bench_config import BenchConfig
 from sparse_brdf.cli import main
-from sparse_brdf.cli.files import encode_batch
 from sparse_brdf.coding.ensemble import Ensemble
 from sparse_brdf.coding.fileformat import load_sbrdf
 from sparse_brdf.parallel import start_executor

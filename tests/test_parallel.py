@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 from conftest import SMALL
+from sparse_brdf.batch import batch_sources, encode_batch, is_batch
 from sparse_brdf.benchmark.bench import Bench
 from sparse_brdf.benchmark.bench_config import BenchConfig
 from sparse_brdf.cli import main
-from sparse_brdf.cli.files import batch_sources, encode_batch, is_batch
 from sparse_brdf.coding.fileformat import load_sbrdf
 from sparse_brdf.parallel import InProcess, executor, start_executor
 from sparse_brdf.sources.load import load_brdf

@@ -9,6 +9,7 @@ import math
 import sys
 import time
 
+from ..batch import encode_batch, is_batch
 from ..coding import budget as budget_module
 from ..coding.budget import encode_to_bytes
 from ..coding.encode import encode
@@ -35,7 +36,7 @@ from ._options import (
     default_of,
     typed,
 )
-from .files import encode_batch, encode_file, is_batch
+from .files import encode_file
 
 
 def cmd_encode(args: argparse.Namespace) -> int:
