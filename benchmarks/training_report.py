@@ -5,8 +5,10 @@
 
 Writes ``training.png`` (relative objective per iteration), ``training_objective.png``
 (the objective curve: before and after each iteration's dictionary update, clusterings
-marked, and the fraction of tensors each clustering moved) and ``training.md`` (one
-table row per sparsity and iteration). With ``--checkpoint-dir`` the histories are read
+marked, and the fraction of tensors each clustering moved), ``training_time.png`` (where
+the time went: loading, and per sparsity its initialisation, clustering, dictionary
+updates and re-coding) and ``training.md`` (one table row per sparsity and iteration,
+with the same split of its seconds). With ``--checkpoint-dir`` the histories are read
 from a running (or interrupted) training's checkpoints instead.
 """
 
@@ -67,6 +69,42 @@ def _plot_objective(hist: dict, meta: dict, path: Path) -> None:
     fig.savefig(path, dpi=100)
 
 
+#: The phases of a sparsity's training, as its history records their seconds.
+PHASES = (("init", "initialisation"), ("seconds_cluster", "clustering"),
+          ("seconds_update", "dictionary update"), ("seconds_code", "re-coding"))
+
+
+def time_split(hist: dict, meta: dict) -> dict[str, dict[str, float]]:
+    """Seconds per phase (:data:`PHASES`) of each sparsity, and loading's (from ``meta``;
+    0 for checkpoints): {row: {phase: seconds}}."""
+    inits = meta.get("init_seconds", {})
+    rows = {"loading": {"loading": float(meta.get("load_seconds", 0.0))}}
+    for tau, h in hist.items():
+        rows[f"tau = {tau}"] = {label: (float(inits.get(tau, 0.0)) if key == "init" else
+                                        sum(float(r.get(key, 0.0)) for r in h))
+                                for key, label in PHASES}
+    return rows
+
+
+def _plot_time(rows: dict, path: Path) -> None:
+    import matplotlib.pyplot as plt  # lazy: slow to import; backend chosen by the caller
+
+    fig, ax = plt.subplots(figsize=(7, 3), constrained_layout=True)
+    labels = list(rows)[::-1]
+    phases = ["loading"] + [label for _, label in PHASES]
+    left = np.zeros(len(labels))
+    for n, phase in enumerate(phases):
+        w = np.array([rows[r].get(phase, 0.0) for r in labels])
+        ax.barh(labels, w, left=left, color=f"C{n}", label=phase)
+        left += w
+    for y, total in enumerate(left):
+        ax.text(total, y, f" {total:.0f} s", va="center", fontsize=8)
+    ax.set_xlabel(f"seconds (whole: {left.sum():.0f} s)")
+    ax.set_xlim(0, left.max() * 1.15)
+    ax.legend(fontsize=8, loc="lower right")
+    fig.savefig(path, dpi=100)
+
+
 def main() -> None:
     p = parser(__doc__, json_option=False)
     p.add_argument("ensemble", nargs="?", help="default: the shipped ensemble")
@@ -84,8 +122,8 @@ def main() -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6, 4), constrained_layout=True)
-    lines = ["| tau | iteration | clustered | moved | relative error | seconds |",
-             "|---|---|---|---|---|---|"]
+    lines = ["| tau | iteration | clustered | moved | relative error | seconds (clustering "
+             "+ update + re-coding) |", "|---|---|---|---|---|---|"]
     total = 0.0
     for tau, h in hist.items():
         ax.plot([r["iteration"] for r in h], [r["relative_objective"] for r in h], marker="o",
@@ -93,13 +131,23 @@ def main() -> None:
         for r in h:
             total += r["seconds"]
             lines.append(f"| {tau} | {r['iteration']} | {'yes' if r['assigned'] else 'no'} | "
-                         f"{r['moved']} | {r['relative_objective']:.4e} | {r['seconds']:.0f} |")
+                         f"{r['moved']} | {r['relative_objective']:.4e} | {r['seconds']:.0f} "
+                         f"({r.get('seconds_cluster', 0):.0f} + {r.get('seconds_update', 0):.0f}"
+                         f" + {r.get('seconds_code', 0):.0f}) |")
     ax.set_xlabel("iteration")
     ax.set_ylabel("training error / data energy (transformed)")
     ax.set_yscale("log")
     ax.legend()
     fig.savefig(out / "training.png", dpi=100)
     _plot_objective(hist, meta, out / "training_objective.png")
+    split = time_split(hist, meta)
+    _plot_time(split, out / "training_time.png")
+    lines += ["", "| where the time went | " + " | ".join(label for _, label in PHASES)
+              + " | total |", "|---" * (len(PHASES) + 2) + "|"]
+    for row, phases in split.items():
+        if row != "loading":
+            lines.append(f"| {row} | " + " | ".join(f"{v:.0f} s" for v in phases.values())
+                         + f" | {sum(phases.values()):.0f} s |")
     if meta:
         opts = ", ".join(f"{k} {meta[k]}" for k in ("masked", "init", "basis", "reassign_every",
                                                      "tol", "max_moved") if k in meta)

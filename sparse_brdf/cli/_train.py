@@ -65,7 +65,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         ens = Ensemble.load(args.extend).union(ens)
     ens.save(args.output)
     print(f"wrote {args.output}: {ens.n_dicts} dictionaries, id {ens.id}, "
-          f"trained in {ens.meta.get('seconds', 0):.0f} s on {len(x)} tensors")
+          f"trained in {ens.meta.get('seconds', 0):.0f} s on {len(x)} tensors, loaded in "
+          f"{load_s:.0f} s (benchmarks/training_report.py shows where the time went)")
     return 0
 
 
