@@ -299,7 +299,7 @@ def _add_decoder_options(r) -> None:
                    help="the scene's budget of per-material decoder data, in MiB, for "
                         "its auto-decoded .sbrdf materials: the fast tables go to the "
                         "materials that gain most per byte while they fit, the others "
-                        "take the compact decoder (None: the plugin's default, "
+                        "take the compact decoder (default: the plugin's, "
                         f"{DEFAULT_MEMORY_BUDGET // 2**20} MiB)")
     r.add_argument("--ensemble", help="ensemble .npz for .sbrdf materials "
                    "(default: the shipped one each file names)")
