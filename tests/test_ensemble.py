@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from sparse_brdf.coding.ensemble import Ensemble, resolve_ensemble, shipped_ids
+from sparse_brdf.coding.tensor import project
 from sparse_brdf.errors import BRDFFileError
 from sparse_brdf.training import _shards as shards_mod
 from sparse_brdf.training.train import train_dictionaries, train_ensemble
@@ -115,17 +116,45 @@ def test_extend_with_new_transform(small_training):
     assert "history" in u.meta["parts"][0]
 
 
-@pytest.mark.train
-def test_partial_product_cache_changes_nothing(small_training, monkeypatch):
-    """Keeping X x3 U3^T between the U1 and U2 passes gives the same dictionaries as
-    recomputing it (cache disabled by a zero byte budget)."""
-    x = small_training
-    kw = dict(tau=12, n_dicts=3, n_iter=4, reassign_every=2, seed=5, progress=False)
-    cached = train_dictionaries(x, **kw)
-    monkeypatch.setattr(shards_mod, "MAX_CACHE_BYTES", 0)
-    plain = train_dictionaries(x, **kw)
-    for name in ("u1", "u2", "u3", "labels", "codes_idx", "codes_val", "errors"):
-        np.testing.assert_array_equal(getattr(cached, name), getattr(plain, name), name)
+def _dense_partials(x, labels, codes_idx, codes_val, mode, n_dicts, u1, u2, u3):
+    """The Procrustes products Z of ``shard_partials`` from the whole products W (every
+    atom of the other two modes), the way the trainer first computed them."""
+    shape = x.shape[1:]
+    z = [None] * n_dicts
+    for i in range(len(x)):
+        j = labels[i]
+        us = [u1[j], u2[j], u3[j]]
+        us[mode] = np.eye(shape[mode], dtype=np.float32)  # W: mode `mode` left as it is
+        w = np.moveaxis(project(x[i], *us), mode, 0)  # (n_mode, the other two)
+        at = np.unravel_index(codes_idx[i], shape)
+        others = [at[k] for k in range(3) if k != mode]
+        part = np.zeros((shape[mode], shape[mode]))
+        for t in range(len(codes_val[i])):
+            part[:, at[mode][t]] += codes_val[i][t] * w[:, others[0][t], others[1][t]]
+        z[j] = part if z[j] is None else z[j] + part
+    return z
+
+
+def test_the_update_contracts_only_the_atoms_the_codes_use(small_training):
+    """The dictionary update's products from the code's own atoms equal those from the
+    whole mode products (to float32 rounding), in every mode."""
+    from sparse_brdf.training._tensor_store import TensorStore
+
+    x = small_training[:10]
+    rng = np.random.default_rng(3)
+    n_dicts, tau = 2, 20
+    shape = x.shape[1:]
+    us = [np.stack([np.linalg.qr(rng.standard_normal((n, n)))[0] for _ in range(n_dicts)]
+                   ).astype(np.float32) for n in shape]
+    labels = rng.integers(0, n_dicts, len(x))
+    idx = np.stack([rng.choice(np.prod(shape), tau, replace=False) for _ in x]).astype(np.int32)
+    val = rng.standard_normal((len(x), tau)).astype(np.float32)
+    store = TensorStore(x, masked=False)
+    for mode in range(3):
+        got = shards_mod.shard_partials(store, labels, idx, val, mode, n_dicts, *us)
+        want = _dense_partials(x, labels, idx, val, mode, n_dicts, *us)
+        for g, w in zip(got, want, strict=True):
+            np.testing.assert_allclose(g, w, rtol=1e-4, atol=1e-4 * np.abs(w).max())
 
 
 def test_default_ensemble_is_loaded_once_and_read_only():

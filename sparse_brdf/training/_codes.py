@@ -12,7 +12,6 @@ import numpy as np
 from ..coding.pruning import PrunedSearch, slice_order
 from ..coding.tensor import hosvd_factors, mode_grams, project, top_k
 from ..parallel import blas_single_thread, parallel_map
-from ._shards import drop_cache, shard_coefficients
 from ._tensor_store import TensorStore
 
 
@@ -163,14 +162,13 @@ def shard_assign(sh: TensorStore, known, tau, u1, u2, u3) -> tuple:
 
 
 def shard_code(sh: TensorStore, labels, tau, u1, u2, u3) -> tuple:
-    """Sparse-code each tensor of the shard in its own cluster's dictionary (from the
-    update's cached W3 where there is one); masked, then refill its free bins from the
-    new code. Returns the codes and errors."""
+    """Sparse-code each tensor of the shard in its own cluster's dictionary; masked, then
+    refill its free bins from the new code. Returns the codes and errors."""
 
     def one(i):
         j = labels[i]
         u = (u1[j], u2[j], u3[j])
-        return _code_tensor(sh, i, shard_coefficients(sh, i, u), tau, u)
+        return _code_tensor(sh, i, project(sh[i], *u), tau, u)
 
     n = len(sh)
     idx, val, err = np.zeros((n, tau), np.int32), np.zeros((n, tau), np.float32), np.zeros(n)
@@ -178,7 +176,6 @@ def shard_code(sh: TensorStore, labels, tau, u1, u2, u3) -> tuple:
         idx[i], val[i], err[i] = a, v, e
         if fill is not None:
             sh.set_fill(i, fill)
-    drop_cache(sh)
     return idx, val, err
 
 

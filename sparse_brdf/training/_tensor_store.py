@@ -35,7 +35,6 @@ class TensorStore:
         self.x, self.masked = x, masked
         self.shape = tuple(int(n) for n in x.shape[1:])
         self.grams: list | None = None  # mode Gram matrices, during the initialisation
-        self.cache: dict[int, np.ndarray] = {}  # mode-3 products (shards.shard_partials)
         self.raw_norms = sq_norms(x)  # of x as given (the checkpoint fingerprint)
         self.extra: dict[int, np.ndarray] = {}
         if not masked:
