@@ -26,6 +26,9 @@ def main() -> None:
     p = parser(__doc__, json_option=False)
     p.add_argument("results", help="results.json of a bench run with renders")
     p.add_argument("--scene", default="sphere", help="the bench scene to calibrate on")
+    p.add_argument("--out", type=Path, default=CALIBRATION_PATH,
+                   help="where to write the calibration (default: the package's, which "
+                        "fit-scene reads)")
     p.add_argument("--models", nargs="+", help="only these models' cells (names as in the "
                    "bench report; default: every sparse model)")
     args = p.parse_args()
@@ -44,9 +47,9 @@ def main() -> None:
                                               if c["model"] in (args.models or [])}),
            "scene": args.scene, "form": "object-only",
            "bench": res["config"], "date": time.strftime("%Y-%m-%d")}
-    CALIBRATION_PATH.write_text(json.dumps(cal, indent=1))
+    args.out.write_text(json.dumps(cal, indent=1))
     print(f"offset {cal['offset_db']:+.1f} dB (10-90 %: {cal['spread_db'][0]:+.1f} to "
-          f"{cal['spread_db'][1]:+.1f}) from {len(d)} cells; wrote {CALIBRATION_PATH}")
+          f"{cal['spread_db'][1]:+.1f}) from {len(d)} cells; wrote {args.out}")
 
 
 if __name__ == "__main__":

@@ -38,25 +38,28 @@ SETTINGS = {
 
 def main() -> None:
     p = parser(__doc__)
-    p.add_argument("--n", type=int, default=8, help="merl test materials")
+    p.add_argument("--n", type=int, default=8, help="test materials")
+    p.add_argument("--corpus", default="merl", help="whose test split")
+    p.add_argument("--settings", nargs="+", choices=list(SETTINGS), default=list(SETTINGS))
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("extra", nargs="*", help="arguments for encode (after --)")
     args = p.parse_args()
     print(header())
-    mats = [str(m.source) for m in get_corpus("merl").split("test")[: args.n]]
-    times = {m: {k: [] for k in SETTINGS} for m in mats}
+    mats = [str(m.source) for m in get_corpus(args.corpus).split("test")[: args.n]]
+    settings = {k: SETTINGS[k] for k in args.settings}
+    times = {m: {k: [] for k in settings} for m in mats}
     out = tempfile.mkdtemp(prefix="encode-memory-")
     for r in range(args.repeats):
         for m in mats:
-            for k in (list(SETTINGS) if r % 2 == 0 else list(SETTINGS)[::-1]):
+            for k in (list(settings) if r % 2 == 0 else list(settings)[::-1]):
                 t0 = time.perf_counter()
                 subprocess.run([sys.executable, "-m", "sparse_brdf.cli", "encode", m, "-o",
                                 os.path.join(out, f"{k}.sbrdf"), *args.extra], check=True,
-                               env=dict(os.environ, **SETTINGS[k]), cwd=out,
+                               env=dict(os.environ, **settings[k]), cwd=out,
                                stdout=subprocess.DEVNULL)
                 times[m][k].append(time.perf_counter() - t0)
     rows = {}
-    for k in SETTINGS:
+    for k in settings:
         med = [statistics.median(times[m][k]) for m in mats]
         rows[k] = {"mean": sum(med) / len(med), "per_material": med}
         print(f"{k:14s} mean {rows[k]['mean']:.3f} s  " + " ".join(f"{x:.2f}" for x in med))

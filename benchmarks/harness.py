@@ -19,7 +19,7 @@ command line and the options, so that every figure keeps its provenance::
             write_json(args.json, rows, args)
 
 Scripts run as ``.venv/bin/python benchmarks/NAME.py`` (the folder is then on the import
-path); finished experiments live in ``benchmarks/archive/`` (``benchmarks/README.md``).
+path); a script no guide cites is removed (git keeps it; ``benchmarks/README.md``).
 The machine is shared and its speed drifts: timings are only comparable within one run,
 which is why the header names the load average beside the date.
 """

@@ -59,17 +59,20 @@ def summarise(rows: list[dict]) -> dict:
                    for c, d in acc[m].items()}} for m in acc}
 
 
-def speeds(material: str) -> dict[str, float]:
+def speeds(material: str, models: list[str], pairs: int = 1 << 20) -> dict[str, float]:
+    """Evaluations per second of each model name of ``models`` (``SPEED_SPECS``), on
+    ``pairs`` random direction pairs per call."""
     brdf = load_brdf(material)
     train = [m.load() for m in get_corpus("mitsuba").split("train")[:5]]
     out = {}
-    for name, spec in SPEED_SPECS.items():
+    for name in models:
+        spec = SPEED_SPECS[name]
         model = make_model(spec)
         model.progress = False
         if model.learns:
             model.fit(train)
-        out[name] = evals_per_second(model.compress(brdf), ensemble=getattr(model, "ensemble",
-                                                                             None))
+        out[name] = evals_per_second(model.compress(brdf), pairs,
+                                     ensemble=getattr(model, "ensemble", None))
         print(f"{name}: {out[name] / 1e6:.1f} M evaluations/s", flush=True)
     return out
 
@@ -92,12 +95,16 @@ def main() -> None:
     ap.add_argument("--material", default="abc:blue-acrylic",
                     help="the material of the speed axis")
     ap.add_argument("--out", type=Path, default=Path("."), help="folder of the charts")
+    ap.add_argument("--speed-models", nargs="*", choices=list(SPEED_SPECS),
+                    default=list(SPEED_SPECS), help="the models whose speed is measured")
+    ap.add_argument("--pairs", type=int, default=1 << 20,
+                    help="direction pairs per timed call")
     args = ap.parse_args()
     summary = summarise(read_rows(args.csv))
     corpora = sorted({c for d in summary.values() for c in d if isinstance(d[c], dict)
                       and c != "all"}) + ["all"]
     print(header())
-    evals = speeds(args.material)
+    evals = speeds(args.material, args.speed_models, args.pairs)
     for scene in SCENES:
         print(f"\n{scene}, mean (min) rendering SNR in dB\n")
         print(table(summary, corpora, scene))

@@ -1,6 +1,7 @@
-"""Render timing shared by the render benchmarks (``bench_render.py`` and the archived
-``archive/bench_unrolled.py``): their options, default material, the sphere scene with a
-material swapped in, and the interleaved-rounds timing of a list of cases."""
+"""Render timing shared by the render benchmarks (``bench_render.py``,
+``bench_variants.py``, ``bench_lookup_call.py``): their options, default material, the
+sphere scene with a material swapped in, and the interleaved-rounds timing of a list of
+cases."""
 
 from __future__ import annotations
 
@@ -13,6 +14,9 @@ import numpy as np
 from harness import parser
 
 from sparse_brdf.paths import SCENES_DIR, shared_data_dir
+
+#: The package's BSDFs (they take a ``sampling`` property; Mitsuba's own do not).
+PLUGIN_BSDFS = ("sparse_brdf", "tabulated_brdf", "neural_brdf")
 
 
 def timed_render(scene, spp, repeats):
@@ -122,6 +126,9 @@ def swap_material(scene_path, bsdf_dict, args):
                    "film": {"type": "hdrfilm", "width": args.res, "height": args.res,
                             "rfilter": {"type": "box"}}},
         "emitter": {"type": "envmap", "filename": env},
-        # the renders the timings were recorded with: cosine sampling unless a case sets it
-        "sphere": {"type": "sphere", "bsdf": {"sampling": "cosine", **bsdf_dict}},
+        # the renders the timings were recorded with: the plugins' cosine sampling unless a
+        # case sets it (Mitsuba's own BSDFs take no sampling property)
+        "sphere": {"type": "sphere", "bsdf": ({"sampling": "cosine", **bsdf_dict}
+                                              if bsdf_dict["type"] in PLUGIN_BSDFS
+                                              else bsdf_dict)},
     }

@@ -63,11 +63,18 @@ def main() -> None:
     p.add_argument("--ref-spp", type=int, default=1024, help="spp of each reference render")
     p.add_argument("--ref-renders", type=int, default=4, help="renders averaged into the "
                                                               "reference")
+    p.add_argument("--res", type=int, default=None, help="resolution of every scene "
+                   "(default: each scene's own, 96)")
+    p.add_argument("--materials", nargs="+", default=list(MATERIALS), help="BRDF sources")
+    p.add_argument("--scenes", nargs="+", choices=[s[0].rsplit("/", 1)[-1] for s in SCENES],
+                   default=[s[0].rsplit("/", 1)[-1] for s in SCENES])
     args = p.parse_args()
     rows = []
     for scene, mid, res in SCENES:
-        for material in MATERIALS:
-            rows += measure(scene, mid, res, material, args)
+        if scene.rsplit("/", 1)[-1] not in args.scenes:
+            continue
+        for material in args.materials:
+            rows += measure(scene, mid, args.res or res, material, args)
     print(header())
     print(f"SNR against a {args.ref_renders} x {args.ref_spp} spp reference, mean of "
           f"{args.seeds} seeds at {args.spp} spp\n")

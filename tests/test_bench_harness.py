@@ -70,13 +70,6 @@ def test_scripts_import_no_sibling_script():
     assert bad == []
 
 
-def test_every_archived_experiment_has_a_readme_entry():
-    readme = (BENCH / "README.md").read_text()
-    archived = sorted(p.name for p in (BENCH / "archive").glob("*.py"))
-    assert archived
-    assert [n for n in archived if f"`archive/{n}`" not in readme] == []
-
-
 def test_every_live_script_has_a_readme_row():
     readme = (BENCH / "README.md").read_text()
     live = sorted(p.name for p in BENCH.glob("*.py"))
