@@ -152,7 +152,7 @@ def test_bench_renders_coefficient_files_with_its_own_ensemble(tmp_path, monkeyp
     """A bench configured with an ensemble file hands it to the sparse plugin (the plugin
     would otherwise decode with the shipped ensemble and refuse the files); both plugins
     sample cosine-weighted whatever their default, and the scene's parameters are set."""
-    import sparse_brdf.benchmark.bench as bench_mod
+    import sparse_brdf.benchmark.cells as cells_mod
 
     seen = []
 
@@ -162,17 +162,17 @@ def test_bench_renders_coefficient_files_with_its_own_ensemble(tmp_path, monkeyp
         seen.append((materials["material"], params, sparse_options))
         return np.zeros((2, 2, 3), np.float32)
 
-    monkeypatch.setattr(bench_mod, "render_scene", fake_render)
-    monkeypatch.setattr(bench_mod, "write_exr", lambda path, img: None)
+    monkeypatch.setattr(cells_mod, "render_scene", fake_render)
+    monkeypatch.setattr(cells_mod, "write_exr", lambda path, img: None)
     ens = small_ensemble.save(tmp_path / "ens.npz")
     cfg = BenchConfig(out=str(tmp_path / "out"), ensemble=str(ens))
     b = Bench(cfg, progress=False)
     spec = parse_scene_spec("sphere_light.xml:lightangle=40")
     assert spec.key == "sphere_light-lightangle=40"
-    b.scenes = {spec.key: spec}
+    b.cells.scenes = {spec.key: spec}
     (b.work / spec.key).mkdir(parents=True)
-    b._render(spec.key, "merl/x", str(tmp_path / "x.sbrdf"), 0, "m")
-    b._render(spec.key, "merl/x", str(tmp_path / "x.binary"), 0, "ref")
+    b.cells.render(spec.key, "merl/x", str(tmp_path / "x.sbrdf"), 0, "m")
+    b.cells.render(spec.key, "merl/x", str(tmp_path / "x.binary"), 0, "ref")
     assert seen == [(str(tmp_path / "x.sbrdf"), {"lightangle": "40"},
                      {"ensemble": str(ens.resolve())}),
                     (str(tmp_path / "x.binary"), {"lightangle": "40"}, None)]

@@ -10,8 +10,8 @@ import re
 import numpy as np
 import pytest
 
-from sparse_brdf.benchmark.bench import seed_mean
 from sparse_brdf.benchmark.bench_config import BenchConfig, render_seeds
+from sparse_brdf.benchmark.cells import seed_mean
 from sparse_brdf.benchmark.results_file import read_results
 from sparse_brdf.cli import main
 

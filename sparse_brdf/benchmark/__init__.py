@@ -1,7 +1,8 @@
 """The bench: models compared on materials and scenes, and its reports.
 
-- ``bench``: the resumable material x model x scene harness; ``bench_config``: its
-  configurations and their checks.
+- ``bench``: the resumable material x model x scene harness (the order of the work, and
+  its results file); ``cells``: what each cell computes (renders, SNR, HDR-FLIP, speed);
+  ``bench_config``: its configurations and their checks.
 - ``report``, ``html_report``: its tables, CSV and HTML page; ``charts``: its charts
   (SNR and HDR-FLIP against speed and bytes, error against coefficients); ``results_file``:
   the results schema; ``ranking``: several results files in one table; ``compare``:
@@ -14,6 +15,7 @@
 The renders themselves come from :mod:`sparse_brdf.evaluation`.
 """
 
-__all__ = ["acquisition_bench", "acquisition_report", "bench", "bench_config", "charts", "compare",
+__all__ = ["acquisition_bench", "acquisition_report", "bench", "bench_config", "cells", "charts",
+           "compare",
            "html_report", "provenance", "ranking", "report", "results_file", "speed",
            "stability"]

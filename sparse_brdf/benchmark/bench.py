@@ -26,35 +26,21 @@ from __future__ import annotations
 
 import copy
 import glob
-import json
-import math
 import shutil
 import sys
-import time
 import uuid
 from dataclasses import asdict
 from pathlib import Path
 
-import numpy as np
-
 from ..brdf import BRDF
 from ..coding.encode import error_curve
-from ..coding.ensemble import resolve_ensemble
-from ..coding.fileformat import VERSION, save_sbrdf
+from ..coding.ensemble import Ensemble, resolve_ensemble
+from ..coding.fileformat import VERSION
 from ..coding.spec import ENCODE_OPTIONS
-from ..compared.compact import Compact
-from ..compared.protocol import ComparedModel, check_compressed, table_of
-from ..errors import (
-    MissingDataError,
-    one_line,
-)
-from ..evaluation.images import read_exr, write_exr
-from ..evaluation.render import SHARED_PATHS, noise_floor_snr, object_mask, render_scene
-from ..evaluation.scenes import SceneSpec, check_scene_data, parse_scene_spec
+from ..errors import MissingDataError, one_line
+from ..evaluation.scenes import check_scene_data, parse_scene_spec
 from ..fileio import atomic_write, parse_strict_json, strict_json
-from ..metrics import cosine_weighted_snr, gamma_mse, hdr_flip, rae, snr_forms
 from ..parallel import Executor, InProcess
-from ..sources.merl import write_merl
 from .bench_config import (
     BenchConfig,
     check_training_set,
@@ -63,50 +49,54 @@ from .bench_config import (
     learners_training_set,
     make_models,
     material_key,
-    render_seeds,
 )
+from .cells import CellRunner
 from .html_report import write_html_report
 from .provenance import cell_provenance, environment_provenance, stale_cells
 from .report import failed_cells, write_report
 from .results_file import READ_SCHEMAS, SCHEMA, environment
-from .speed import measure_speed
 from .stability import run_stability
 
-__all__ = ["Bench", "seed_mean"]
+__all__ = ["Bench", "BenchResults"]
 
-class Bench:
-    """Runs a :class:`BenchConfig`; results accumulate in ``self.results``. Decoded tables
-    (``work/*.binary``, 35 MB each) are deleted once used unless ``keep_work``."""
 
-    def __init__(self, cfg: BenchConfig, progress: bool = True, keep_work: bool = False):
-        self.cfg, self.keep_work = cfg, keep_work
-        self.out = Path(cfg.out)
-        self.work = self.out / "work"
-        self.progress = progress
-        self.ensemble = resolve_ensemble(cfg.ensemble)  # read once: provenance and models
-        self.results = self._load_results()
-        self.scenes: dict[str, SceneSpec] = {}  # scene key -> spec, the scenes that can run
-        self._masks: dict[str, np.ndarray] = {}
-        self.cell_speed = True  # measure each model's speed in its first cell
-        self._cell_provenance: dict[str, dict] = {}  # model name -> its cells' (run())
-        self._loaded: tuple = (None, None)  # the last material loaded (key, BRDF)
+class BenchResults:
+    """The results of one bench folder (``results.json``): started fresh, or resumed from
+    an earlier run of the same config (its models aside: each cell has its own
+    provenance), ensemble, encoder, renderer and machine; saved atomically; the cells
+    whose provenance changed dropped with their cached renders.
 
-    # ------------------------------------------------------------------ bookkeeping
-    def _provenance(self) -> dict:
+    Parameters
+    ----------
+    cfg : BenchConfig
+        The bench's config.
+    ensemble : Ensemble
+        The ensemble the sparse models use (part of the results' provenance).
+    work : Path
+        The bench's cache of renders and files (emptied when earlier results go).
+    """
+
+    def __init__(self, cfg: BenchConfig, ensemble: Ensemble, work: Path):
+        self.path = Path(cfg.out) / "results.json"
+        self.work = work
+        self.data = self._load(cfg, ensemble)
+
+    @staticmethod
+    def provenance(ensemble: Ensemble) -> dict:
         """What every result depends on beyond the config: the ensemble the sparse models
         use, the encoder's defaults, the .sbrdf version written (all changed between
         versions), the renderer's versions and the machine (the reference renders)."""
-        return {"ensemble": self.ensemble.id,
+        return {"ensemble": ensemble.id,
                 "encoder_defaults": dict(ENCODE_OPTIONS), "sbrdf_version": VERSION,
                 "environment": environment_provenance()}
 
-    def _load_results(self) -> dict:
+    def _load(self, cfg: BenchConfig, ensemble: Ensemble) -> dict:
         """Earlier results of this config (a resumed run), else a fresh record; results of
         another config (its models aside: each cell has its own provenance), ensemble,
         encoder, renderer or machine are discarded with the renders they cached."""
-        p = self.out / "results.json"
-        fresh = {"schema": SCHEMA, "run": uuid.uuid4().hex, "config": asdict(self.cfg),
-                 "provenance": self._provenance(), "cells": {}, "curves": {},
+        p = self.path
+        fresh = {"schema": SCHEMA, "run": uuid.uuid4().hex, "config": asdict(cfg),
+                 "provenance": self.provenance(ensemble), "cells": {}, "curves": {},
                  "noise_floor": {}, "speed": {}, "speed_spread": {},
                  "skipped_scenes": {}}
         if p.is_file():
@@ -121,9 +111,59 @@ class Bench:
                 shutil.rmtree(self.work)
         return fresh
 
+    def save(self) -> None:
+        """Write ``results.json`` (strict JSON), atomically."""
+        with atomic_write(self.path, "w") as f:
+            f.write(strict_json(self.data))
+
+    def drop_stale_cells(self, provenance: dict[str, dict], n_cells: int) -> None:
+        """Drop the recorded cells whose provenance changed (:func:`stale_cells`), with
+        their cached renders and their models' speeds; say on stdout how many cells are
+        kept, when there were any. ``provenance``: each model's current cell provenance
+        (by model name)."""
+        cells = self.data["cells"]
+        if not cells:
+            return
+        stale, kept = stale_cells(cells, provenance)
+        changed = {cells[key]["model"] for key in stale} & set(provenance)
+        n_changed = sum(cells[key]["model"] in changed for key in stale)
+        for key in stale:
+            stem = f"{file_stem(key.split('|')[0])}__{cells.pop(key)['model']}"
+            for scene in self.work.glob("*/"):
+                for suffix in (".exr", ".json", ".flip.npy"):
+                    (scene / f"{stem}{suffix}").unlink(missing_ok=True)  # cached outputs
+                for f in scene.glob(f"{glob.escape(stem)}@s*"):  # of the other seeds
+                    f.unlink(missing_ok=True)
+        for name in list(self.data["speed"]):
+            if name in changed or name not in provenance:
+                del self.data["speed"][name]
+                self.data.get("speed_spread", {}).pop(name, None)
+        print(f"bench: kept {kept} of {n_cells} cells, {n_cells - kept} to compute "
+              f"({n_changed} recorded with another model source, options or environment)")
+
+
+class Bench:
+    """Runs a :class:`BenchConfig`: the materials, the models (trained where they learn)
+    and the order of the work, on an executor; results accumulate in ``self.results``
+    (kept by :class:`BenchResults`), the cells are computed by a
+    :class:`~sparse_brdf.benchmark.cells.CellRunner` (``self.cells``), and the reports are
+    written at the end (``report``, ``html_report``). Decoded tables (``work/*.binary``,
+    35 MB each) are deleted once used unless ``keep_work``."""
+
+    def __init__(self, cfg: BenchConfig, progress: bool = True, keep_work: bool = False):
+        self.cfg, self.keep_work = cfg, keep_work
+        self.out = Path(cfg.out)
+        self.work = self.out / "work"
+        self.progress = progress
+        self.ensemble = resolve_ensemble(cfg.ensemble)  # read once: provenance and models
+        self.store: BenchResults | None = BenchResults(cfg, self.ensemble, self.work)
+        self.results = self.store.data
+        self.cells = CellRunner(cfg, self.work, keep_work, self.results)
+        self._cell_provenance: dict[str, dict] = {}  # model name -> its cells' (run())
+        self._loaded: tuple = (None, None)  # the last material loaded (key, BRDF)
+
     def _save(self) -> None:
-        with atomic_write(self.out / "results.json", "w") as f:
-            f.write(strict_json(self.results))
+        self.store.save()
 
     def materials(self) -> list:
         """The materials the bench evaluates (:func:`evaluated_materials`)."""
@@ -143,7 +183,7 @@ class Bench:
                 self.results["skipped_scenes"][spec.key] = str(exc)
                 print(f"bench: skipping scene {spec.key}: {exc}", file=sys.stderr)
                 continue
-            self.scenes[spec.key] = spec
+            self.cells.scenes[spec.key] = spec
 
     # ------------------------------------------------------------------ running
     def run(self, ex: Executor | None = None) -> dict:
@@ -159,7 +199,7 @@ class Bench:
         self._cell_provenance = {m.name: cell_provenance(spec)
                                  for spec, m in zip(self.cfg.models, models, strict=True)}
         mats = self.materials()
-        self._drop_stale_cells(len(models) * len(mats))
+        self.store.drop_stale_cells(self._cell_provenance, len(models) * len(mats))
         self._train(models, mats)
         self._run_cells(ex or InProcess(), ens, models, mats)
         for table in [] if self.keep_work else self.work.glob("*__reference.binary"):
@@ -173,7 +213,7 @@ class Bench:
             brdf = mats[0].load()
             for mod in missing:
                 try:
-                    self._speed(mod, mod.compress(brdf))
+                    self.cells.speed(mod, mod.compress(brdf))
                 except Exception as exc:  # noqa: BLE001 - as in a cell: never stops the run
                     print(f"bench: no speed for {mod.name}: {type(exc).__name__}: "
                           f"{one_line(exc)}", file=sys.stderr)
@@ -199,37 +239,14 @@ class Bench:
                   f"{first['material']}: {one_line(first['error'])})", file=sys.stderr)
         return self.results
 
-    def _drop_stale_cells(self, n_cells: int) -> None:
-        """Drop the recorded cells whose provenance changed (:func:`stale_cells`), with
-        their cached renders and their models' speeds; say on stdout how many cells are
-        kept, when there were any."""
-        cells = self.results["cells"]
-        if not cells:
-            return
-        stale, kept = stale_cells(cells, self._cell_provenance)
-        changed = {cells[key]["model"] for key in stale} & set(self._cell_provenance)
-        n_changed = sum(cells[key]["model"] in changed for key in stale)
-        for key in stale:
-            stem = f"{file_stem(key.split('|')[0])}__{cells.pop(key)['model']}"
-            for scene in self.work.glob("*/"):
-                for suffix in (".exr", ".json", ".flip.npy"):
-                    (scene / f"{stem}{suffix}").unlink(missing_ok=True)  # cached outputs
-                for f in scene.glob(f"{glob.escape(stem)}@s*"):  # of the other seeds
-                    f.unlink(missing_ok=True)
-        for name in list(self.results["speed"]):
-            if name in changed or name not in self._cell_provenance:
-                del self.results["speed"][name]
-                self.results.get("speed_spread", {}).pop(name, None)
-        print(f"bench: kept {kept} of {n_cells} cells, {n_cells - kept} to compute "
-              f"({n_changed} recorded with another model source, options or environment)")
-
     def _run_cells(self, ex: Executor, ens, models, mats) -> None:
         """Each material's error curve and reference renders, then every cell, on ``ex``;
         each result is saved as it arrives (so an interrupted bench resumes)."""
         from tqdm.auto import tqdm  # lazy: tqdm.auto adds ~40 ms to `sparse-brdf --help`
 
         todo_mats = [m for m in mats if material_key(m) not in self.results["curves"] or any(
-            material_key(m) not in self.results["noise_floor"].get(s, {}) for s in self.scenes)]
+            material_key(m) not in self.results["noise_floor"].get(s, {})
+            for s in self.cells.scenes)]
         cells = self.results["cells"]  # failed cells run again: the model may be mended
         todo = [(m, mod) for m in mats for mod in models
                 if cells.get(f"{material_key(m)}|{mod.name}", {}).get("status") != "finished"]
@@ -260,10 +277,12 @@ class Bench:
         ``missing`` pass of :meth:`run`), its scenes' object masks computed beforehand."""
         if not ex.distributed:
             return self
-        for scene in self.scenes:
-            self._mask(scene)
-        lite = copy.copy(self)
-        lite.results, lite.progress, lite.cell_speed = {"speed": {}}, False, False
+        for scene in self.cells.scenes:
+            self.cells.mask(scene)
+        lite, lite_cells = copy.copy(self), copy.copy(self.cells)
+        lite.results = lite_cells.results = {"speed": {}}
+        lite.store, lite.cells, lite.progress = None, lite_cells, False
+        lite_cells.cell_speed = False
         return lite
 
     def _load(self, m) -> BRDF:
@@ -289,176 +308,6 @@ class Bench:
         """Error against coefficients and the transform choices (Fig. 2, Table 2)."""
         return error_curve(brdf, ens, self.cfg.curve_coeffs)
 
-    # ------------------------------------------------------------------ rendering
-    def _mask(self, scene: str) -> np.ndarray:
-        """The object pixels of ``scene`` at the bench's resolution (cached on disk)."""
-        if scene not in self._masks:
-            path = self.work / scene / "object_mask.npy"
-            if path.is_file():
-                mask = np.load(path)
-            else:
-                spec = self.scenes[scene]
-                mask = object_mask(spec.path, res=self.cfg.res, params=spec.params,
-                                   materials=["material"])
-                path.parent.mkdir(parents=True, exist_ok=True)
-                with atomic_write(path, "wb") as f:
-                    np.save(f, mask)
-            self._masks[scene] = mask
-        return self._masks[scene]
-
-    def _render(self, scene: str, key: str, filename: str, seed: int,
-                tag: str) -> tuple[np.ndarray, float]:
-        exr = self.work / scene / f"{file_stem(key)}__{tag}.exr"
-        if exr.is_file():
-            meta = json.loads(exr.with_suffix(".json").read_text())
-            return read_exr(exr), meta["seconds"]
-        t0 = time.perf_counter()
-        # coefficient files decode with the bench's ensemble file (a shipped one given by
-        # id is found from the file itself)
-        ens = ({"ensemble": str(Path(self.cfg.ensemble).resolve())}
-               if self.cfg.ensemble and filename.endswith(".sbrdf")
-               and Path(self.cfg.ensemble).exists() else None)
-        spec = self.scenes[scene]
-        img = render_scene(spec.path, {"material": filename}, spp=self.cfg.spp,
-                           seed=seed, res=self.cfg.res, params=spec.params,
-                           sparse_options=ens, sampling=SHARED_PATHS)
-        seconds = time.perf_counter() - t0
-        write_exr(exr, img)
-        with atomic_write(exr.with_suffix(".json"), "w") as f:
-            json.dump({"seconds": seconds}, f)
-        return img, seconds
-
-    def _scene_figures(self, scene: str, key: str, model: str, ref_file: str,
-                       path: str) -> dict:
-        """A model's figures in ``scene``: both SNR forms, HDR-FLIP and the render's
-        seconds, rendered at each of the bench's seeds (:func:`render_seeds`) beside the
-        reference at the same seed; with several seeds, their mean and standard error."""
-        per = []
-        for i, seed in enumerate(render_seeds(self.cfg)):
-            tag = "" if i == 0 else f"@s{seed}"  # the first seed's files keep their names
-            ref, _ = self._render(scene, key, ref_file, seed, f"reference{tag}")
-            img, secs = self._render(scene, key, path, seed, f"{model}{tag}")
-            per.append({**snr_forms(ref, img, self._mask(scene)).as_dict(),
-                        "flip": self._flip(scene, key, model, ref, img, keep=i == 0),
-                        "render_s": secs})
-        return seed_mean(per)
-
-    def _flip(self, scene: str, key: str, model: str, ref: np.ndarray,
-              img: np.ndarray, keep: bool = True) -> float | None:
-        """HDR-FLIP of a model's render over the object's pixels; its error map is kept
-        (``keep``) beside the render (``work/SCENE/MATERIAL__MODEL.flip.npy``, float16)
-        for the reports. None where FLIP is undefined (a black reference)."""
-        try:
-            res = hdr_flip(ref, img, self._mask(scene))
-        except ValueError as exc:
-            print(f"bench: no HDR-FLIP for {key} / {model} in {scene}: {exc}", file=sys.stderr)
-            return None
-        if not keep:
-            return res.mean
-        path = self.work / scene / f"{file_stem(key)}__{model}.flip.npy"
-        with atomic_write(path, "wb") as f:
-            np.save(f, res.map.astype(np.float16))
-        return res.mean
-
-    def _reference_file(self, key: str, brdf) -> str:
-        ref_file = self.work / f"{file_stem(key)}__reference.binary"
-        if not ref_file.is_file():
-            write_merl(ref_file, brdf)
-        return str(ref_file)
-
-    def _references(self, key: str, brdf) -> dict:
-        """Reference renders of every scene; the noise floor of each (both SNR forms)."""
-        floors: dict = {}
-        if not self.cfg.render:
-            return floors
-        ref_file = self._reference_file(key, brdf)
-        for scene in self.scenes:
-            ref, _ = self._render(scene, key, ref_file, self.cfg.seed, "reference")
-            alt, _ = self._render(scene, key, ref_file, self.cfg.noise_seed, "reference-seed2")
-            floors[scene] = noise_floor_snr(ref, alt, self._mask(scene)).as_dict()
-        return floors
-
-    def _speed(self, model: ComparedModel, compact) -> None:
-        """Evaluations per second of ``model``'s own evaluator, measured once per model
-        (the median of repeated timings; their min and max in ``speed_spread``); None for
-        an outside model without a Dr.Jit evaluator (``drjit_evaluator()``)."""
-        if not self.cfg.speed or model.name in self.results["speed"]:
-            return
-        if not (isinstance(compact, Compact) or hasattr(compact, "drjit_evaluator")):
-            self.results["speed"][model.name] = None
-            return
-        rate = measure_speed(compact, n=self.cfg.speed_evals,
-                             ensemble=getattr(model, "ensemble", None))
-        self.results["speed"][model.name] = rate.median
-        self.results.setdefault("speed_spread", {})[model.name] = rate.spread()
-
-    def _cell(self, key: str, brdf, model: ComparedModel) -> dict:
-        row = {"material": key, "model": model.name}
-        try:
-            t0 = time.perf_counter()
-            compact = model.compress(brdf)
-            problem = check_compressed(compact)
-            if problem:
-                raise TypeError(f"{model.name}: compress() returned a "
-                                f"{type(compact).__name__}: {problem}")
-            rec = table_of(compact, brdf)
-            row["fit_s"] = time.perf_counter() - t0
-            if not np.all(np.isfinite(rec)):
-                raise FloatingPointError("reconstruction holds NaN/inf")
-            row.update(bytes=int(compact.nbytes), rae=rae(brdf.values, rec, brdf.valid),
-                       cos_snr=cosine_weighted_snr(brdf.values, rec, brdf.valid),
-                       gamma_mse=gamma_mse(brdf.values, rec, brdf.valid))
-            info = (getattr(compact, "info", None) or {}) if isinstance(compact, Compact) \
-                else {}
-            if "transform" in info:
-                row["transform"] = info["transform"]
-            if self.cfg.render and self.scenes:
-                base = self.work / f"{file_stem(key)}__{model.name}"
-                if "model" in info:
-                    path = str(save_sbrdf(base.parent / f"{base.name}.sbrdf", info["model"],
-                                          info.get("version", VERSION)))
-                else:
-                    path = str(write_merl(base.parent / f"{base.name}.binary",
-                                          BRDF(rec, brdf.valid, brdf.name)))
-                ref_file = self._reference_file(key, brdf)
-                try:
-                    row["renders"] = {scene: self._scene_figures(scene, key, model.name,
-                                                                 ref_file, path)
-                                      for scene in self.scenes}
-                finally:  # the decoded table: 35 MB, rendered now, cached as renders
-                    if not self.keep_work and path.endswith(".binary"):
-                        Path(path).unlink(missing_ok=True)
-            if self.cell_speed:
-                self._speed(model, compact)
-            row["status"] = "finished"
-        except Exception as exc:  # noqa: BLE001 - one model's failure never stops the run
-            row["status"] = "failed"
-            row["error"] = f"{type(exc).__name__}: {one_line(exc)}"
-        return row
-
-
-
-def seed_mean(per: list[dict]) -> dict:
-    """One scene's figures over several seeds: each figure's mean, and for the SNRs and
-    HDR-FLIP their standard error (``KEY_se``: sample standard deviation over sqrt(N);
-    nan when a seed's figure is not finite) and ``seeds``, N; one seed's figures as they
-    are. A figure missing (None) at any seed is None."""
-    if len(per) == 1:
-        return per[0]
-    out: dict = {"seeds": len(per)}
-    for k in ("snr_object", "snr_whole", "flip", "render_s"):
-        v = [p[k] for p in per]
-        if any(x is None for x in v):
-            out[k] = None
-            continue
-        arr = np.array(v, float)
-        out[k] = float(arr.mean())
-        if k != "render_s":
-            out[f"{k}_se"] = (float(arr.std(ddof=1) / np.sqrt(len(arr)))
-                              if np.all(np.isfinite(arr)) else
-                              0.0 if np.all(arr == arr[0]) else math.nan)
-    return out
-
 
 def _settings(config) -> dict | None:
     """A results file's config without its models (each cell has its own provenance)."""
@@ -469,10 +318,10 @@ def _settings(config) -> dict | None:
 def _material_task(m, bench: Bench, ens) -> tuple[dict, dict]:
     """A material's error curve and noise floors (reference renders), for any executor."""
     brdf = bench._load(m)
-    return bench._curve(brdf, ens), bench._references(material_key(m), brdf)
+    return bench._curve(brdf, ens), bench.cells.references(material_key(m), brdf)
 
 
 def _cell_task(item: tuple, bench: Bench) -> dict:
     """One cell (material, model), for any executor."""
     m, model = item
-    return bench._cell(material_key(m), bench._load(m), model)
+    return bench.cells.cell(material_key(m), bench._load(m), model)

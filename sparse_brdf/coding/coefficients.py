@@ -26,6 +26,10 @@ class SparseBRDF:
     """A BRDF encoded over an ensemble (Tongbuasirilai et al., "A Sparse Non-parametric
     BRDF Model"; stored as in ``docs/file-format.md``).
 
+    Long because it is the coded material's one data type: its checks and its three
+    decodings (the coded tensor, the transformed table, the BRDF) and its evaluation at
+    direction pairs share the same per-channel arithmetic, and each is short.
+
     Attributes
     ----------
     transform : str

@@ -29,6 +29,10 @@ from ..transforms import PAPER_TRANSFORMS, TRANSFORMS
 class Ensemble:
     """K dictionaries of orthonormal mode matrices.
 
+    Long because it is the ensemble's one data type: its checks, identity (content hash),
+    file format (save, load) and the shipped ensembles' lookup belong to it, and each is
+    short.
+
     Attributes
     ----------
     u1, u2, u3 : ndarray of shape (K, n1, n1), (K, n2, n2), (K, n3, n3), float32

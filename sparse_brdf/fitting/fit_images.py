@@ -28,6 +28,7 @@ fast; the scenes are loaded through :func:`sparse_brdf.evaluation.render.load_sc
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -194,7 +195,138 @@ def _load_views(scene, views, material, start_path, spp, seed, variant, options)
     return out
 
 
-def fit_images(  # long: the fit loop with its checkpointing and progress bar
+def _check_request(views: Sequence[View], optimizer: str, loss: str, shared_paths: bool,
+                   variant: str, **values) -> None:
+    """Check a fit's request before any work (``values``: the ranged parameters by name);
+    a :class:`~sparse_brdf.errors.UsageError` names what is wrong."""
+    if not views:
+        raise UsageError("fit-images: give at least one reference view")
+    for name, value in values.items():
+        check(name, value, PARAMETERS[name])
+    if optimizer not in OPTIMIZERS:
+        raise UsageError(f"fit-images: optimizer {optimizer!r}: use one of "
+                         f"{', '.join(OPTIMIZERS)}")
+    if loss not in LOSSES:
+        raise UsageError(f"fit-images: loss {loss!r}: use one of {', '.join(LOSSES)}")
+    if optimizer == "lbfgs" and not shared_paths:
+        raise UsageError("fit-images: the lbfgs optimizer needs the shared-path loss "
+                         "(shared_paths=True)")
+    if "_ad_" not in variant:
+        raise UsageError(f"fit-images: variant {variant!r} is not differentiable: use an "
+                         "llvm_ad_* or cuda_ad_* variant")
+
+
+def _start_model(start: str | os.PathLike | SparseBRDF,
+                 ensemble: str | os.PathLike | Ensemble | None) -> SparseBRDF:
+    """The fit's starting model: ``start`` itself, or the file read with its ensemble
+    (``ensemble``, else the shipped one the file names)."""
+    ens = ensemble if isinstance(ensemble, Ensemble) else None
+    if isinstance(start, SparseBRDF):
+        return start
+    ens = ens or resolve_ensemble(ensemble, for_id=load_sbrdf(start).ensemble_id)
+    return load_sbrdf(start, ens)
+
+
+def _settings(*, lr, lr_end, spp, seed, material, decoder, variant, shared_paths,
+              optimizer, loss, prior_weight, validation, validate_every) -> dict:
+    """The settings a checkpoint's fingerprint covers; those at their defaults (optimizer,
+    loss, prior, validation) are left out, so older checkpoints still resume."""
+    return {"lr": lr, "lr_end": lr_end, "spp": spp, "seed": seed, "material": material,
+            "decoder": decoder, "variant": variant, "shared_paths": shared_paths,
+            **({"optimizer": optimizer} if optimizer != "adam" else {}),
+            **({"loss": loss} if loss != "relative" else {}),
+            **({"prior_weight": prior_weight} if prior_weight else {}),
+            **({"validation": validation, "validate_every": validate_every}
+               if validation else {})}
+
+
+def _scaled_optimizer(model: SparseBRDF, lr: float) -> tuple:
+    """Mitsuba's Adam over the relative values ``u = value / scale`` of each coded channel
+    (``scale``: the value's starting magnitude, floored at ``SCALE_FLOOR`` of its
+    channel's largest); returns ``(opt, scales, u0)``, ``u0`` the start's relative values
+    (1, or less below the floor), the prior's centre, float64 of shape (total values,)."""
+    import drjit as dr  # lazy: Mitsuba and Dr.Jit are slow to import (see the module doc)
+    import mitsuba as mi
+
+    scales = []
+    opt = mi.ad.Adam(lr=lr)
+    for c, key in enumerate(VALUE_KEYS):
+        v = np.asarray(model.values[c], np.float32)
+        top = float(np.max(np.abs(v))) if v.size else 1.0
+        s = np.maximum(np.abs(v), SCALE_FLOOR * max(top, 1e-30)).astype(np.float32)
+        scales.append(mi.Float(s))
+        opt[key] = mi.Float((v / s).astype(np.float32))
+    u0 = np.concatenate([np.array(dr.detach(opt[k]), np.float64) for k in VALUE_KEYS])
+    return opt, scales, u0
+
+
+def _plugin_options(decoder: str, ensemble: str | os.PathLike | Ensemble | None,
+                    tmp: Path) -> dict:
+    """The ``sparse_brdf`` plugin's options for the fit's renders: the decoder and, when
+    one is given, the ensemble's file (an in-memory ensemble saved into ``tmp``)."""
+    ens_path = None
+    if ensemble is not None:
+        ens_path = (str(ensemble) if not isinstance(ensemble, Ensemble)
+                    else str(ensemble.save(tmp / "ensemble.npz")))
+    return {"decoder": decoder, **({"ensemble": ens_path} if ens_path else {})}
+
+
+def _values(opt, scales: list) -> list[np.ndarray]:
+    """The coded channels' values at the optimiser's current relative values ``u``:
+    ``u * scale``, float32 of shape (T_c,) each."""
+    import drjit as dr  # lazy: Mitsuba and Dr.Jit are slow to import (see the module doc)
+
+    return [np.array(dr.detach(opt[k] * s), np.float32)
+            for k, s in zip(VALUE_KEYS, scales, strict=True)]
+
+
+def _resume(checkpoint_dir: str | os.PathLike | None, opt, fp: str,
+            monitor: Monitor) -> tuple[Path | None, int, list]:
+    """``(checkpoint file, iterations done, SNR per iteration so far)``: resumed from
+    ``checkpoint_dir``'s checkpoint of this fit (``fp``) when there is one (the
+    optimiser's values and the monitor restored), else from the start."""
+    ckpt = Path(checkpoint_dir) / "fit-images.npz" if checkpoint_dir else None
+    done, snr = 0, []
+    if ckpt is not None and ckpt.is_file():
+        done, snr, data = read_checkpoint(ckpt, opt, fp)
+        monitor.restore(data, done)
+    elif ckpt is not None:
+        ckpt.parent.mkdir(parents=True, exist_ok=True)
+    return ckpt, done, snr
+
+
+def _run_lbfgs(scene, *args) -> None:
+    """:func:`~sparse_brdf.fitting._steps.run_lbfgs` with ``args``; a render that fails
+    is a :class:`~sparse_brdf.errors.RenderError` naming ``scene``."""
+    try:
+        run_lbfgs(*args)
+    except RuntimeError as exc:
+        raise RenderError(f"{scene}: rendering failed during the fit: {exc}") from exc
+
+
+def _run_adam(scene, scenes, opt, scales, u0, current, monitor, bar, snr: list,
+              steps: range, *, iterations, lr, lr_end, seed, spp, shared_paths, log,
+              prior_weight, ckpt, checkpoint_every, fp) -> None:
+    """Adam's iterations ``steps`` (each renders every view once and takes one step, at
+    the learning rate falling geometrically from ``lr`` to ``lr * lr_end``), appending
+    each one's SNR (dB) to ``snr``; the monitor, the bar and the checkpoint follow."""
+    for it in steps:
+        opt.set_learning_rate(lr * lr_end ** (it / max(iterations - 1, 1)))
+        try:
+            gseed = seed if shared_paths else seed + 1 + it * len(scenes)
+            snr.append(take_step(scenes, opt, scales, seed, gseed, spp, log,
+                                 prior_weight, u0))
+            monitor(it + 1, current(), force=it + 1 == iterations)
+        except RuntimeError as exc:
+            raise RenderError(f"{scene}: rendering failed during the fit: "
+                              f"{exc}") from exc
+        bar.set_postfix(snr_db=f"{snr[-1]:.2f}")
+        bar.update(1)
+        if ckpt is not None and ((it + 1) % checkpoint_every == 0 or it + 1 == iterations):
+            write_checkpoint(ckpt, it + 1, opt, snr, fp, monitor.state())
+
+
+def fit_images(
     scene: str | os.PathLike,
     views: Sequence[View],
     start: str | os.PathLike | SparseBRDF,
@@ -298,41 +430,15 @@ def fit_images(  # long: the fit loop with its checkpointing and progress bar
     FitResult
         The fitted model (the start's support with the new values) and the record.
     """
-    if not views:
-        raise UsageError("fit-images: give at least one reference view")
-    for name, value in (("iterations", iterations), ("lr", lr), ("lr_end", lr_end),
-                        ("spp", spp), ("prior_weight", prior_weight),
-                        ("validate_every", validate_every)):
-        check(name, value, PARAMETERS[name])
-    if optimizer not in OPTIMIZERS:
-        raise UsageError(f"fit-images: optimizer {optimizer!r}: use one of "
-                         f"{', '.join(OPTIMIZERS)}")
-    if loss not in LOSSES:
-        raise UsageError(f"fit-images: loss {loss!r}: use one of {', '.join(LOSSES)}")
-    if optimizer == "lbfgs" and not shared_paths:
-        raise UsageError("fit-images: the lbfgs optimizer needs the shared-path loss "
-                         "(shared_paths=True)")
-    if "_ad_" not in variant:
-        raise UsageError(f"fit-images: variant {variant!r} is not differentiable: use an "
-                         "llvm_ad_* or cuda_ad_* variant")
-    import drjit as dr  # lazy: Mitsuba and Dr.Jit are slow to import (see the module doc)
-    import mitsuba as mi
+    _check_request(views, optimizer, loss, shared_paths, variant, iterations=iterations,
+                   lr=lr, lr_end=lr_end, spp=spp, prior_weight=prior_weight,
+                   validate_every=validate_every)
     from tqdm import tqdm  # lazy: only long jobs show a bar
 
-    ens = ensemble if isinstance(ensemble, Ensemble) else None
-    if isinstance(start, SparseBRDF):
-        model = start
-        ens = ens or resolve_ensemble(ensemble, for_id=model.ensemble_id)
-    else:
-        ens = ens or resolve_ensemble(ensemble, for_id=load_sbrdf(start).ensemble_id)
-        model = load_sbrdf(start, ens)
-    ens_path = None
+    model = _start_model(start, ensemble)
     with tempfile.TemporaryDirectory(prefix="fit-images-") as tmp:
         start_path = save_sbrdf(Path(tmp) / "start.sbrdf", model, version=1)
-        if ensemble is not None:
-            ens_path = (str(ensemble) if not isinstance(ensemble, Ensemble)
-                        else str(ensemble.save(Path(tmp) / "ensemble.npz")))
-        options = {"decoder": decoder, **({"ensemble": ens_path} if ens_path else {})}
+        options = _plugin_options(decoder, ensemble, Path(tmp))
         scenes = _load_views(scene, views, material, start_path, spp, seed, variant,
                              options)
         monitor = Monitor(_load_views(scene, validation, material, start_path, spp, seed,
@@ -340,67 +446,30 @@ def fit_images(  # long: the fit loop with its checkpointing and progress bar
                            None if callback is None else
                            (lambda n, vals: callback(n, replace(model, values=vals))),
                            validate_every, spp, loss == "log")
-        settings = {"lr": lr, "lr_end": lr_end, "spp": spp, "seed": seed, "material": material,
-                    "decoder": decoder, "variant": variant, "shared_paths": shared_paths,
-                    **({"optimizer": optimizer} if optimizer != "adam" else {}),
-                    **({"loss": loss} if loss != "relative" else {}),
-                    **({"prior_weight": prior_weight} if prior_weight else {}),
-                    **({"validation": len(validation), "validate_every": validate_every}
-                       if validation else {})}
+        settings = _settings(lr=lr, lr_end=lr_end, spp=spp, seed=seed, material=material,
+                             decoder=decoder, variant=variant, shared_paths=shared_paths,
+                             optimizer=optimizer, loss=loss, prior_weight=prior_weight,
+                             validation=len(validation), validate_every=validate_every)
         fp = _fingerprint(scene, [*views, *validation], model, settings)
-        scales = []
-        opt = mi.ad.Adam(lr=lr)
-        for c, key in enumerate(VALUE_KEYS):
-            v = np.asarray(model.values[c], np.float32)
-            top = float(np.max(np.abs(v))) if v.size else 1.0
-            s = np.maximum(np.abs(v), SCALE_FLOOR * max(top, 1e-30)).astype(np.float32)
-            scales.append(mi.Float(s))
-            opt[key] = mi.Float((v / s).astype(np.float32))
-        # the start's relative values (1, or less below the scale floor): the prior's centre
-        u0 = np.concatenate([np.array(dr.detach(opt[k]), np.float64) for k in VALUE_KEYS])
-        ckpt = Path(checkpoint_dir) / "fit-images.npz" if checkpoint_dir else None
-        done, snr = 0, []
-        if ckpt is not None and ckpt.is_file():
-            done, snr, data = read_checkpoint(ckpt, opt, fp)
-            monitor.restore(data, done)
-        elif ckpt is not None:
-            ckpt.parent.mkdir(parents=True, exist_ok=True)
-
-        def current():
-            return [np.array(dr.detach(opt[k] * s), np.float32)
-                    for k, s in zip(VALUE_KEYS, scales, strict=True)]
-
+        opt, scales, u0 = _scaled_optimizer(model, lr)
+        ckpt, done, snr = _resume(checkpoint_dir, opt, fp, monitor)
+        current = functools.partial(_values, opt, scales)  # the model's values now
         if done == 0:
             monitor(0, current())  # the start
         t0, start_len = time.perf_counter(), len(snr)
         bar = tqdm(total=iterations, initial=min(done, iterations), disable=not progress,
                    desc="fit-images", unit="it")
-        if optimizer == "lbfgs":
-            try:
-                run_lbfgs(scenes, opt, scales, done, iterations, snr, seed, spp, bar,
+        try:
+            if optimizer == "lbfgs":
+                _run_lbfgs(scene, scenes, opt, scales, done, iterations, snr, seed, spp, bar,
                            ckpt, checkpoint_every, fp, loss == "log", prior_weight, u0,
                            monitor)
-            except RuntimeError as exc:
-                raise RenderError(f"{scene}: rendering failed during the fit: "
-                                  f"{exc}") from exc
-            finally:
-                bar.close()
-        try:
-            for it in range(done, iterations if optimizer == "adam" else done):
-                opt.set_learning_rate(lr * lr_end ** (it / max(iterations - 1, 1)))
-                try:
-                    gseed = seed if shared_paths else seed + 1 + it * len(scenes)
-                    snr.append(take_step(scenes, opt, scales, seed, gseed, spp, loss == "log",
-                                     prior_weight, u0))
-                    monitor(it + 1, current(), force=it + 1 == iterations)
-                except RuntimeError as exc:
-                    raise RenderError(f"{scene}: rendering failed during the fit: "
-                                      f"{exc}") from exc
-                bar.set_postfix(snr_db=f"{snr[-1]:.2f}")
-                bar.update(1)
-                if ckpt is not None and ((it + 1) % checkpoint_every == 0
-                                         or it + 1 == iterations):
-                    write_checkpoint(ckpt, it + 1, opt, snr, fp, monitor.state())
+            else:
+                _run_adam(scene, scenes, opt, scales, u0, current, monitor, bar, snr,
+                          range(done, iterations), iterations=iterations, lr=lr,
+                          lr_end=lr_end, seed=seed, spp=spp, shared_paths=shared_paths,
+                          log=loss == "log", prior_weight=prior_weight, ckpt=ckpt,
+                          checkpoint_every=checkpoint_every, fp=fp)
         finally:
             bar.close()
         seconds = time.perf_counter() - t0
