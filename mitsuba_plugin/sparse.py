@@ -179,7 +179,9 @@ class SparseBSDF(GlossyBSDF):
             self._build(choose_decoder(decoder, model, ens))
         # the coded channels' values, as mi.traverse exposes them (``values_0`` ...)
         self._values = [self._value_array(v) for v in model.values]
-        self._setup_sampling(self.sampling, sparse_profile(model, ens), model.shape)
+        # the lobe's theta_h profile only where the lobe samples (cosine: none to fit)
+        self._setup_sampling(self.sampling, sparse_profile(model, ens)
+                             if self.sampling == "lobe" else None, model.shape)
         if not ops.jit:  # scalar variants: each call goes straight to the numpy lookups
             self._rho = self._rho_point
 

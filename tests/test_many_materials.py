@@ -207,3 +207,25 @@ def test_numpy_twin_agrees_with_shared_rows(small_library):
     bins = tuple(a.ravel() for a in np.indices(SMALL))
     np.testing.assert_allclose(model_x(model, ens, bins, "strict"),
                                model_x(model, ens, bins, "grouped"), atol=3e-5)
+
+
+def test_sparse_profile_matches_the_product_over_terms(small_library):
+    """The lobe's theta_h profile, contracted over distinct atoms, equals the product
+    over every term it replaced (the first theta_d bins, mean over phi_d and R, G, B)."""
+    from sparse_brdf.decoders.buffers import bin_weight, mix_channels
+    from sparse_brdf.decoders.layouts import channel_terms, sparse_profile
+
+    ens = small_library["ens"]
+    for f in small_library["files"][:5]:
+        model = load_sbrdf(f, ens)
+        n1, n2, n3 = model.shape
+        ii, kk = np.arange(n1)[:, None], np.arange(n3)[None, :]
+        terms = [channel_terms(model, ens, c) for c in range(3)]
+        want = np.zeros(n1)
+        for j in range(3):
+            xs = mix_channels(np.stack([
+                (u1[:, a].astype(np.float64) * (s * u2[j, b])) @ u3[:, k].T
+                for s, (a, b, k), (u1, u2, u3) in terms]), model.basis)
+            w = bin_weight(ii, np.full_like(ii, j), kk, model.shape, model.transform)
+            want += np.maximum(np.expm1(xs) / w, 0.0).mean(axis=2).sum(axis=0)
+        np.testing.assert_allclose(sparse_profile(model, ens), want / 9, rtol=1e-6)
