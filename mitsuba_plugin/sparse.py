@@ -202,14 +202,16 @@ class SparseBSDF(GlossyBSDF):
         return material_cost(self._model, self._ens)
 
     def _build(self, decoder: str) -> None:
-        """Build the buffers of ``decoder`` ("grouped" or "strict")."""
+        """Build the buffers of ``decoder`` ("grouped" or "strict"). The material stops
+        pending only once they are built: the scalar variants render on many threads, and
+        one that saw it no longer pending would read a lookup not yet made."""
         self.decoder = decoder
-        self._pending = False
         self.shared_bytes = 0
         if decoder == "grouped":
             self._build_grouped(self._model, self._ens, self._layout_asked)
         else:
             self._build_strict(self._model, self._ens)
+        self._pending = False
 
     def _build_grouped(self, model, ens, layout: str) -> None:
         key = _grouped_key(model, ens, layout, self._ops)
