@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import drjit as dr
 
-from sparse_brdf.decoders.layouts import fit_lobe
+from sparse_brdf.decoders.lobe import fit_lobe
 
 from .kernels import lobe_pdf, power_cosine_sample
 

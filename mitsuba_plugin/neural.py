@@ -7,7 +7,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from sparse_brdf.coords import MERL_SHAPE
-from sparse_brdf.decoders.layouts import LOBES, PLUGIN_DEFAULTS, table_profile
+from sparse_brdf.decoders.layouts import LOBES, PLUGIN_DEFAULTS
+from sparse_brdf.decoders.lobe import table_profile
 from sparse_brdf.errors import PluginError
 from sparse_brdf.mlp import tabulate
 from sparse_brdf.sources.nbrdf import read_nbrdf_weights

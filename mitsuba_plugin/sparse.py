@@ -25,12 +25,12 @@ from sparse_brdf.decoders.layouts import (
     grouped_channels,
     grouped_layout,
     model_digest,
-    sparse_profile,
     strict_channel,
     strict_layout,
     strict_orders,
     term_values,
 )
+from sparse_brdf.decoders.lobe import sparse_profile
 from sparse_brdf.decoders.lookups import GroupedLookup, StrictLookup
 from sparse_brdf.decoders.scene import (
     MEMORY_BUDGET_MIB,

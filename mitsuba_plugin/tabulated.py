@@ -5,7 +5,8 @@ reference the other BSDFs are compared with). Registered for a variant by
 
 from __future__ import annotations
 
-from sparse_brdf.decoders.layouts import LOBES, PLUGIN_DEFAULTS, table_profile
+from sparse_brdf.decoders.layouts import LOBES, PLUGIN_DEFAULTS
+from sparse_brdf.decoders.lobe import table_profile
 
 from .glossy import GlossyBSDF
 from .kernels import Shape, angle_coords, linear_bins, nearest_bins

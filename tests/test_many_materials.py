@@ -213,7 +213,8 @@ def test_sparse_profile_matches_the_product_over_terms(small_library):
     """The lobe's theta_h profile, contracted over distinct atoms, equals the product
     over every term it replaced (the first theta_d bins, mean over phi_d and R, G, B)."""
     from sparse_brdf.decoders.buffers import bin_weight, mix_channels
-    from sparse_brdf.decoders.layouts import channel_terms, sparse_profile
+    from sparse_brdf.decoders.layouts import channel_terms
+    from sparse_brdf.decoders.lobe import sparse_profile
 
     ens = small_library["ens"]
     for f in small_library["files"][:5]:

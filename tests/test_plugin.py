@@ -34,9 +34,9 @@ from sparse_brdf.decoders.layouts import (
     grouped_eval,
     grouped_layout,
     n_slots,
-    sparse_profile,
     strict_channel,
 )
+from sparse_brdf.decoders.lobe import sparse_profile
 from sparse_brdf.decoders.lookups import layout_eval, model_x, strict_eval
 from sparse_brdf.mitsuba_env import set_variant
 from sparse_brdf.sources.load import load_brdf

@@ -2,6 +2,7 @@
 
 - ``layouts``: the decoders' buffers (``DECODERS``, ``LAYOUTS``), the importance-sampling
   lobes (``LOBES``) and the plugins' defaults.
+- ``lobe``: the glossy sampling lobe fitted at load time.
 - ``lookups``: numpy lookups of the uploaded data: the kernels' twins and the scalar
   variants' one-point lookups.
 - ``scene``: many materials in one scene: the ensemble's atom rows that every

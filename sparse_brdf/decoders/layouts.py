@@ -2,7 +2,7 @@
 reference decoders for testing without a renderer.
 
 Everything here is plain numpy, prepared at scene-load time: the ``sparse_brdf`` Mitsuba
-plugin (:mod:`mitsuba_plugin.bsdfs`) uploads these arrays to Dr.Jit as they are
+plugin (:mod:`mitsuba_plugin.sparse`) uploads these arrays to Dr.Jit as they are
 (:func:`grouped_layout`, :func:`strict_layout`,
 :func:`~sparse_brdf.decoders.buffers.float_buffer`), their byte counts are known without
 a renderer (:func:`grouped_bytes`, ``StrictChannel.nbytes``), and
@@ -10,8 +10,8 @@ numpy evaluators (``grouped_eval`` below; the uploaded layouts' lookups, vectori
 and one point at a time, in :mod:`sparse_brdf.decoders.lookups`) mirror its Dr.Jit
 kernels so the decoders can be checked without Mitsuba. The decoder, layout and
 sampling names the plugin accepts are defined here (:data:`DECODERS`, :data:`LAYOUTS`,
-:data:`LOBES`: the importance-sampling strategies), as is the glossy lobe fitted at load
-time (:func:`fit_lobe`).
+:data:`LOBES`: the importance-sampling strategies; the lobe itself is fitted in
+:mod:`~sparse_brdf.decoders.lobe`).
 
 Sparse model of one channel (Tongbuasirilai et al., "A Sparse Non-parametric BRDF
 Model", and docs/method.md)::
@@ -60,7 +60,6 @@ import numpy as np
 
 from ..coords import bin_angles
 from ..params import check_choice
-from .buffers import bin_weight, mix_channels
 
 #: The ``sparse_brdf`` plugin's decoders ("auto": :func:`choose_decoder` picks one).
 DECODERS = ("grouped", "strict", "auto")
@@ -69,7 +68,7 @@ DECODERS = ("grouped", "strict", "auto")
 LAYOUTS = ("auto", "union", "slots")
 
 #: Both plugins' importance-sampling lobes (their ``sampling`` parameter): the
-#: cosine-weighted hemisphere, or that mixed with the glossy lobe of :func:`fit_lobe`.
+#: cosine-weighted hemisphere, or that mixed with the glossy lobe of :func:`.lobe.fit_lobe`.
 LOBES = ("cosine", "lobe")
 
 #: The plugins' defaults of those choices (``sparse-brdf render`` takes them too). Lobe
@@ -437,96 +436,6 @@ def grouped_eval(ch: GroupedChannel, bins) -> np.ndarray:
     """X at integer bins (i, j, k) from a grouped channel (numpy mirror of the kernel)."""
     pair = bins[ch.mode_p] * ch.n_q + bins[ch.mode_q]
     return np.einsum("ng,gn->n", ch.table[pair], ch.rows[:, bins[ch.mode_g]])
-
-
-# ---------------------------------------------------------------------- sampling lobe
-
-
-def fit_lobe(profile: np.ndarray, shape: tuple[int, int, int]) -> tuple[float, float]:
-    """Fit the glossy sampling lobe to a theta_h profile of the BRDF.
-
-    ``profile[i]`` is the mean BRDF value (over R, G, B, phi_d and the first theta_d
-    bins) at theta_h bin i. Model: ``base + peak * cos(theta_h)^n``; n comes from the
-    half-width at half maximum of ``profile - base``. The lobe's share of the mixture is
-    its albedo share, ``8 pi peak / (n + 2)`` (a normalised Blinn lobe) against
-    ``pi * base``, clipped to [0.05, 0.95] so the cosine part always covers the
-    hemisphere. Returns (exponent n in [1, 1e4], lobe probability); a profile whose
-    peak rises less than 50 % above its minimum counts as flat and gives (1, 0.05).
-    """
-    th = bin_angles(shape)[0]
-    use = th < np.radians(80.0)
-    p = np.asarray(profile, np.float64)[use]
-    t = th[use]
-    if p.size < 4 or not np.all(np.isfinite(p)):
-        return 1.0, 0.05
-    # a 3-bin moving average keeps reconstruction ripples from posing as a peak
-    p = np.convolve(np.pad(p, 1, mode="edge"), np.ones(3) / 3.0, mode="valid")
-    base = max(float(p.min()), 0.0)
-    spike = p - base
-    peak = float(spike[0])
-    # no specular peak: less than half the diffuse level above it
-    if peak <= 0.5 * base or peak <= 0.0:
-        return 1.0, 0.05
-    below = np.flatnonzero(spike < 0.5 * peak)
-    if below.size == 0:
-        return 1.0, 0.05
-    i = int(below[0])
-    # linear interpolation of the half-maximum crossing between bins i - 1 and i
-    s0, s1 = spike[i - 1], spike[i]
-    f = (s0 - 0.5 * peak) / max(s0 - s1, 1e-30)
-    t_half = t[i - 1] + f * (t[i] - t[i - 1])
-    n = float(np.log(0.5) / np.log(max(np.cos(t_half), 1e-6)))
-    n = float(np.clip(n, 1.0, 1e4))
-    spec = 8.0 * np.pi * peak / (n + 2.0)
-    diff = np.pi * base
-    prob = float(np.clip(spec / max(spec + diff, 1e-30), 0.05, 0.95))
-    return n, prob
-
-
-def sparse_profile(model, ensemble, n_d: int = 3) -> np.ndarray:
-    """theta_h profile of a sparse model for :func:`fit_lobe` (no full decode).
-
-    Mean over R, G, B, phi_d and the first ``n_d`` theta_d bins of the model's BRDF (the
-    coded channels mixed back to R, G, B first, :func:`mix_channels`). Each channel's
-    slices ``X[:, j, :]`` (n1, n3) are contracted over its distinct atoms:
-    ``U1[:, A] @ M_j @ U3[:, C]^T``, ``M_j[a, c] = sum_t s_t U2[j, b_t]`` over the terms
-    on atoms (a, c), a few thousand flops per material where a product over the terms
-    took 100 Mflop.
-
-    Returns
-    -------
-    np.ndarray
-        (n1,) float64, the mean BRDF value per theta_h bin (1/sr).
-    """
-    n1, n2, n3 = model.shape
-    js = np.arange(min(n_d, n2))
-    xs = np.stack([_channel_slices(*channel_terms(model, ensemble, c), js)
-                   for c in range(3)])  # (3, len(js), n1, n3)
-    xs = mix_channels(xs.reshape(3, -1), model.basis).reshape(xs.shape)
-    w = bin_weight(np.arange(n1)[None, :, None], js[:, None, None],
-                   np.arange(n3)[None, None, :], model.shape, model.transform)
-    with np.errstate(over="ignore"):  # fit_lobe treats a non-finite profile
-        rho = np.maximum(np.expm1(xs) / w, 0.0)  # (3, len(js), n1, n3)
-    return rho.mean(axis=3).sum(axis=(0, 1)) / (3 * js.size)
-
-
-def _channel_slices(s, modes, us, js) -> np.ndarray:
-    """X[:, j, :] (n1, n3) of one coded channel for each j of ``js``, float64."""
-    u1, u2, u3 = (np.asarray(u, np.float64) for u in us)
-    if s.size == 0:
-        return np.zeros((js.size, u1.shape[0], u3.shape[0]))
-    a_ids, ra = np.unique(modes[0], return_inverse=True)
-    c_ids, rc = np.unique(modes[2], return_inverse=True)
-    cell = ra * c_ids.size + rc
-    m = np.stack([np.bincount(cell, np.asarray(s, np.float64) * u2[j, modes[1]],
-                              a_ids.size * c_ids.size) for j in js])
-    m = m.reshape(js.size, a_ids.size, c_ids.size)
-    return u1[:, a_ids] @ m @ u3[:, c_ids].T
-
-
-def table_profile(values: np.ndarray, n_d: int = 3) -> np.ndarray:
-    """theta_h profile of tabulated values (n1, n2, n3, 3) for :func:`fit_lobe`."""
-    return np.asarray(values[:, :n_d], np.float64).mean(axis=(1, 2, 3))
 
 
 def strict_orders(model, ensemble) -> list[np.ndarray]:

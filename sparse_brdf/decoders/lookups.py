@@ -3,8 +3,8 @@ twins (vectorised over N bins, for testing without a renderer) and the one-point
 of Mitsuba's scalar variants, one implementation for both.
 
 In a scalar variant every BSDF call is its own Python call, and the kernels' per-float
-Python loops (:func:`mitsuba_plugin.bsdfs.grouped_x`, :func:`~mitsuba_plugin.bsdfs.
-strict_x`) cost far more than the table lookup of ``tabulated_brdf``. Arranged as below,
+Python loops (:func:`mitsuba_plugin.decoders.grouped_x`,
+:func:`mitsuba_plugin.decoders.strict_x`) cost far more than the table lookup of ``tabulated_brdf``. Arranged as below,
 one lookup is a handful of numpy calls on the same data, still evaluating only the
 sparse model's terms (docs/method.md):
 
