@@ -40,8 +40,10 @@ def load_ensemble(path: str | None, for_id: str | None = None):
 
 
 def resolve_file(filename: str) -> str:
-    """Resolve a scene-relative file name with Mitsuba's file resolver."""
-    if filename.startswith("mitsuba:"):
+    """Resolve a scene-relative file name with Mitsuba's file resolver. An absolute name
+    (as :func:`sparse_brdf.evaluation.scenes.scene_xml` writes every material's) is
+    already resolved and a ``mitsuba:`` name needs none: both are returned as given."""
+    if filename.startswith("mitsuba:") or os.path.isabs(filename):
         return filename
     import mitsuba as mi  # lazy: `import mitsuba_plugin` does not load Mitsuba
 
@@ -115,11 +117,8 @@ def load_model(filename: str, ens_path: str | None, plugin: str):
     except Exception as exc:  # noqa: BLE001
         what = "the shipped ensemble" if ens_path is None else repr(ens_path)
         raise PluginError(f"{plugin}: cannot load {what} for {filename!r}: {exc}") from exc
-    try:
+    try:  # the id, the dictionary indices and the grid
         model.check_ensemble(ens)
     except Exception as exc:  # noqa: BLE001
         raise PluginError(f"{plugin}: cannot load {filename!r}: {exc}") from exc
-    if tuple(model.shape) != tuple(ens.shape):
-        raise PluginError(f"{plugin}: {filename!r} has grid {model.shape}, its ensemble "
-                          f"{ens.shape}")
     return model, ens

@@ -21,9 +21,9 @@ from sparse_brdf.decoders.layouts import (
     LOBES,
     PLUGIN_DEFAULTS,
     channel_terms,
-    choose_decoder,
     grouped_channels,
     grouped_layout,
+    grouped_plan,
     model_digest,
     strict_channel,
     strict_layout,
@@ -168,6 +168,7 @@ class SparseBSDF(GlossyBSDF):
         self._scale = transform_scale(model.transform)
         self.layout = None
         self._model, self._ens, self._grad, self._ad = model, ens, False, None
+        self._plan = None  # the grouped decoder's plan, made once when first needed
         self._layout_asked = layout
         budget = p["memory_budget"]
         self._budget = (default_budget() if budget is None
@@ -175,8 +176,8 @@ class SparseBSDF(GlossyBSDF):
         self._pending = decoder == "auto"
         if self._pending:  # decided with the scene's other auto materials (budget.py)
             enroll(self)
-        else:
-            self._build(choose_decoder(decoder, model, ens))
+        else:  # "grouped" or "strict", checked above
+            self._build(decoder)
         # the coded channels' values, as mi.traverse exposes them (``values_0`` ...)
         self._values = [self._value_array(v) for v in model.values]
         # the lobe's theta_h profile only where the lobe samples (cosine: none to fit)
@@ -197,9 +198,17 @@ class SparseBSDF(GlossyBSDF):
             return self.__dict__[name]
         raise AttributeError(name)
 
+    def _grouped_plan(self):
+        """The material's :class:`~sparse_brdf.decoders.layouts.GroupedPlan` (the
+        grouped mode, layout and bytes), made once: it depends on the support only, which
+        an update of the values keeps."""
+        if self._plan is None:
+            self._plan = grouped_plan(self._model, self._ens)
+        return self._plan
+
     def _cost(self):
         """The :class:`~sparse_brdf.decoders.scene.MaterialCost` the budget weighs."""
-        return material_cost(self._model, self._ens)
+        return material_cost(self._model, self._ens, self._grouped_plan())
 
     def _build(self, decoder: str) -> None:
         """Build the buffers of ``decoder`` ("grouped" or "strict"). The material stops
@@ -219,9 +228,10 @@ class SparseBSDF(GlossyBSDF):
             if _LAST_GROUPED[0] == key:
                 chans, lay, grouped, _ = _LAST_GROUPED[1]
             else:
-                chans = grouped_channels(model, ens)
+                plan = self._grouped_plan()
+                chans = grouped_channels(model, ens, plan.mode)
                 lay = grouped_layout(chans, model.shape,
-                                     None if layout in ("auto", None) else layout)
+                                     plan.kind if layout in ("auto", None) else layout)
                 grouped = upload_grouped(self._ops, lay, chans[0])
                 _LAST_GROUPED[:] = [key, (chans, lay, grouped, ens)]  # kept: its id stays unique
         self.channels = chans

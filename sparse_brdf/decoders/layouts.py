@@ -248,22 +248,52 @@ def atom_keys(model, ensemble, g: int) -> list[set]:
     return out
 
 
-def shared_grouped_mode(model, ensemble) -> int:
-    """The grouped mode for all three channels of ``model``: fewest packets read per
-    lookup (:func:`layout_packets`), ties broken by the smaller tables. One mode for the
-    three channels lets them share one row per bin pair."""
+@dataclass(frozen=True)
+class GroupedPlan:
+    """The grouped decoder's shape for one material, decided once without building its
+    tables (:func:`grouped_plan`): every use of the grouped mode reads it from here.
+
+    Attributes
+    ----------
+    mode : int
+        The grouped mode g (0, 1 or 2), the same for the three channels.
+    kind : str
+        The layout that reads fewer packets per lookup, "union" or "slots"
+        (:func:`layout_for`).
+    chunks : int
+        Loop iterations per lookup in that layout.
+    nbytes : int
+        Bytes of that layout's tables and atom values.
+    """
+
+    mode: int
+    kind: str
+    chunks: int
+    nbytes: int
+
+    @property
+    def packets(self) -> int:
+        """Packets of ``PACKET`` floats one lookup reads (:func:`layout_packets`)."""
+        return layout_packets(self.kind, self.chunks)
+
+
+def grouped_plan(model, ensemble) -> GroupedPlan:
+    """The :class:`GroupedPlan` of ``model``: the grouped mode for all three channels is
+    the one that reads the fewest packets per lookup (:func:`layout_packets`), ties
+    broken by the smaller tables. One mode for the three channels lets them share one
+    row per bin pair."""
     shape = tuple(model.shape)
-
-    def cost(g):
+    plans = []
+    for g in range(3):
         kind, chunks = layout_for(atom_keys(model, ensemble, g))
-        return (layout_packets(kind, chunks), _layout_bytes(kind, chunks, shape, g))
+        plans.append(GroupedPlan(g, kind, chunks, _layout_bytes(kind, chunks, shape, g)))
+    return min(plans, key=lambda p: (p.packets, p.nbytes))
 
-    return min(range(3), key=cost)
 
-
-def grouped_channels(model, ensemble) -> list[GroupedChannel]:
-    """The grouped data of the three channels, all grouped on :func:`shared_grouped_mode`."""
-    g = shared_grouped_mode(model, ensemble)
+def grouped_channels(model, ensemble, mode: int | None = None) -> list[GroupedChannel]:
+    """The grouped data of the three channels, all grouped on mode ``mode`` (None: the
+    mode of :func:`grouped_plan`; give it when the plan is already at hand)."""
+    g = grouped_plan(model, ensemble).mode if mode is None else int(mode)
     return [grouped_channel(*channel_terms(model, ensemble, c), mode_g=g,
                             source=int(model.dict_index[c])) for c in range(3)]
 
@@ -416,17 +446,19 @@ def grouped_layout(chans, shape, kind: str | None = None) -> GroupedLayout:
 def grouped_bytes(model, ensemble) -> int:
     """Bytes the grouped decoder holds for ``model`` (the layout of
     :func:`grouped_layout`), without building the tables."""
-    g = shared_grouped_mode(model, ensemble)
-    kind, chunks = layout_for(atom_keys(model, ensemble, g))
-    return _layout_bytes(kind, chunks, tuple(model.shape), g)
+    return grouped_plan(model, ensemble).nbytes
 
 
 def choose_decoder(decoder: str, model, ensemble,
-                   max_bytes: int = AUTO_GROUPED_MAX_BYTES) -> str:
-    """Resolve ``"auto"`` to "grouped" or "strict"; check the name."""
+                   max_bytes: int = AUTO_GROUPED_MAX_BYTES,
+                   plan: GroupedPlan | None = None) -> str:
+    """Resolve ``"auto"`` to "grouped" or "strict"; check the name. ``plan``: the
+    model's :class:`GroupedPlan` if already at hand (None: made here, for "auto" only)."""
     if check_choice("decoder", decoder, DECODERS) != "auto":
         return decoder
-    return "grouped" if grouped_bytes(model, ensemble) <= max_bytes else "strict"
+    if plan is None:
+        plan = grouped_plan(model, ensemble)
+    return "grouped" if plan.nbytes <= max_bytes else "strict"
 
 
 # ----------------------------------------------------------------------- numpy mirrors

@@ -24,13 +24,10 @@ from ..params import Interval
 from .layouts import (
     AUTO_GROUPED_MAX_BYTES,
     PACK_BITS,
+    GroupedPlan,
     StrictLayout,
-    atom_keys,
     channel_terms,
-    grouped_bytes,
-    layout_for,
-    layout_packets,
-    shared_grouped_mode,
+    grouped_plan,
     strict_channel,
 )
 
@@ -130,18 +127,19 @@ def strict_shared_bytes(model) -> int:
     return 8 * int(np.sum(model.n_coeffs))
 
 
-def lookup_cost(model, ensemble) -> tuple[float, float]:
+def lookup_cost(model, ensemble, plan: GroupedPlan | None = None) -> tuple[float, float]:
     """Estimated reads of one lookup: (strict decoder, grouped decoder).
 
     The strict decoder reads a coefficient, a packed index and an atom value per term,
     and two atom values per group end (counted as one per term); the grouped decoder
-    reads :func:`~sparse_brdf.decoders.layouts.layout_packets` packets of 8 floats.
+    reads ``plan.packets`` packets of 8 floats (``plan``: the model's
+    :func:`~sparse_brdf.decoders.layouts.grouped_plan`, made here if None).
     Units: loads, a packet counted as one.
     """
     strict = 4.0 * float(np.sum(model.n_coeffs))
-    g = shared_grouped_mode(model, ensemble)
-    kind, chunks = layout_for(atom_keys(model, ensemble, g))
-    return strict, float(layout_packets(kind, chunks))
+    if plan is None:
+        plan = grouped_plan(model, ensemble)
+    return strict, float(plan.packets)
 
 
 @dataclass(frozen=True)
@@ -154,11 +152,13 @@ class MaterialCost:
     gain: float
 
 
-def material_cost(model, ensemble) -> MaterialCost:
-    """The :class:`MaterialCost` of ``model`` (no table is built)."""
-    strict, grouped = lookup_cost(model, ensemble)
-    return MaterialCost(grouped_bytes(model, ensemble), strict_shared_bytes(model),
-                        strict - grouped)
+def material_cost(model, ensemble, plan: GroupedPlan | None = None) -> MaterialCost:
+    """The :class:`MaterialCost` of ``model`` (no table is built; ``plan``: its
+    :func:`~sparse_brdf.decoders.layouts.grouped_plan`, made here if None)."""
+    if plan is None:
+        plan = grouped_plan(model, ensemble)
+    strict, grouped = lookup_cost(model, ensemble, plan)
+    return MaterialCost(plan.nbytes, strict_shared_bytes(model), strict - grouped)
 
 
 def plan_decoders(costs, budget: int,

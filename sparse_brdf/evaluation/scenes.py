@@ -287,7 +287,10 @@ def _included_file(path: Path, name: str, scene_dir: Path) -> Path:
                            f"{looked})")
 
 
-def _abs_source(value: str | os.PathLike, base: Path) -> str:
+def _abs_source(value: str | os.PathLike) -> str:
+    """A material or ensemble path as the scene holds it: absolute, taken from the current
+    folder (a ``mitsuba:`` name as is). The one resolution of the path: the plugins take
+    an absolute name as given."""
     value = os.fspath(value)
     if value.startswith("mitsuba:"):
         return value
@@ -329,14 +332,14 @@ def replaced_materials(scene_path, materials, sparse_options, tabulated_options)
         else:
             outer = new = ET.Element("bsdf", {"type": plugin, "id": mid})
         ET.SubElement(new, "string", {"name": "filename",
-                                      "value": _abs_source(source, scene_path.parent)})
+                                      "value": _abs_source(source)})
         opts = sparse_options if plugin == "sparse_brdf" else tabulated_options
         for key, val in (opts or {}).items():
             if isinstance(val, bool):
                 ET.SubElement(new, "boolean", {"name": key, "value": str(val).lower()})
             else:
                 if key == "ensemble":
-                    val = _abs_source(str(val), scene_path.parent)
+                    val = _abs_source(str(val))
                 ET.SubElement(new, "string", {"name": key, "value": str(val)})
         idx = list(parent).index(elem)
         parent.remove(elem)
