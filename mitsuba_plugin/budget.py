@@ -47,32 +47,35 @@ def memory_budget(nbytes: int | None):
             _DEFAULT[0] = old
 
 
-def enroll(bsdf) -> None:
-    """Add ``bsdf`` (a ``sparse_brdf`` with ``decoder="auto"``) to the waiting pool."""
+def enroll(material) -> None:
+    """Add ``material`` (the :class:`~mitsuba_plugin.sparse_buffers.SparseBuffers` of a
+    ``sparse_brdf`` with ``decoder="auto"``) to the waiting pool."""
     with _LOCK:
-        _POOL.append(weakref.ref(bsdf))
+        _POOL.append(weakref.ref(material))
 
 
 def resolve(bsdf=None) -> None:
-    """Decide and build the decoders of the pool that ``bsdf`` waits in (nothing if it
-    is already built; None: the pool, if any material waits). Each member's ``_cost()``
-    gives its :class:`~sparse_brdf.decoders.scene.MaterialCost`; ``_build(decoder)``
+    """Decide and build the decoders of the pool that ``bsdf`` (a ``sparse_brdf``, or its
+    :class:`~mitsuba_plugin.sparse_buffers.SparseBuffers`) waits in (nothing if it is
+    already built; None: the pool, if any material waits). Each member's ``cost()``
+    gives its :class:`~sparse_brdf.decoders.scene.MaterialCost`; ``build(decoder)``
     builds it. A scene loader calls it once the scene is loaded, so that the buffers
     are built there rather than inside the first render."""
+    material = getattr(bsdf, "buffers", bsdf)
     with _LOCK:
-        if bsdf is not None and not getattr(bsdf, "_pending", False):
+        if material is not None and not getattr(material, "pending", False):
             return
-        members = [m for m in (r() for r in _POOL) if m is not None and m._pending]
-        if bsdf is not None and not any(m is bsdf for m in members):
-            members.append(bsdf)
+        members = [m for m in (r() for r in _POOL) if m is not None and m.pending]
+        if material is not None and not any(m is material for m in members):
+            members.append(material)
         _POOL.clear()
         if not members:
             return
-        costs = [m._cost() for m in members]
-        budget = min(m._budget for m in members)
+        costs = [m.cost() for m in members]
+        budget = min(m.budget for m in members)
         choice = plan_decoders(costs, budget)
         for m, dec in zip(members, choice, strict=True):
-            m._build(dec)
+            m.build(dec)
         held = sum(m.memory_bytes for m in members)
         n_fast = choice.count("grouped")
         LAST_PLAN[0] = (len(members), n_fast, held, budget)

@@ -23,7 +23,7 @@ mi = pytest.importorskip("mitsuba")
 
 from test_plugin import make_exact_material, use_variant  # noqa: E402
 
-from mitsuba_plugin import budget, sparse  # noqa: E402
+from mitsuba_plugin import budget, sparse_buffers  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -51,9 +51,9 @@ def _counting(monkeypatch, calls: dict, name: str, modules) -> None:
 @pytest.mark.parametrize("decoder", ["auto", "grouped", "strict"])
 def test01_one_grouped_plan_and_one_ensemble_check(material, variant, decoder, monkeypatch):
     calls: dict = {}
-    _counting(monkeypatch, calls, "grouped_plan", [layouts, scene, sparse])
+    _counting(monkeypatch, calls, "grouped_plan", [layouts, scene, sparse_buffers])
     _counting(monkeypatch, calls, "check_ensemble", [SparseBRDF])
-    sparse._LAST_GROUPED[:] = [None, None]  # no reuse of an earlier test's tables
+    sparse_buffers.LAST_GROUPED[:] = [None, None]  # no reuse of an earlier test's tables
     b = mi.load_dict({"type": "sparse_brdf", "filename": material["sbrdf"],
                       "ensemble": material["ensemble"], "decoder": decoder})
     budget.resolve(b)  # an auto material: its decoder decided and built
