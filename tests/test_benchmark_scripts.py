@@ -169,7 +169,7 @@ def test_bench_lookup_call_runs(monkeypatch, capsys):
 @pytest.mark.render
 def test_bench_render_runs(monkeypatch, capsys):
     run("bench_render", monkeypatch, "--material", MATERIAL, "--res", "8", "--spp", "1",
-        "--repeats", "1")
+        "--repeats", "1", "--counts", "32")
     assert "tabulated_brdf" in capsys.readouterr().out
 
 
