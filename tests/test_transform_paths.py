@@ -1,0 +1,87 @@
+"""Each transform's weight and inverse on its three paths, against each other: numpy
+(:mod:`sparse_brdf.transforms`, :func:`sparse_brdf.decoders.buffers.bin_weight`), the
+Dr.Jit kernels (:mod:`mitsuba_plugin.kernels`, LLVM) and the scalar variants' one-point
+twins (``point_weight``, ``point_rho_from_cos``). Parametrized over
+:data:`sparse_brdf.transforms.TRANSFORMS`, so a transform added later is covered."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conftest import SMALL
+from sparse_brdf.coords import bin_angles, cos_io
+from sparse_brdf.decoders.buffers import bin_weight as np_bin_weight
+from sparse_brdf.transforms import TRANSFORMS, forward, inverse_at_bins, uses_cosine, weight
+from sparse_brdf.transforms import scale as transform_scale
+
+mi = pytest.importorskip("mitsuba")
+dr = pytest.importorskip("drjit")
+
+from mitsuba_plugin.kernels import (  # noqa: E402
+    Ops,
+    VariantNamespace,
+    bin_weight,
+    point_rho_from_cos,
+    point_weight,
+    rho_from_x,
+    shared_shape,
+)
+
+pytestmark = pytest.mark.numerics
+
+
+@pytest.fixture(scope="module")
+def bins_and_x():
+    """Valid bins of the small grid (both directions above the horizon), their
+    ``cos_i cos_o`` and transformed values X, small (|X| < 0.1) and large."""
+    rng = np.random.default_rng(5)
+    i, j, k = (rng.integers(0, n, 4000) for n in SMALL)
+    th, td, pd = bin_angles(SMALL)
+    ci, co = cos_io(th[i], td[j], pd[k])
+    c = (ci * co).astype(np.float64)
+    ok = c > 0
+    x = np.concatenate([rng.uniform(-0.1, 0.1, 2000), rng.uniform(-0.5, 4.0, 2000)])
+    return (i[ok], j[ok], k[ok]), c[ok], x[ok].astype(np.float32)
+
+
+@pytest.mark.parametrize("transform", TRANSFORMS)
+def test01_weight_on_three_paths(transform, bins_and_x):
+    bins, c, _ = bins_and_x
+    s = transform_scale(transform)
+    grid = weight(transform, SMALL)
+    w_np = np_bin_weight(*bins, SMALL, transform)
+    np.testing.assert_array_equal(w_np, grid[bins] if isinstance(grid, np.ndarray)
+                                  else np.full(w_np.shape, grid, np.float32))
+    ops = Ops(VariantNamespace(mi.llvm_ad_rgb))
+    u = mi.llvm_ad_rgb.UInt32
+    w_dr, valid = bin_weight(ops, shared_shape(ops, SMALL), *(u(b) for b in bins),
+                             ops.f(1.0 if uses_cosine(transform) else 0.0))
+    assert np.all(np.array(valid))
+    # the kernels take cos_i cos_o from float32 angle tables, numpy in float64: they
+    # agree to float32 rounding, the formula is the same
+    np.testing.assert_allclose(np.array(w_dr) * s, w_np, rtol=1e-5)
+    w_pt = [(point_weight(float(v)) if uses_cosine(transform) else 1.0) * s for v in c]
+    np.testing.assert_allclose(w_pt, w_np, rtol=1e-6)
+
+
+@pytest.mark.parametrize("transform", TRANSFORMS)
+def test02_inverse_on_three_paths(transform, bins_and_x):
+    bins, c, x = bins_and_x
+    rho_np = inverse_at_bins(x, transform, bins, SMALL)
+    s = transform_scale(transform)
+    cos_on = uses_cosine(transform)
+    ops = Ops(VariantNamespace(mi.llvm_ad_rgb))
+    u, f = mi.llvm_ad_rgb.UInt32, mi.llvm_ad_rgb.Float
+    w, ok = bin_weight(ops, shared_shape(ops, SMALL), *(u(b) for b in bins),
+                       ops.f(1.0 if cos_on else 0.0))
+    rho_dr = rho_from_x(ops, [f(x)] * 3, dr.select(ok, 1.0, 0.0), w * s)
+    rho_pt = np.array([point_rho_from_cos(float(v), 0.0, 0.0, float(cv), cos_on, s)[0]
+                       for v, cv in zip(x, c, strict=True)])
+    for other in (np.array(rho_dr[0]), rho_pt):
+        np.testing.assert_allclose(other, rho_np, rtol=1e-5, atol=1e-7)
+    # and the inverse undoes the forward transform on the grid
+    rho = np.abs(x).reshape(1, -1)[:, :1].repeat(int(np.prod(SMALL)), 1).reshape(1, *SMALL)
+    t = forward(rho, transform)
+    np.testing.assert_allclose(inverse_at_bins(t[0][bins], transform, bins, SMALL),
+                               rho[0][bins], rtol=1e-5)
