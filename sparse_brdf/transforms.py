@@ -13,7 +13,9 @@ Non-parametric BRDF Model", eq. 1 and 2) and their relative-precision twins
   dim, and a hue shift where one colour channel is dim. With s the logarithm reaches down
   to rho = 1/s, so errors are relative over the values materials have.
 
-Every transform is t = ln(rho w + 1) with a weight w (:func:`weight`).
+Every transform is t = ln(rho w + 1) with a weight w (:func:`weight`), declared once as
+data (:data:`TRANSFORM_SPECS`: its scale and whether the cosine weighs it), which every
+implementation reads: numpy here, the Dr.Jit kernels and the scalar variants' twins.
 
 Arrays are channel-first, ``(..., n_h, n_d, n_p)``: the trailing three axes are the grid.
 Invalid bins are set to rho = 0 before transforming; inverses clamp rho >= 0.
@@ -22,34 +24,62 @@ Invalid bins are set to rho = 0 before transforming; inverses clamp rho >= 0.
 from __future__ import annotations
 
 import functools
+from dataclasses import dataclass
 
 import numpy as np
 
 from .coords import cosine_product
 from .params import check_choice
 
-#: The transforms (declared choices of every ``transform`` parameter; ``encode`` adds
-#: "auto", the one its selector prefers among those its ensemble was trained for). A
-#: transform's index here is its id in a ``.sbrdf`` header: append, never reorder.
-TRANSFORMS: tuple[str, ...] = ("log-plus", "log-plus-cosine", "log-relative",
-                               "log-relative-cosine")
-#: The paper's two transforms: those of the ensembles trained before the relative ones.
-PAPER_TRANSFORMS: tuple[str, str] = ("log-plus", "log-plus-cosine")
 #: The relative transforms' scale s (sr): values are coded relative to each other down to
 #: rho = 1/s. Chosen by the one-light study of docs/method.md, "Transforms".
 RELATIVE_SCALE = 300.0
+#: The range the cosine transforms clip cos_i cos_o to.
 COS_CLIP = (0.01, 1.0)
+
+
+@dataclass(frozen=True)
+class TransformSpec:
+    """One transform as data, t = ln(rho w + 1) with w = ``scale`` times, if ``cosine``,
+    clip(cos_i cos_o, *COS_CLIP): every implementation of the forward, the inverse and
+    the weight (numpy here and in ``decoders.buffers``, Dr.Jit and the scalar twins in
+    ``mitsuba_plugin``) reads these two numbers from :data:`TRANSFORM_SPECS`."""
+
+    name: str
+    scale: float  # s (sr), 1 for the paper's transforms
+    cosine: bool  # weighted by the clipped cos_i cos_o of the bin
+
+
+#: Every transform, in file-id order (a transform's index is its id in a ``.sbrdf``
+#: header: append, never reorder).
+TRANSFORM_SPECS: tuple[TransformSpec, ...] = (
+    TransformSpec("log-plus", 1.0, False),
+    TransformSpec("log-plus-cosine", 1.0, True),
+    TransformSpec("log-relative", RELATIVE_SCALE, False),
+    TransformSpec("log-relative-cosine", RELATIVE_SCALE, True),
+)
+_SPECS = {t.name: t for t in TRANSFORM_SPECS}
+#: The transforms (declared choices of every ``transform`` parameter; ``encode`` adds
+#: "auto", the one its selector prefers among those its ensemble was trained for).
+TRANSFORMS: tuple[str, ...] = tuple(_SPECS)
+#: The paper's two transforms: those of the ensembles trained before the relative ones.
+PAPER_TRANSFORMS: tuple[str, str] = ("log-plus", "log-plus-cosine")
+
+
+def transform_spec(name: str) -> TransformSpec:
+    """The :class:`TransformSpec` of transform ``name`` (a UsageError if unknown)."""
+    return _SPECS[check_transform(name)]
 
 
 def uses_cosine(name: str) -> bool:
     """Whether transform ``name`` weighs rho by clip(cos_i cos_o, 0.01, 1)."""
-    return check_transform(name).endswith("-cosine")
+    return transform_spec(name).cosine
 
 
 def scale(name: str) -> float:
     """The constant factor of transform ``name``'s weight: :data:`RELATIVE_SCALE` for the
     relative transforms, 1 for the paper's."""
-    return RELATIVE_SCALE if check_transform(name).startswith("log-relative") else 1.0
+    return transform_spec(name).scale
 
 
 def check_transform(name: str) -> str:

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from conftest import SMALL
+from sparse_brdf import transforms as tf
 from sparse_brdf.coords import bin_angles, cos_io
 from sparse_brdf.decoders.buffers import bin_weight as np_bin_weight
 from sparse_brdf.transforms import TRANSFORMS, forward, inverse_at_bins, uses_cosine, weight
@@ -47,6 +48,10 @@ def bins_and_x():
 
 @pytest.mark.parametrize("transform", TRANSFORMS)
 def test01_weight_on_three_paths(transform, bins_and_x):
+    _weight_on_three_paths(transform, bins_and_x)
+
+
+def _weight_on_three_paths(transform, bins_and_x):
     bins, c, _ = bins_and_x
     s = transform_scale(transform)
     grid = weight(transform, SMALL)
@@ -67,6 +72,10 @@ def test01_weight_on_three_paths(transform, bins_and_x):
 
 @pytest.mark.parametrize("transform", TRANSFORMS)
 def test02_inverse_on_three_paths(transform, bins_and_x):
+    _inverse_on_three_paths(transform, bins_and_x)
+
+
+def _inverse_on_three_paths(transform, bins_and_x):
     bins, c, x = bins_and_x
     rho_np = inverse_at_bins(x, transform, bins, SMALL)
     s = transform_scale(transform)
@@ -85,3 +94,16 @@ def test02_inverse_on_three_paths(transform, bins_and_x):
     t = forward(rho, transform)
     np.testing.assert_allclose(inverse_at_bins(t[0][bins], transform, bins, SMALL),
                                rho[0][bins], rtol=1e-5)
+
+
+def test03_a_transform_added_to_the_table_reaches_every_path(bins_and_x, monkeypatch):
+    """The transforms are data (:data:`~sparse_brdf.transforms.TRANSFORM_SPECS`): one
+    more row, with a scale no transform has, is served by every path without code."""
+    extra = tf.TransformSpec("log-test-cosine", 7.0, True)
+    specs = (*tf.TRANSFORM_SPECS, extra)
+    monkeypatch.setattr(tf, "TRANSFORM_SPECS", specs)
+    monkeypatch.setattr(tf, "_SPECS", {t.name: t for t in specs})
+    monkeypatch.setattr(tf, "TRANSFORMS", tuple(t.name for t in specs))
+    assert transform_scale(extra.name) == 7.0 and uses_cosine(extra.name)
+    _weight_on_three_paths(extra.name, bins_and_x)
+    _inverse_on_three_paths(extra.name, bins_and_x)
