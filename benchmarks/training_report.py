@@ -89,7 +89,7 @@ def time_split(hist: dict, meta: dict) -> dict[str, dict[str, float]]:
 def _plot_time(rows: dict, path: Path) -> None:
     import matplotlib.pyplot as plt  # lazy: slow to import; backend chosen by the caller
 
-    fig, ax = plt.subplots(figsize=(7, 3), constrained_layout=True)
+    fig, ax = plt.subplots(figsize=(8, 3), constrained_layout=True)
     labels = list(rows)[::-1]
     phases = ["loading"] + [label for _, label in PHASES]
     left = np.zeros(len(labels))
@@ -99,9 +99,9 @@ def _plot_time(rows: dict, path: Path) -> None:
         left += w
     for y, total in enumerate(left):
         ax.text(total, y, f" {total:.0f} s", va="center", fontsize=8)
-    ax.set_xlabel(f"seconds (whole: {left.sum():.0f} s)")
+    ax.set_xlabel(f"seconds (the phases together: {left.sum():.0f} s)")
     ax.set_xlim(0, left.max() * 1.15)
-    ax.legend(fontsize=8, loc="lower right")
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.savefig(path, dpi=100)
 
 
