@@ -4,9 +4,9 @@ of Mitsuba's scalar variants, one implementation for both.
 
 In a scalar variant every BSDF call is its own Python call, and the kernels' per-float
 Python loops (:func:`mitsuba_plugin.decoders.grouped_x`,
-:func:`mitsuba_plugin.decoders.strict_x`) cost far more than the table lookup of ``tabulated_brdf``. Arranged as below,
-one lookup is a handful of numpy calls on the same data, still evaluating only the
-sparse model's terms (docs/method.md):
+:func:`mitsuba_plugin.decoders.strict_x`) cost far more than the table lookup of
+``tabulated_brdf``. Arranged as below, one lookup is a handful of numpy calls on the
+same data, still evaluating only the sparse model's terms (docs/method.md):
 
 - **grouped** (:class:`GroupedLookup`): the layout's row of the bin pair (ip, iq)
   (:func:`~sparse_brdf.decoders.layouts.grouped_layout`, ``L`` floats, read in place)
