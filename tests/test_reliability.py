@@ -600,7 +600,8 @@ def test_sigint_during_encode(tmp_path):
     out = tmp_path / "out"
     out.mkdir()
     code = (
-        "import sys\n"
+        "import faulthandler, signal, sys\n"
+        "faulthandler.register(signal.SIGUSR1)\n"  # the stacks, should it hang
         "import sparse_brdf.cli as cli\n"
         "from sparse_brdf.cli import files\n"  # where encode_file looks the encoder up
         "real = files.encode_with\n"
@@ -609,8 +610,9 @@ def test_sigint_during_encode(tmp_path):
         "    while True:\n"
         "        real(*a, **k)\n"
         "files.encode_with = encode_until_interrupted\n"
-        f"sys.exit(cli.main(['encode', {str(src)!r}, '-o', {str(out / 'c.sbrdf')!r}, "
-        "'--fill-iters', '2']))\n")
+        f"sys.argv = ['sparse-brdf', 'encode', {str(src)!r}, '-o', "
+        f"{str(out / 'c.sbrdf')!r}, '--fill-iters', '2']\n"
+        "cli.run()\n")  # the console command's own entry
     p = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,
                          stderr=subprocess.PIPE, text=True, cwd=ROOT)
     try:
@@ -618,7 +620,14 @@ def test_sigint_during_encode(tmp_path):
         said = p.stdout.readline() if ready else ""
         assert said == "encoding\n", (said, p.poll())
         p.send_signal(signal.SIGINT)
-        _, err = p.communicate(timeout=120)
+        try:
+            _, err = p.communicate(timeout=120)
+        except subprocess.TimeoutExpired:
+            p.send_signal(signal.SIGUSR1)
+            time.sleep(2)
+            p.kill()
+            _, err = p.communicate()
+            pytest.fail(f"the interrupted encode did not end; its stacks:\n{err}")
     finally:
         if p.poll() is None:
             p.kill()
