@@ -602,6 +602,9 @@ def test_sigint_during_encode(tmp_path):
     code = (
         "import faulthandler, signal, sys\n"
         "faulthandler.register(signal.SIGUSR1)\n"  # the stacks, should it hang
+        # Ctrl-C's handler even where this test runs in the background (a shell starts
+        # `cmd &` with SIGINT ignored, and Python then leaves it ignored)
+        "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
         "import sparse_brdf.cli as cli\n"
         "from sparse_brdf.cli import files\n"  # where encode_file looks the encoder up
         "real = files.encode_with\n"
@@ -610,9 +613,8 @@ def test_sigint_during_encode(tmp_path):
         "    while True:\n"
         "        real(*a, **k)\n"
         "files.encode_with = encode_until_interrupted\n"
-        f"sys.argv = ['sparse-brdf', 'encode', {str(src)!r}, '-o', "
-        f"{str(out / 'c.sbrdf')!r}, '--fill-iters', '2']\n"
-        "cli.run()\n")  # the console command's own entry
+        f"sys.exit(cli.main(['encode', {str(src)!r}, '-o', {str(out / 'c.sbrdf')!r}, "
+        "'--fill-iters', '2']))\n")
     p = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,
                          stderr=subprocess.PIPE, text=True, cwd=ROOT)
     try:

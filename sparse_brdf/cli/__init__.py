@@ -13,10 +13,9 @@ library function.
 
 from __future__ import annotations
 
-from ._entry import EXIT_BUG, main, run
+from ._entry import EXIT_BUG, main
 from ._options import COEFFS
 from ._parser import EPILOG, build_parser, parsers
 from ._process import MALLOC_SETTINGS
 
-__all__ = ["COEFFS", "EPILOG", "EXIT_BUG", "MALLOC_SETTINGS", "build_parser", "main", "parsers",
-           "run"]
+__all__ = ["COEFFS", "EPILOG", "EXIT_BUG", "MALLOC_SETTINGS", "build_parser", "main", "parsers"]

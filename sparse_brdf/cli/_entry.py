@@ -67,21 +67,6 @@ def main(argv: list[str] | None = None) -> int:
             return EXIT_BUG
 
 
-def run() -> None:
-    """The ``sparse-brdf`` console command: :func:`main` on ``sys.argv``, then exit with its
-    status. After a signal (status 128 + N) the process ends at once (``os._exit``), its
-    outputs already cleaned up and stdout and stderr flushed: a worker thread that the
-    interrupt left waiting must not keep a stopped command alive at the interpreter's
-    exit, which joins every thread."""
-    code = main()
-    if code >= 128:
-        for stream in (sys.stdout, sys.stderr):
-            with contextlib.suppress(Exception):
-                stream.flush()
-        os._exit(code)
-    sys.exit(code)
-
-
 def _report(debug: bool, message: str) -> None:
     """Print ``message`` as one line on stderr, after the traceback with ``debug``."""
     if debug:
