@@ -136,8 +136,8 @@ def test_warm_start_begins_where_the_previous_sparsity_ended(small_training, tmp
     same dictionaries."""
     x = small_training
     kw = dict(taus=(8, 24), n_dicts=3, n_iter=3, seed=2, progress=False, tol=0)
-    cold = train_ensemble(x, warm_start=False, **kw)
-    warm = train_ensemble(x, **kw)  # the default
+    cold = train_ensemble(x, **kw)  # the default
+    warm = train_ensemble(x, warm_start=True, **kw)
     assert warm.meta["warm_start"] is True and cold.meta["warm_start"] is False
     # the first sparsity is trained as without a warm start
     assert ([h["objective"] for h in cold.meta["history"]["8"]]

@@ -465,7 +465,7 @@ def train_ensemble(
     meta: dict | None = None,
     workers: int | None = None,
     scheduler: str | None = None,
-    warm_start: bool = True,
+    warm_start: bool = False,
     **kwargs,
 ) -> Ensemble:
     """Train ``n_dicts`` dictionaries per sparsity in ``taus`` and unite them.
@@ -500,8 +500,9 @@ def train_ensemble(
     warm_start : bool
         Start each sparsity after the first from the previous one's dictionaries and
         clusters (``start`` of :func:`train_dictionaries`) instead of a new
-        initialisation: no seeding and no unpruned first clustering
-        (``docs/ensemble.md`` measures what it saves and costs).
+        initialisation: no seeding and no unpruned first clustering, and a lower
+        training objective, but no better renders of unseen materials and larger files
+        at a fixed coefficient count (``docs/ensemble.md`` measures both).
     **kwargs
         Passed to :func:`train_dictionaries` (``masked``, ``missing``, ``init``,
         ``reassign_every``, ``tol``, ``max_moved``).
