@@ -20,8 +20,7 @@ from sparse_brdf.decoders.layouts import DECODERS, LAYOUTS, LOBES, PLUGIN_DEFAUL
 from sparse_brdf.decoders.lobe import sparse_profile
 from sparse_brdf.decoders.scene import MEMORY_BUDGET_MIB
 from sparse_brdf.errors import PluginError
-from sparse_brdf.transforms import scale as transform_scale
-from sparse_brdf.transforms import uses_cosine
+from sparse_brdf.transforms import material_scale, uses_cosine
 
 from .budget import default_budget, resolve
 from .decoders import grouped_x, strict_x
@@ -139,7 +138,7 @@ class SparseBSDF(GlossyBSDF):
         self._use_cos = ops.f(1.0 if self._cos_on else 0.0)
         # the relative transforms' constant factor s of the weight (a Python float: the
         # paper's transforms, s = 1, trace no multiply)
-        self._scale = transform_scale(model.transform)
+        self._scale = material_scale(model.transform, model.gain)
         self._grad = False
         budget = p["memory_budget"]
         #: The decoder data (built now, or once the scene's budget decides: budget.py).

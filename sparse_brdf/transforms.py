@@ -7,15 +7,23 @@ Non-parametric BRDF Model", eq. 1 and 2) and their relative-precision twins
   with c = clip(cos(theta_i) cos(theta_o), 0.01, 1) at the bin's angles;
 - ``log-relative``:        t = ln(rho s + 1),        rho = (exp(t) - 1) / s,
 - ``log-relative-cosine``: t = ln(rho c s + 1),      rho = (exp(t) - 1) / (c s),
-  with s = :data:`RELATIVE_SCALE` (sr). ln(1 + x) is linear for x much below 1, so the
+  with s = :data:`RELATIVE_SCALE` (sr);
+- ``log-level``:           t = ln(rho k / L + 1),    rho = (exp(t) - 1) L / k,
+- ``log-level-cosine``:    t = ln(rho c k / L + 1),  rho = (exp(t) - 1) L / (c k),
+  with k = :data:`LEVEL_KNEE` and L the material's own level (:func:`material_level`,
+  1/sr), stored in its file. ln(1 + x) is linear for x much below 1, so the
   paper's transforms code dim values (rho << 1/sr) with absolute precision: a coding
   error that is small beside a highlight is a large relative error where the material is
   dim, and a hue shift where one colour channel is dim. With s the logarithm reaches down
-  to rho = 1/s, so errors are relative over the values materials have.
+  to rho = 1/s, so errors are relative over the values materials have. The level
+transforms put that knee at a fixed fraction of each material's own level instead of at
+one value for all, so that a bright material's dim lobe and a dim material's highlight are
+coded alike.
 
 Every transform is t = ln(rho w + 1) with a weight w (:func:`weight`), declared once as
-data (:data:`TRANSFORM_SPECS`: its scale and whether the cosine weighs it), which every
-implementation reads: numpy here, the Dr.Jit kernels and the scalar variants' twins.
+data (:data:`TRANSFORM_SPECS`: its scale, whether the cosine weighs it and whether a
+material's own gain 1/L multiplies it), which every implementation reads: numpy here, the
+Dr.Jit kernels and the scalar variants' twins.
 
 Arrays are channel-first, ``(..., n_h, n_d, n_p)``: the trailing three axes are the grid.
 Invalid bins are set to rho = 0 before transforming; inverses clamp rho >= 0.
@@ -34,6 +42,13 @@ from .params import check_choice
 #: The relative transforms' scale s (sr): values are coded relative to each other down to
 #: rho = 1/s. Chosen by the one-light study of docs/method.md, "Transforms".
 RELATIVE_SCALE = 300.0
+#: The level transforms' knee k: t = ln(1 + k rho / L) is linear below rho = L / k and
+#: logarithmic above, L the material's level. Chosen in docs/method.md, "Transforms".
+LEVEL_KNEE = 3.0
+#: The smallest level L (1/sr) a material is given: a black material keeps a finite gain.
+LEVEL_FLOOR = 1e-4
+#: Luminance weights of linear R, G, B (Rec. 709) for a material's level.
+LUMINANCE = (0.2126, 0.7152, 0.0722)
 #: The range the cosine transforms clip cos_i cos_o to.
 COS_CLIP = (0.01, 1.0)
 
@@ -41,13 +56,16 @@ COS_CLIP = (0.01, 1.0)
 @dataclass(frozen=True)
 class TransformSpec:
     """One transform as data, t = ln(rho w + 1) with w = ``scale`` times, if ``cosine``,
-    clip(cos_i cos_o, *COS_CLIP): every implementation of the forward, the inverse and
-    the weight (numpy here and in ``decoders.buffers``, Dr.Jit and the scalar twins in
-    ``mitsuba_plugin``) reads these two numbers from :data:`TRANSFORM_SPECS`."""
+    clip(cos_i cos_o, *COS_CLIP), times, if ``per_material``, the material's gain 1/L
+    (stored in its file): every implementation of the forward, the inverse and the
+    weight (numpy here and in ``decoders.buffers``, Dr.Jit and the scalar twins in
+    ``mitsuba_plugin``) reads these numbers from :data:`TRANSFORM_SPECS` and the gain from
+    the material."""
 
     name: str
-    scale: float  # s (sr), 1 for the paper's transforms
+    scale: float  # s (sr), 1 for the paper's transforms; k (no unit) for the level ones
     cosine: bool  # weighted by the clipped cos_i cos_o of the bin
+    per_material: bool = False  # weighted by the material's gain 1/L (sr)
 
 
 #: Every transform, in file-id order (a transform's index is its id in a ``.sbrdf``
@@ -57,6 +75,8 @@ TRANSFORM_SPECS: tuple[TransformSpec, ...] = (
     TransformSpec("log-plus-cosine", 1.0, True),
     TransformSpec("log-relative", RELATIVE_SCALE, False),
     TransformSpec("log-relative-cosine", RELATIVE_SCALE, True),
+    TransformSpec("log-level", LEVEL_KNEE, False, True),
+    TransformSpec("log-level-cosine", LEVEL_KNEE, True, True),
 )
 _SPECS = {t.name: t for t in TRANSFORM_SPECS}
 #: The transforms (declared choices of every ``transform`` parameter; ``encode`` adds
@@ -76,10 +96,67 @@ def uses_cosine(name: str) -> bool:
     return transform_spec(name).cosine
 
 
+def per_material(name: str) -> bool:
+    """Whether transform ``name``'s weight holds the material's own gain 1/L."""
+    return transform_spec(name).per_material
+
+
+def material_level(rho: np.ndarray, valid: np.ndarray | None = None) -> float:
+    """A material's level L (1/sr): the median luminance of its valid bins, at least
+    :data:`LEVEL_FLOOR`.
+
+    Parameters
+    ----------
+    rho : numpy.ndarray
+        Linear R, G, B (1/sr), channel-first: shape (3, ...), e.g. (3, n_h, n_d, n_p)
+        or the (3, N) values of N samples.
+    valid : numpy.ndarray, optional
+        Bool, the shape of one channel: the bins that count; None: all of them.
+    """
+    rho = np.asarray(rho, np.float32)
+    if rho.ndim < 1 or rho.shape[0] != 3:
+        raise ValueError(f"a material's level needs its R, G, B on the first axis, got an "
+                         f"array of shape {rho.shape}")
+    lum = LUMINANCE[0] * rho[0] + LUMINANCE[1] * rho[1] + LUMINANCE[2] * rho[2]
+    if valid is not None:
+        lum = lum[np.asarray(valid, bool)]
+    level = float(np.median(lum)) if lum.size else 0.0
+    return max(level, LEVEL_FLOOR) if np.isfinite(level) else LEVEL_FLOOR
+
+
+def material_gain(name: str, rho: np.ndarray, valid: np.ndarray | None = None) -> float:
+    """The gain g = 1/L that transform ``name`` gives the material ``rho`` (channel-first
+    linear R, G, B, 1/sr; ``valid`` as :func:`material_level`): float32-exact, 1 for
+    the transforms without a per-material gain."""
+    if not per_material(name):
+        return 1.0
+    return float(np.float32(1.0 / material_level(rho, valid)))
+
+
+def check_gain(name: str, gain: float) -> float:
+    """``gain`` as a float if transform ``name`` can have it: finite and > 0 for a
+    per-material transform, exactly 1 for the others (a ValueError otherwise)."""
+    g = float(gain)
+    if per_material(name):
+        if not (np.isfinite(g) and g > 0):
+            raise ValueError(f"transform {name!r}: the material's gain must be finite and "
+                             f"> 0, got {gain!r}")
+    elif g != 1.0:
+        raise ValueError(f"transform {name!r} has no per-material gain, got {gain!r}")
+    return g
+
+
 def scale(name: str) -> float:
     """The constant factor of transform ``name``'s weight: :data:`RELATIVE_SCALE` for the
     relative transforms, 1 for the paper's."""
     return transform_spec(name).scale
+
+
+def material_scale(name: str, gain: float = 1.0) -> float:
+    """The constant factor of transform ``name``'s weight for a material of gain ``gain``
+    (:func:`check_gain`): its scale times the gain, rounded to float32 (the value every
+    implementation multiplies by)."""
+    return float(np.float32(scale(name) * check_gain(name, gain)))
 
 
 def check_transform(name: str) -> str:
@@ -96,10 +173,12 @@ def cosine_weight(shape: tuple[int, int, int]) -> np.ndarray:
     return c
 
 
-def weight(name: str, shape: tuple[int, int, int]) -> np.ndarray | float:
-    """The weight w of transform ``name`` (t = ln(rho w + 1)) on the grid ``shape``: a
-    float32 array (n1, n2, n3) for the cosine transforms (read-only), else a float."""
-    s = scale(name)
+def weight(name: str, shape: tuple[int, int, int], gain: float = 1.0
+           ) -> np.ndarray | float:
+    """The weight w of transform ``name`` (t = ln(rho w + 1)) on the grid ``shape`` for a
+    material of gain ``gain`` (1/L, sr; 1 for the transforms without one): a float32
+    array (n1, n2, n3) for the cosine transforms (read-only), else a float."""
+    s = material_scale(name, gain)
     if not uses_cosine(name):
         return s
     return cosine_weight(shape) if s == 1.0 else _scaled_cosine_weight(shape, s)
@@ -113,7 +192,8 @@ def _scaled_cosine_weight(shape: tuple[int, int, int], s: float) -> np.ndarray:
 
 
 
-def forward(rho: np.ndarray, name: str, valid: np.ndarray | None = None) -> np.ndarray:
+def forward(rho: np.ndarray, name: str, valid: np.ndarray | None = None,
+            gain: float | None = None) -> np.ndarray:
     """Transform linear BRDF values into the domain the dictionaries code.
 
     Parameters
@@ -128,6 +208,9 @@ def forward(rho: np.ndarray, name: str, valid: np.ndarray | None = None) -> np.n
     valid : numpy.ndarray, optional
         Bool (n_h, n_d, n_p), broadcast over the leading axes: invalid bins are set to
         rho = 0 first. None: every bin as given.
+    gain : float, optional
+        The material's gain 1/L for the level transforms; None: ``rho``'s own
+        (:func:`material_gain`, ``rho`` then being one material's R, G, B).
 
     Returns
     -------
@@ -140,7 +223,9 @@ def forward(rho: np.ndarray, name: str, valid: np.ndarray | None = None) -> np.n
         If ``name`` is not one of :data:`TRANSFORMS`.
     """
     rho = np.asarray(rho, dtype=np.float32)
-    w = weight(name, rho.shape[-3:])
+    if gain is None:
+        gain = material_gain(name, rho, valid)
+    w = weight(name, rho.shape[-3:], gain)
     if valid is None:
         t = rho * w
     else:  # invalid bins stay 0 (rho = 0 there), without a masked copy of rho
@@ -149,7 +234,7 @@ def forward(rho: np.ndarray, name: str, valid: np.ndarray | None = None) -> np.n
     return np.log1p(t, out=t)  # float32: rho and the weight are
 
 
-def inverse(t: np.ndarray, name: str) -> np.ndarray:
+def inverse(t: np.ndarray, name: str, gain: float = 1.0) -> np.ndarray:
     """Inverse of :func:`forward`: transformed values back to linear BRDF values.
 
     Parameters
@@ -158,6 +243,8 @@ def inverse(t: np.ndarray, name: str) -> np.ndarray:
         Transformed values, channel-first: shape (..., n_h, n_d, n_p).
     name : str
         The transform they are in, one of :data:`TRANSFORMS`.
+    gain : float
+        The material's gain 1/L (sr) for the level transforms; 1 for the others.
 
     Returns
     -------
@@ -170,14 +257,16 @@ def inverse(t: np.ndarray, name: str) -> np.ndarray:
         If ``name`` is not one of :data:`TRANSFORMS`.
     """
     t = np.asarray(t)
-    return _inverse(t, weight(name, t.shape[-3:]))
+    return _inverse(t, weight(name, t.shape[-3:], gain))
 
 
 def inverse_at_bins(
-    t: np.ndarray, name: str, bins: tuple[np.ndarray, ...], shape: tuple[int, int, int]
+    t: np.ndarray, name: str, bins: tuple[np.ndarray, ...], shape: tuple[int, int, int],
+    gain: float = 1.0,
 ) -> np.ndarray:
-    """Inverse transform of values ``t`` (..., ) that belong to the bins ``(i, j, k)``."""
-    w = weight(name, shape)
+    """Inverse transform of values ``t`` (..., ) that belong to the bins ``(i, j, k)``,
+    for a material of gain ``gain`` (:func:`inverse`)."""
+    w = weight(name, shape, gain)
     return _inverse(np.asarray(t), w[bins] if isinstance(w, np.ndarray) else w)
 
 

@@ -95,6 +95,30 @@ def test_a_sparse_material_is_recovered_exactly(ens, monkeypatch):
         assert set(truth.locations[c]) <= set(model.locations[c])
 
 
+def test_a_level_transform_codes_samples_at_their_own_level(ens):
+    """Under a level transform the model's gain is 1/L of the samples themselves (their
+    median luminance), stored with it; the same samples 100 times brighter give the same
+    coefficients and a 100 times smaller gain, so the same material, 100 times brighter."""
+    import dataclasses
+
+    _, brdf = _sparse_material(ens, seed=4)
+    samples = _on_bins(brdf, 2000, seed=3)
+    model = encode_samples(samples, ens, n_coeffs=20, transform="log-level-cosine",
+                           prior=None)
+    lum = samples.rgb @ np.array([0.2126, 0.7152, 0.0722])
+    assert model.transform == "log-level-cosine"
+    assert model.gain == pytest.approx(1 / np.median(lum), rel=1e-6)
+    bright = encode_samples(dataclasses.replace(samples, rgb=samples.rgb * 100), ens,
+                            n_coeffs=20, transform="log-level-cosine", prior=None)
+    assert bright.gain == pytest.approx(model.gain / 100, rel=1e-6)
+    for c in range(3):
+        np.testing.assert_array_equal(np.sort(bright.locations[c]), np.sort(model.locations[c]))
+        np.testing.assert_allclose(np.sort(bright.values[c]), np.sort(model.values[c]),
+                                   rtol=1e-3, atol=1e-4 * float(np.abs(model.values[c]).max()))
+    np.testing.assert_allclose(bright.decode(ens).values, 100 * model.decode(ens).values,
+                               rtol=2e-3, atol=1e-3 * float(model.decode(ens).values.max()))
+
+
 def test_default_ridge_stays_close_and_degrades_with_fewer_samples(ens):
     truth, brdf = _sparse_material(ens, seed=2)
     errs = []

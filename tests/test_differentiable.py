@@ -34,6 +34,13 @@ def mat(tmp_path_factory):
     return make_exact_material(tmp_path_factory.mktemp("ad"), n_coeffs=200)
 
 
+@pytest.fixture(scope="module")
+def level_mat(tmp_path_factory):
+    """The same material coded in a level transform (its own gain in the file)."""
+    return make_exact_material(tmp_path_factory.mktemp("ad-level"), n_coeffs=200,
+                               transform="log-level-cosine")
+
+
 @pytest.fixture
 def llvm():
     set_variant("llvm_ad_rgb")
@@ -131,16 +138,20 @@ def _fd(sc, params, key, j, base, w, seed):
     return (out[0] - out[1]) / (2 * h)
 
 
-@pytest.mark.parametrize(("integrator", "decoder"), [("direct", "grouped"),
-                                                     ("prb", "grouped"),
-                                                     ("prb", "strict")])
+@pytest.mark.parametrize(("integrator", "decoder", "material"),
+                         [("direct", "grouped", "mat"), ("prb", "grouped", "mat"),
+                          ("prb", "strict", "mat"), ("prb", "grouped", "level_mat")])
 @pytest.mark.render
 @pytest.mark.numerics
-def test_gradients_match_finite_differences(mat, llvm, integrator, decoder):
+def test_gradients_match_finite_differences(request, llvm, integrator, decoder, material):
     """Reverse-mode gradients of a weighted sum of the image, for the two values of
     largest gradient in each channel, and the forward-mode derivative along one of them,
     agree with central differences of renders with the gradient pass's seed (cosine
-    sampling: the sample paths do not move with the values, as in fit-images)."""
+    sampling: the sample paths do not move with the values, as in fit-images); in the
+    paper's transform and in a level transform (through the material's gain)."""
+    mat = request.getfixturevalue(material)
+    if material == "level_mat":
+        assert load_sbrdf(mat["sbrdf"], Ensemble.load(mat["ensemble"])).gain != 1.0
     sc = scene(_bsdf(mat, decoder=decoder, sampling="cosine"), integrator)
     params = mi.traverse(sc)
     keys = [f"s.bsdf.{k}" for k in KEYS]

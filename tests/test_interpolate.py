@@ -113,3 +113,21 @@ def test_cli_blend(pair, small_ensemble, tmp_path):
     assert main(["blend", str(pa), str(pb), "--alpha", "0.3", "-o", str(out),
                  "--ensemble", str(ens)]) == 0
     assert load_sbrdf(out, small_ensemble).name.endswith("@0.3")
+
+
+def test_level_blends_take_the_geometric_blend_of_the_gains(small_ensemble):
+    """Blending two materials coded in a level transform: the coefficients blend as in
+    the other transforms, and the gain 1/L blends geometrically (ln(rho / L) blends
+    linearly where the logarithm dominates): the endpoints are the materials themselves."""
+    a, b = (encode(load_brdf(f"mitsuba:{n}", shape=SMALL), small_ensemble, 64,
+                   transform="log-level") for n in ("au-ggx-0.25", "plastic-blue-ggx-0.2"))
+    assert a.gain != b.gain
+    for alpha in (0.0, 0.3, 1.0):
+        mid = interpolate(a, b, alpha, small_ensemble, n_coeffs=int(np.prod(SMALL)))
+        assert mid.transform == "log-level"
+        assert mid.gain == pytest.approx(a.gain ** (1 - alpha) * b.gain ** alpha, rel=1e-6)
+    end = interpolate(a, b, 1.0, small_ensemble, n_coeffs=int(np.prod(SMALL)))
+    want = b.decode(small_ensemble)
+    np.testing.assert_allclose(end.decode(small_ensemble).values[want.valid],
+                               want.values[want.valid], rtol=1e-3,
+                               atol=1e-4 * float(want.values.max()))

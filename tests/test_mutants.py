@@ -39,6 +39,7 @@ from sparse_brdf.metrics import (
     snr_forms,
 )
 from sparse_brdf.transforms import (
+    LEVEL_KNEE,
     RELATIVE_SCALE,
     RHO_MAX,
     TRANSFORMS,
@@ -48,6 +49,7 @@ from sparse_brdf.transforms import (
     from_basis,
     inverse,
     inverse_at_bins,
+    per_material,
     scale,
     to_basis,
     uses_cosine,
@@ -77,8 +79,11 @@ def _model(ens_id: str, basis: str = "rgb", transform: str = "log-plus-cosine",
 
 # ---------------------------------------------------------------------- transforms
 def test_transform_names_weights_and_scales():
-    assert [uses_cosine(n) for n in TRANSFORMS] == [False, True, False, True]
-    assert [scale(n) for n in TRANSFORMS] == [1.0, 1.0, RELATIVE_SCALE, RELATIVE_SCALE]
+    assert [uses_cosine(n) for n in TRANSFORMS] == [False, True, False, True, False, True]
+    assert [scale(n) for n in TRANSFORMS] == [1.0, 1.0, RELATIVE_SCALE, RELATIVE_SCALE,
+                                              LEVEL_KNEE, LEVEL_KNEE]
+    assert [per_material(n) for n in TRANSFORMS] == [False] * 4 + [True] * 2
+    assert weight("log-level", TINY, 0.5) == LEVEL_KNEE * 0.5
     assert weight("log-plus", TINY) == 1.0
     assert weight("log-relative", TINY) == RELATIVE_SCALE
     c = weight("log-plus-cosine", TINY)
@@ -558,9 +563,13 @@ def test_from_bytes_refusals_name_the_source():
         bad[10] = len(TRANSFORMS)
         with pytest.raises(BRDFFileError, match=f"unknown transform code {len(TRANSFORMS)}"):
             ff.from_bytes(bytes(bad) + struct.pack("<I", zlib.crc32(bytes(bad))), "src")
-        bad[10] = len(TRANSFORMS) - 1
+        bad[10] = TRANSFORMS.index("log-relative-cosine")  # the last without a gain
         last = ff.from_bytes(bytes(bad) + struct.pack("<I", zlib.crc32(bytes(bad))), "src")
-        assert last.transform == TRANSFORMS[-1]
+        assert last.transform == "log-relative-cosine"
+        bad[10] = len(TRANSFORMS) - 1  # a level transform's file holds 4 bytes more
+        with pytest.raises(BRDFFileError, match=f"truncated: {n} bytes, its header "
+                                                f"announces {n + 4}"):
+            ff.from_bytes(bytes(bad) + struct.pack("<I", zlib.crc32(bytes(bad))), "src")
 
 
 def test_eval_is_zero_for_a_direction_at_or_below_the_horizon(ens):
@@ -925,7 +934,7 @@ def test_describe_a_file(tmp_path):
     assert ff.describe(p1) == {
         "version": 1, "codec": None, "bytes": 57 + 1 + 8 * 4, "ensemble": PAPER_ENSEMBLE_ID,
         "ensemble_shipped": True, "grid": [4, 5, 6], "transform": "log-relative-cosine",
-        "basis": "opponent", "channels": ["luminance", "red-green", "yellow-blue"],
+        "gain": 1.0, "basis": "opponent", "channels": ["luminance", "red-green", "yellow-blue"],
         "coefficients": [3, 0, 1], "coefficients_total": 4, "dictionaries": [3, 1, 2]}
     d2 = ff.describe(p2)
     data = p2.read_bytes()

@@ -41,7 +41,14 @@ from sparse_brdf.decoders.lookups import layout_eval, model_x, strict_eval
 from sparse_brdf.mitsuba_env import set_variant
 from sparse_brdf.sources.load import load_brdf
 from sparse_brdf.sources.merl import write_merl
-from sparse_brdf.transforms import TRANSFORMS, colour_matrix, cosine_weight, forward, inverse
+from sparse_brdf.transforms import (
+    TRANSFORMS,
+    colour_matrix,
+    cosine_weight,
+    forward,
+    inverse,
+    per_material,
+)
 
 mi = pytest.importorskip("mitsuba")
 dr = pytest.importorskip("drjit")
@@ -80,8 +87,10 @@ def llvm():
     return use_variant("llvm_ad_rgb")
 
 
-def make_exact_material(folder, name: str = "plastic-red-ggx-0.3", n_coeffs: int = 400):
+def make_exact_material(folder, name: str = "plastic-red-ggx-0.3", n_coeffs: int = 400,
+                        transform: str = "auto"):
     """A glossy material on the small grid, its own HOSVD ensemble (K=1), its sparse code
+    (the paper's encoder; ``transform``: the one to code in, "auto" the paper's choice)
     and the model's full decode as a MERL file (the exact tabulated twin of the model).
 
     Returns a dict of paths: ensemble, sbrdf, binary (decoded model), original (binary).
@@ -94,7 +103,8 @@ def make_exact_material(folder, name: str = "plastic-red-ggx-0.3", n_coeffs: int
             g = mode_grams(y[c])
             grams = g if grams is None else tuple(a + b for a, b in zip(grams, g, strict=True))
     ens = Ensemble(*(f[None] for f in hosvd_factors(grams)), taus=np.zeros(1))
-    model = encode(brdf, ens, n_coeffs, **PAPER_OPTIONS)  # n_coeffs in each R, G, B channel
+    # n_coeffs in each R, G, B channel
+    model = encode(brdf, ens, n_coeffs, transform=transform, **PAPER_OPTIONS)
     sbrdf = save_sbrdf(folder / f"{name}.sbrdf", model)
     model = load_sbrdf(sbrdf, ens)  # the values as the file holds them (quantised)
     paths = {"ensemble": str(ens.save(folder / "ens.npz")), "sbrdf": str(sbrdf),
@@ -123,7 +133,8 @@ def full_random(tmp_path_factory):
             locs.append(np.concatenate([[0], rng.choice(np.arange(1, size), 60, replace=False)]))
             vals.append(np.concatenate([[0.2 * np.sqrt(size)],
                                         rng.normal(0, 0.2, 60)]).astype(np.float32))
-        model = SparseBRDF(t, FULL, ens.id, [0, 0, 0], locs, vals, name=f"random-{t}")
+        model = SparseBRDF(t, FULL, ens.id, [0, 0, 0], locs, vals, name=f"random-{t}",
+                           gain=0.4375 if per_material(t) else 1.0)  # a level's own gain
         out[t] = str(save_sbrdf(folder / f"random-{t}.sbrdf", model))
     return out
 

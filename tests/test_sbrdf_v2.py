@@ -559,3 +559,30 @@ def test_replace_keeps_a_loaded_file_byte_identical(ens):
     back = from_bytes(to_bytes(renamed))
     for c in range(3):
         np.testing.assert_array_equal(back.values[c], r.values[c])
+
+
+@pytest.mark.parametrize("version", [1, 2])
+def test_level_transform_files_hold_the_gain(ens, version):
+    """A level transform's file holds the material's gain (f32 after the name, 4 bytes more
+    than the same coefficients under another transform); it reads back exactly, decodes
+    with it, and a corrupt gain is refused naming the file."""
+    base = _model(ens.id)
+    m = dataclasses.replace(base, transform="log-level-cosine", gain=0.3125)
+    data, plain = to_bytes(m, version), to_bytes(base, version)
+    assert len(data) == len(plain) + 4
+    assert min_file_size(5, version, "log-level") == min_file_size(5, version) + 4
+    r = from_bytes(data)
+    assert (r.transform, r.gain) == ("log-level-cosine", 0.3125)
+    np.testing.assert_allclose(r.decode(ens).values[r.decode(ens).valid],
+                               as_stored(m, version).decode(ens).values[m.decode(ens).valid])
+    # rho = (e^t - 1) / (c k g): the gain divides the decode, against gain 1
+    half = dataclasses.replace(r, gain=0.625).decode(ens).values
+    np.testing.assert_allclose(half, r.decode(ens).values / 2, rtol=1e-6, atol=1e-30)
+    off = (53 if version == 1 else 68) + len(m.name.encode())
+    assert struct.unpack_from("<f", data, off) == (0.3125,)
+    for bad in (float("nan"), -1.0, 0.0, float("inf")):
+        body = data[:off] + struct.pack("<f", bad) + data[off + 4:-4]
+        with pytest.raises(BRDFFileError, match="random-rgb.sbrdf: .*gain"):
+            from_bytes(body + struct.pack("<I", zlib.crc32(body)), "random-rgb.sbrdf")
+    with pytest.raises(ValueError, match="gain"):
+        dataclasses.replace(base, gain=2.0)  # the other transforms have none

@@ -6,11 +6,14 @@ from sparse_brdf.coords import cosine_product, geometric_valid
 from sparse_brdf.errors import ImageFileError
 from sparse_brdf.metrics import cosine_weighted_snr, gamma_mse, rae, render_snr
 from sparse_brdf.transforms import (
+    LEVEL_KNEE,
     RELATIVE_SCALE,
     TRANSFORMS,
     cosine_weight,
     forward,
     inverse,
+    material_gain,
+    material_level,
     weight,
 )
 
@@ -24,7 +27,7 @@ def test_inverse_of_forward_is_identity_on_valid_bins(name):
     rng = np.random.default_rng(0)
     valid = geometric_valid(SHAPE)
     rho = (rng.random((3, *SHAPE)) ** 4 * 50).astype(np.float32)
-    back = inverse(forward(rho, name, valid), name)
+    back = inverse(forward(rho, name, valid), name, material_gain(name, rho, valid))
     np.testing.assert_allclose(back[:, valid], rho[:, valid], rtol=2e-6, atol=1e-7)
     assert np.all(back[:, ~valid] == 0)  # invalid bins are set to 0 first
 
@@ -39,6 +42,29 @@ def test_transform_formulas():
     np.testing.assert_allclose(forward(rho, "log-relative"), np.log(2 * s + 1), rtol=1e-6)
     np.testing.assert_allclose(forward(rho, "log-relative-cosine")[0], np.log(2 * c * s + 1),
                                rtol=1e-5)
+
+
+def test_level_transforms_formula_and_scale_invariance():
+    """ln(1 + k rho / L), L the median luminance of the valid bins: a material and the same
+    material 1,000 times brighter transform alike, and its gain is 1/L."""
+    valid = geometric_valid(SHAPE)
+    rho = np.full((3, *SHAPE), 2.0, np.float32)
+    assert material_level(rho, valid) == 2.0  # the luminance weights sum to 1
+    np.testing.assert_allclose(forward(rho, "log-level", valid)[:, valid],
+                               np.log(1 + LEVEL_KNEE), rtol=1e-6)
+    rng = np.random.default_rng(3)
+    rho = (rng.random((3, *SHAPE)) ** 4 * 5).astype(np.float32)
+    for name in ("log-level", "log-level-cosine"):
+        t = forward(rho, name, valid)
+        np.testing.assert_allclose(forward(rho * np.float32(1000), name, valid), t,
+                                   rtol=1e-5, atol=1e-6)
+        assert material_gain(name, rho * np.float32(1000), valid) == pytest.approx(
+            material_gain(name, rho, valid) / 1000, rel=1e-6)
+    assert material_gain("log-relative", rho, valid) == 1.0
+    with pytest.raises(ValueError, match="gain"):
+        inverse(t, "log-relative", 2.0)
+    with pytest.raises(ValueError, match="gain"):
+        inverse(t, "log-level", float("nan"))
 
 
 def test_relative_transforms_code_dim_values_relatively():
@@ -122,11 +148,12 @@ def test_forward_masks_exactly_as_zeroing_first(name):
     valid = rng.random(shape) > 0.3
     rho[:, ~valid] = np.array([np.nan, np.inf, -4.0], np.float32)[:, None]
     zeroed = np.where(valid, rho, np.float32(0))
-    expect = np.log1p(zeroed * weight(name, shape)).astype(np.float32)
+    gain = material_gain(name, rho, valid)  # a level transform's: from the valid bins
+    expect = np.log1p(zeroed * weight(name, shape, gain)).astype(np.float32)
     got = forward(rho, name, valid)
     assert got.dtype == np.float32
     np.testing.assert_array_equal(got, expect)
-    np.testing.assert_array_equal(forward(zeroed, name), expect)
+    np.testing.assert_array_equal(forward(zeroed, name, gain=gain), expect)
 
 
 def _studio_like_image(seed: int = 0) -> np.ndarray:

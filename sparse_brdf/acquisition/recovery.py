@@ -55,6 +55,7 @@ from .sensing import (
     fold_of,
     linear_values,
     project,
+    samples_gain,
     stage_sizes,
     trim_to_budget,
 )
@@ -351,7 +352,7 @@ def _recover(samples: Samples, ens: Ensemble, n: int, names: tuple[str, ...], fo
         model = SparseBRDF(chosen, ens.shape, ens.id,
                            [ch.dictionary for ch in fits[chosen]["choices"]],
                            [a for a, _ in out], [v for _, v in out], name=samples.name,
-                           basis=basis)
+                           basis=basis, gain=samples_gain(samples, chosen))
     model.stats = {
         "chosen": chosen, "samples": len(samples), "folds": folds,
         "transforms": {t: {"cv_cosine_error": f["cv_error"],
@@ -408,4 +409,4 @@ def _final(samples: Samples, op: Operator, ens: Ensemble, transform: str, basis:
     out = list(parallel_map(one, range(3)))
     return SparseBRDF(transform, ens.shape, ens.id, [ch.dictionary for ch in fit["choices"]],
                       [a for a, _ in out], [v for _, v in out], name=samples.name,
-                      basis=basis)
+                      basis=basis, gain=samples_gain(samples, transform))

@@ -20,8 +20,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..coords import linear_bins
-from ..transforms import COS_CLIP, colour_matrix, from_basis, uses_cosine
-from ..transforms import scale as transform_scale
+from ..transforms import (
+    COS_CLIP,
+    colour_matrix,
+    from_basis,
+    material_gain,
+    material_scale,
+    uses_cosine,
+)
 from .measurements import Samples
 
 #: Folds of the cross-validation unless told otherwise.
@@ -123,11 +129,18 @@ def sample_weight(samples: Samples, transform: str) -> np.ndarray:
     """The transform's weight w at each sample, (N,): for the cosine transforms
     clip(cos_i cos_o, 0.01, 1) at the sample's own directions (the value the dictionaries
     code is ln(rho w + 1), smooth between the bins' samples), else 1; times the relative
-    transforms' scale (``transforms.weight``)."""
-    s = transform_scale(transform)
+    transforms' scale, and the level transforms' scale and the samples' gain
+    (:func:`samples_gain`), as ``transforms.weight``."""
+    s = material_scale(transform, samples_gain(samples, transform))
     if not uses_cosine(transform):
         return np.full(len(samples), s)
     return np.clip(samples.wi[:, 2] * samples.wo[:, 2], *COS_CLIP) * s
+
+
+def samples_gain(samples: Samples, transform: str) -> float:
+    """The gain 1/L of a material measured as ``samples`` under ``transform``
+    (``transforms.material_gain`` of the samples' values: every sample counts)."""
+    return material_gain(transform, np.asarray(samples.rgb, np.float32).T)
 
 
 def coded_values(samples: Samples, transform: str, basis: str) -> np.ndarray:

@@ -12,6 +12,7 @@ from ..errors import one_line
 from ..sources.corpora import get_corpus, list_corpora
 from ..sources.load import load_brdf
 from ..sources.merl import write_merl
+from ..transforms import per_material
 from ._options import MERL, add_source_help, add_symmetrize, check_outputs
 
 
@@ -64,11 +65,18 @@ def _print_held(held: dict) -> None:
           f"bytes        {held['bytes']}\n"
           f"ensemble     {held['ensemble']} ({shipped})\n"
           f"grid         {tuple(held['grid'])}\n"
-          f"transform    {held['transform']} (every channel)\n"
+          f"transform    {held['transform']} (every channel{_level(held)})\n"
           f"basis        {held['basis']} (channels {', '.join(held['channels'])})\n"
           f"coefficients {held['coefficients_total']} ({per})\n"
           f"dictionaries {dicts}")
     print("decoded      the values the file decodes to, with its ensemble:")
+
+
+def _level(held: dict) -> str:
+    """``; level L = ... /sr`` for a file with a per-material gain 1/L, else ""."""
+    if not per_material(held["transform"]):
+        return ""
+    return f"; material level {1.0 / held['gain']:.4g} /sr"
 
 
 def cmd_convert(args: argparse.Namespace) -> int:

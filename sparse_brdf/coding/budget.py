@@ -111,7 +111,7 @@ def _fit_bytes(model: SparseBRDF, n_bytes: int, version: int) -> SparseBRDF:
     if whole <= n_bytes:
         return as_stored(model, version)
     # bracket the count near the proportional estimate, then bisect within the bracket
-    floor = min_file_size(len(model.name.encode("utf-8")[:255]), version)
+    floor = min_file_size(len(model.name.encode("utf-8")[:255]), version, model.transform)
     guess = min(max(total * (n_bytes - floor) // max(whole - floor, 1), 0), total - 1)
     step = max(total // 64, 1)
     lo, hi = guess, total
@@ -210,7 +210,8 @@ def encode_to_bytes_with(brdf: BRDF, spec: EncodeSpec) -> SparseBRDF:
     """
     n_bytes, version, ens = spec.n_bytes, spec.version, spec.ensemble
     _check_floor(brdf.name, n_bytes, version)
-    floor = min_file_size(len(brdf.name.encode("utf-8")[:255]), version)
+    floor = max(min_file_size(len(brdf.name.encode("utf-8")[:255]), version, t)
+                for t in spec.transforms)
     atoms = int(np.prod(ens.shape))
     n = _clip(math.ceil(first_count(n_bytes - floor, version) / 3), atoms)
     joint = spec.joint

@@ -10,7 +10,14 @@ from ..brdf import BRDF
 from ..coords import dirs_to_bins, geometric_valid
 from ..errors import EnsembleMismatchError, InvalidBRDFError, short
 from ..parallel import parallel_map
-from ..transforms import check_basis, check_transform, from_basis, inverse, inverse_at_bins
+from ..transforms import (
+    check_basis,
+    check_gain,
+    check_transform,
+    from_basis,
+    inverse,
+    inverse_at_bins,
+)
 from .ensemble import Ensemble
 from .tensor import reconstruct_sparse
 
@@ -52,6 +59,9 @@ class SparseBRDF:
         Colour basis of the coded channels: ``"rgb"`` (channels are R, G, B) or
         ``"opponent"`` (channels are ``transforms.colour_matrix("opponent")`` times the
         transformed R, G, B; decoding mixes them back before the inverse transform).
+    gain : float
+        The material's gain 1/L (sr) for the level transforms
+        (``transforms.material_gain``, stored in the file); 1 for the others.
 
     Raises
     ------
@@ -71,10 +81,12 @@ class SparseBRDF:
     name: str = "brdf"
     stats: dict = field(default_factory=dict)
     basis: str = "rgb"
+    gain: float = 1.0
 
     def __post_init__(self) -> None:
         check_transform(self.transform)
         check_basis(self.basis)
+        self.gain = check_gain(self.transform, self.gain)
         self.shape = tuple(int(n) for n in self.shape)  # type: ignore[assignment]
         self.dict_index = np.asarray(self.dict_index, np.int64).reshape(3)
         self.locations = [np.asarray(a, np.int64).reshape(-1) for a in self.locations]
@@ -220,7 +232,7 @@ class SparseBRDF:
         EnsembleMismatchError
             As :meth:`check_ensemble`.
         """
-        rho = inverse(self.transformed(ensemble), self.transform)
+        rho = inverse(self.transformed(ensemble), self.transform, self.gain)
         mask = geometric_valid(self.shape) if valid is None else valid
         return BRDF(np.moveaxis(rho, 0, -1), mask, name=self.name, source="sparse")
 
@@ -268,7 +280,8 @@ class SparseBRDF:
                 g = u1[bins[0][sl]][:, a] * u2[bins[1][sl]][:, b] * u3[bins[2][sl]][:, k]
                 out[sl, c] = g @ s
         out = from_basis(out.T, self.basis).T
-        rho = inverse_at_bins(out, self.transform, tuple(b[:, None] for b in bins), self.shape)
+        rho = inverse_at_bins(out, self.transform, tuple(b[:, None] for b in bins), self.shape,
+                              self.gain)
         keep = above & geometric_valid(self.shape)[bins]  # as decode() and the plugins
         return np.where(keep[:, None], rho, 0.0).astype(np.float32)
 

@@ -98,7 +98,7 @@ def choose_transform(brdf: BRDF, models: dict[str, SparseBRDF], ens: Ensemble,
 
     def errors(name: str, keys: tuple[str, ...]) -> dict:  # numpy only (no BLAS)
         if name not in full:
-            full[name] = inverse(models[name].transformed(ens), name)
+            full[name] = inverse(models[name].transformed(ens), name, models[name].gain)
         if keys != ("render_proxy",) and name not in flat:
             flat[name] = full[name][:, valid]
         metric = {"gamma_mse": lambda: gamma_mse(ref, flat[name]),

@@ -39,7 +39,7 @@ from ..brdf import BRDF
 from ..errors import BRDFFileError, EnsembleMismatchError, UsageError
 from ..fileio import atomic_write, require_file
 from ..params import check_choice
-from ..transforms import TRANSFORMS
+from ..transforms import TRANSFORMS, per_material
 from .coefficients import SparseBRDF
 from .ensemble import Ensemble, resolve_ensemble, shipped_ids
 
@@ -61,6 +61,7 @@ def check_version(version: int) -> int:
 _PREFIX = struct.Struct("<8sH")  # magic, version: enough to dispatch
 _HEAD = struct.Struct("<8sHBB3H16s3H3IB")  # version 1; also the first 53 bytes of v2
 _HEAD2 = struct.Struct("<8sHBB3H16s3H3IBB3hII")
+_GAIN = struct.Struct("<f")  # a level transform's gain 1/L (sr), after the name
 _RECORD = np.dtype([("loc", "<u4"), ("val", "<f4")])
 #: Bytes per stored coefficient in a version-1 file (u32 location + f32 value).
 RECORD_BYTES = _RECORD.itemsize
@@ -85,18 +86,28 @@ _K_MIN, _K_MAX = -4 * 126, 4 * 127
 _F32_MAX = float(np.finfo(np.float32).max)
 
 
-def file_size(n_coeffs: int, name_len: int = 0) -> int:
+def file_size(n_coeffs: int, name_len: int = 0, transform: str | None = None) -> int:
     """Bytes of a version-1 file holding ``n_coeffs`` coefficients in all and a name of
-    ``name_len`` bytes (a version-2 file's size depends on the values: :func:`to_bytes`)."""
-    return _HEAD.size + name_len + _RECORD.itemsize * n_coeffs + 4
+    ``name_len`` bytes, under ``transform`` (a level transform's file holds its gain; a
+    version-2 file's size depends on the values: :func:`to_bytes`)."""
+    return (_HEAD.size + name_len + _gain_bytes(transform) + _RECORD.itemsize * n_coeffs
+            + 4)
 
 
-def min_file_size(name_len: int = 0, version: int = VERSION) -> int:
+def min_file_size(name_len: int = 0, version: int = VERSION,
+                  transform: str | None = None) -> int:
     """Bytes of a file with no coefficient and a name of ``name_len`` bytes: what every
-    file of that version and name costs before its coefficients."""
+    file of that version, name and ``transform`` (None: one without a gain) costs before
+    its coefficients."""
     if version == 1:
-        return file_size(0, name_len)
-    return _HEAD2.size + name_len + len(_compress(b"")[1]) + 4
+        return file_size(0, name_len, transform)
+    return (_HEAD2.size + name_len + _gain_bytes(transform) + len(_compress(b"")[1])
+            + 4)
+
+
+def _gain_bytes(transform: str | None) -> int:
+    """4 (the f32 gain after the name) for a level transform, else 0."""
+    return _GAIN.size if transform is not None and per_material(transform) else 0
 
 
 def to_bytes(model: SparseBRDF, version: int = VERSION) -> bytes:
@@ -110,8 +121,9 @@ def to_bytes(model: SparseBRDF, version: int = VERSION) -> bytes:
               FLAG_OPPONENT if model.basis == "opponent" else 0, *model.shape,
               bytes.fromhex(model.ensemble_id[:32]), *(int(d) for d in model.dict_index),
               *(int(n) for n in model.n_coeffs), len(name))
+    gain = _GAIN.pack(model.gain) if per_material(model.transform) else b""
     if version == 1:
-        parts = [_HEAD.pack(*common), name]
+        parts = [_HEAD.pack(*common), name, gain]
         for loc, val in zip(model.locations, model.values, strict=True):
             rec = np.empty(loc.size, _RECORD)
             rec["loc"], rec["val"] = loc, val
@@ -119,7 +131,8 @@ def to_bytes(model: SparseBRDF, version: int = VERSION) -> bytes:
     else:
         exps, raw = _payload(model)
         codec, packed = _compress(raw)
-        parts = [_HEAD2.pack(*common, codec, *exps, len(raw), len(packed)), name, packed]
+        parts = [_HEAD2.pack(*common, codec, *exps, len(raw), len(packed)), name, gain,
+                 packed]
     body = b"".join(parts)
     return body + struct.pack("<I", zlib.crc32(body))
 
@@ -141,10 +154,13 @@ def from_bytes(data: bytes, source: str = "<bytes>") -> SparseBRDF:
     fields = head.unpack_from(data)
     (tcode, flags, n1, n2, n3, ens_id, d0, d1, d2, t0, t1, t2, name_len) = fields[2:15]
     counts = (t0, t1, t2)
+    if tcode >= len(TRANSFORMS):
+        raise BRDFFileError(f"{source}: unknown transform code {tcode}")
+    transform = TRANSFORMS[tcode]
     if version == 1:
-        expected = file_size(sum(counts), name_len)
+        expected = file_size(sum(counts), name_len, transform)
     else:
-        expected = _HEAD2.size + name_len + fields[-1] + 4
+        expected = _HEAD2.size + name_len + _gain_bytes(transform) + fields[-1] + 4
     if len(data) != expected:
         what = "truncated" if len(data) < expected else "has trailing bytes"
         raise BRDFFileError(f"{source}: {what}: {len(data)} bytes, its header announces "
@@ -152,8 +168,6 @@ def from_bytes(data: bytes, source: str = "<bytes>") -> SparseBRDF:
     (crc,) = struct.unpack_from("<I", data, len(data) - 4)
     if zlib.crc32(data[:-4]) != crc:
         raise BRDFFileError(f"{source}: checksum mismatch: the file is corrupt")
-    if tcode >= len(TRANSFORMS):
-        raise BRDFFileError(f"{source}: unknown transform code {tcode}")
     if flags & ~KNOWN_FLAGS:
         raise BRDFFileError(f"{source}: unknown flags 0x{flags:02x} in byte 11 (this reader "
                             f"knows 0x{KNOWN_FLAGS:02x}, the opponent colour basis): written "
@@ -161,14 +175,18 @@ def from_bytes(data: bytes, source: str = "<bytes>") -> SparseBRDF:
     off = head.size
     name = data[off: off + name_len].decode("utf-8", errors="replace")
     off += name_len
+    gain = 1.0
+    if _gain_bytes(transform):
+        (gain,) = _GAIN.unpack_from(data, off)
+        off += _GAIN.size
     if version == 1:
         locs, vals = _records(data, off, counts)
     else:
         locs, vals = _read_payload(data, off, fields, (n1, n2, n3), source)
     try:
-        return SparseBRDF(TRANSFORMS[tcode], (n1, n2, n3), ens_id.hex(), [d0, d1, d2],
+        return SparseBRDF(transform, (n1, n2, n3), ens_id.hex(), [d0, d1, d2],
                           locs, vals, name=name,
-                          basis="opponent" if flags & FLAG_OPPONENT else "rgb")
+                          basis="opponent" if flags & FLAG_OPPONENT else "rgb", gain=gain)
     except ValueError as exc:
         raise BRDFFileError(f"{source}: {exc}") from exc
 
@@ -426,7 +444,8 @@ def describe(path: str | os.PathLike) -> dict:
         :data:`CODECS`; None for version 1), ``bytes`` (the file's size), ``ensemble``
         (the id of the ensemble the coefficients refer to) and ``ensemble_shipped``
         (whether this install ships it), ``grid`` ([n1, n2, n3]), ``transform`` (one for
-        every channel), ``basis`` (the colour basis) and ``channels`` (its coded
+        every channel) and ``gain`` (the material's gain 1/L, sr, of a level transform;
+        1 for the others), ``basis`` (the colour basis) and ``channels`` (its coded
         channels), then per channel ``coefficients`` and ``dictionaries`` (the index of
         the ensemble's dictionary each channel uses), and ``coefficients_total``.
 
@@ -443,7 +462,8 @@ def describe(path: str | os.PathLike) -> dict:
     return {"version": int(version), "codec": codec, "bytes": len(data),
             "ensemble": model.ensemble_id,
             "ensemble_shipped": model.ensemble_id in shipped_ids(),
-            "grid": list(model.shape), "transform": model.transform, "basis": model.basis,
+            "grid": list(model.shape), "transform": model.transform, "gain": model.gain,
+            "basis": model.basis,
             "channels": list(CHANNELS[model.basis]),
             "coefficients": [int(n) for n in model.n_coeffs],
             "coefficients_total": int(model.n_coeffs.sum()),

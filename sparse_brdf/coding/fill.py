@@ -180,7 +180,7 @@ def _fit_supports(jobs: list[tuple[np.ndarray, SparseBRDF]], invalid: np.ndarray
         res = [done[(id(m), c)] for c in range(3)]
         fitted = SparseBRDF(m.transform, m.shape, m.ensemble_id, m.dict_index,
                             [a for a, _, _ in res], [v for _, v, _ in res], name=m.name,
-                            basis=m.basis)
+                            basis=m.basis, gain=m.gain)
         out.append((fitted, np.array([e for _, _, e in res])))
     return out
 

@@ -167,8 +167,11 @@ def _blend(a: SparseBRDF, b: SparseBRDF, alpha: float, ens: Ensemble,
         idxs = [top_k(s * s, budget) for s, budget in zip(blends, budgets, strict=True)]
         locs, vals = idxs, [s[idx] for s, idx in zip(blends, idxs, strict=True)]
     name = f"{a.name}+{b.name}@{alpha:g}"
+    # the level transforms: ln(rho g) blends linearly where the logarithm dominates, so the
+    # blend's gain is the gains' geometric blend (1 for the other transforms)
+    gain = float(np.float32(a.gain ** (1.0 - alpha) * b.gain ** alpha))
     return SparseBRDF(a.transform, a.shape, a.ensemble_id, a.dict_index.copy(), locs, vals,
-                      name=name[:255], basis=a.basis)
+                      name=name[:255], basis=a.basis, gain=gain)
 
 
 def _in_dictionary(model: SparseBRDF, c: int, k: int, ens: Ensemble) -> np.ndarray:

@@ -17,6 +17,7 @@ from ..parallel import parallel_map
 from ..transforms import (
     check_transform,
     forward,
+    material_gain,
     to_basis,
 )
 from .coefficients import SparseBRDF
@@ -265,6 +266,7 @@ def search_many(brdf: BRDF, ens: Ensemble, ys: dict[str, np.ndarray],
     for t, p in ps.items():
         models[t] = select(p, o.n, o.max_error, brdf.name)
         models[t].basis = o.basis
+        models[t].gain = material_gain(t, brdf.channel_first(), brdf.valid)
     if o.joint:
         coded = code_many([(ys[t], models[t], ps[t].norms) for t in ys], ens, o)
         models = dict(zip(ys, coded, strict=True))
@@ -329,7 +331,7 @@ def _keep(y: np.ndarray, m: SparseBRDF, top: list, o: CodingOptions) -> SparseBR
             locs.append(idx[:need])
             vals.append(v[:need])
     out = SparseBRDF(m.transform, shape, m.ensemble_id, m.dict_index, locs, vals,
-                     name=m.name, basis=o.basis)
+                     name=m.name, basis=o.basis, gain=m.gain)
     kept = np.array([float(np.sum(v.astype(np.float64) ** 2)) for v in vals])
     out.stats = {"relative_residual": [max(float(n - k), 0.0) / n if n > 0 else 0.0
                                        for n, k in zip(norms, kept, strict=True)],

@@ -11,8 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from ..coords import bin_angles, cos_io
-from ..transforms import COS_CLIP, colour_matrix, uses_cosine
-from ..transforms import scale as transform_scale
+from ..transforms import COS_CLIP, colour_matrix, material_scale, uses_cosine
 
 # ------------------------------------------------------------------ buffers as uploaded
 
@@ -50,10 +49,10 @@ def angle_tables(shape) -> tuple[np.ndarray, ...]:
 # ----------------------------------------------------------------------- numpy mirrors
 
 
-def bin_weight(i, j, k, shape, transform: str) -> np.ndarray:
-    """The weight w of ``transform`` (:func:`sparse_brdf.transforms.weight`) at integer
-    bins, float32 of their broadcast shape."""
-    s = np.float32(transform_scale(transform))
+def bin_weight(i, j, k, shape, transform: str, gain: float = 1.0) -> np.ndarray:
+    """The weight w of ``transform`` (:func:`sparse_brdf.transforms.weight`) for a
+    material of gain ``gain`` at integer bins, float32 of their broadcast shape."""
+    s = np.float32(material_scale(transform, gain))
     if not uses_cosine(transform):
         return np.full(np.broadcast(i, j, k).shape, s, np.float32)
     th, td, pd = bin_angles(shape)

@@ -74,7 +74,8 @@ def sparse_profile(model, ensemble, n_d: int = 3) -> np.ndarray:
                    for c in range(3)])  # (3, len(js), n1, n3)
     xs = mix_channels(xs.reshape(3, -1), model.basis).reshape(xs.shape)
     w = bin_weight(np.arange(n1)[None, :, None], js[:, None, None],
-                   np.arange(n3)[None, None, :], model.shape, model.transform)
+                   np.arange(n3)[None, None, :], model.shape, model.transform,
+                   model.gain)
     with np.errstate(over="ignore"):  # fit_lobe treats a non-finite profile
         rho = np.maximum(np.expm1(xs) / w, 0.0)  # (3, len(js), n1, n3)
     return rho.mean(axis=3).sum(axis=(0, 1)) / (3 * js.size)
