@@ -7,6 +7,8 @@ tensor (docs/method.md).
   ("slots" or "union"), in one kernel.
 - strict (:func:`strict_x`): one loop over the nonzero terms, closing partial sums at
   the ends of their groups; also the derivative carrier of differentiable renders.
+- pair (:func:`pair_x`): a library's materials (``sparse_library``), the material
+  picked per lane; one loop over the lane's material's (b, c) pairs of atoms.
 
 The buffers (:class:`GroupedBuffers`, :class:`StrictBuffers`) are uploaded from the
 numpy layouts of :mod:`sparse_brdf.decoders.layouts`, as opaque Dr.Jit scalars, so every
@@ -20,8 +22,10 @@ import threading
 from dataclasses import dataclass
 
 import drjit as dr
+import numpy as np
 
 from sparse_brdf.decoders.layouts import END_B, END_C, PACK_BITS, PACKET, SLOT, UNION_ATOMS
+from sparse_brdf.decoders.library import HEADER_U
 from sparse_brdf.decoders.scene import ensemble_rows
 
 from .kernels import Ops, Shape
@@ -251,3 +255,74 @@ def strict_x(ops: Ops, buf: StrictBuffers, shape: Shape, c: int, bins, lin, acti
     if grad is not None:
         return ops.loop(sp["t"], body_grad, (zero,), sum_style=True)[0]
     return ops.loop(sp["t"], body, (zero, zero, zero))[0]
+
+
+# ------------------------------------------------------------------- pair decoder kernel
+
+
+@dataclass
+class PairBuffers:
+    """A library's materials as the pair decoder reads them (from
+    :mod:`sparse_brdf.decoders.library`): every material's pair tables and packed atoms,
+    their per-material headers, and the ensemble's shared rows."""
+
+    tables: object  # Float: per pair, n1 floats (T_bc at each bin of mode 1)
+    packed: object  # UInt32: per pair, b | c << PACK_BITS
+    header_u: object  # UInt32: per material, HEADER_U
+    header_f: object  # Float: per material, HEADER_F
+    rows: object  # Float: the ensemble's atom rows (shared_rows)
+    n1: object  # UInt32: the table's row length
+
+
+def upload_pairs(ops: Ops, blocks, n_pairs: int, n1: int, header, rows) -> PairBuffers:
+    """:class:`PairBuffers` of ``blocks`` (the materials'
+    :class:`~sparse_brdf.decoders.library.MaterialPairs`, ``n_pairs`` pairs in all, in
+    the order of ``header``), read from ``rows`` (the shared rows' Float buffer). The
+    tables are written into one array as the blocks come (one block at a time held
+    besides), uploaded, and the array freed: its pages go back to the system."""
+    tables = np.empty(max(n_pairs * n1, 1), np.float32)
+    packed = np.zeros(max(n_pairs, 1), np.uint32)
+    at = 0
+    for b in blocks:
+        p = b.packed.size
+        tables[at * n1:(at + p) * n1] = b.tables.ravel()
+        packed[at:at + p] = b.packed
+        at += p
+    if at != n_pairs:
+        raise ValueError(f"the materials hold {at} pairs, their header {n_pairs}")
+    return PairBuffers(ops.floats(tables), ops.uints(packed), ops.uints(header.u.ravel()),
+                       ops.floats(header.f.ravel()), rows, ops.u(n1))
+
+
+def pair_x(ops: Ops, buf: PairBuffers, shape: Shape, mat, bins, lin, active) -> list:
+    """X of the three coded channels of material ``mat`` (per lane): per channel one
+    loop over the material's (b, c) pairs, ``sum T_bc[i] U2[j, b] U3[k, c]``, its trip
+    count the lane's material's (numpy twin:
+    :class:`~sparse_brdf.decoders.library.PairLookup`). At the nearest bin (``bins``) or
+    interpolated (``lin``, bins is None: each mode's values linearly)."""
+    n = shape.n
+    mask = (1 << PACK_BITS) - 1
+    t_buf, p_buf, r_buf = buf.tables, buf.packed, buf.rows
+
+    def read(b, base, mode, act):
+        if lin is None:
+            return ops.gather(b, base + bins[mode], act)
+        i0, i1, w = lin[mode]
+        return (1.0 - w) * ops.gather(b, base + i0, act) + w * ops.gather(b, base + i1, act)
+
+    xs = []
+    for c in range(3):
+        h = mat * HEADER_U + 4 * c
+        start, count, r2, r3 = (ops.gather_u(buf.header_u, h + f, active) for f in range(4))
+
+        def body(t, acc, start=start, r2=r2, r3=r3):
+            e = start + t
+            p = ops.gather_u(p_buf, e, active)
+            v = read(t_buf, e * buf.n1, 0, active) * read(r_buf, r2 + (p & mask) * n[1], 1,
+                                                           active)
+            return (_fma(ops, v, read(r_buf, r3 + (p >> PACK_BITS) * n[2], 2, active),
+                         acc[0]),)
+
+        zero = ops.m.Float(0.0) if ops.jit else 0.0
+        xs.append(ops.loop(count, body, (zero,))[0])
+    return xs

@@ -1,0 +1,246 @@
+"""The ``sparse_library`` BSDF: many sparse materials served by one BSDF, each shape
+picking its material by a shape attribute (``sbrdf_index``), by the pair decoder
+(:func:`~mitsuba_plugin.decoders.pair_x`; data from
+:mod:`sparse_brdf.decoders.library`).
+
+Mitsuba traces every BSDF instance of a scene on every render; a library is one
+instance, however many materials it holds, so a scene of a thousand materials traces
+one BSDF. Registered for a variant by :func:`~mitsuba_plugin.registration.register`;
+``sparse-brdf render`` and :func:`sparse_brdf.evaluation.render.render_scene` write a
+scene's many ``sparse_brdf`` materials as one library (docs/rendering.md).
+"""
+
+from __future__ import annotations
+
+import drjit as dr
+
+from sparse_brdf.decoders.layouts import LOBES, PLUGIN_DEFAULTS
+from sparse_brdf.decoders.library import (
+    HEADER_F,
+    PairLookup,
+    material_pairs,
+    pair_header,
+)
+from sparse_brdf.decoders.lobe import fit_lobe, sparse_profile
+from sparse_brdf.errors import PluginError
+
+from .decoders import pair_x, shared_rows, upload_pairs
+from .glossy import GlossyBSDF
+from .kernels import (
+    angle_coords,
+    bin_weight,
+    cos_terms,
+    interp_weight,
+    linear_bins,
+    nearest_bins,
+    point_rho_from_cos,
+    rho_from_x,
+    shared_shape,
+)
+from .loading import (
+    REQUIRED,
+    bool_prop,
+    choice_prop,
+    load_models,
+    read_props,
+    resolve_file,
+    split_names,
+)
+
+#: The shape attribute that names a shape's material in its library (a ``uniform``
+#: texture holding the material's index, 0 for the first file).
+ATTRIBUTE = "sbrdf_index"
+
+
+def _read_props(props, plugin: str) -> dict:
+    p = read_props(props, plugin, {
+        "filenames": REQUIRED, "ensemble": None, "sampling": PLUGIN_DEFAULTS["sampling"],
+        "interpolate": False, "attribute": ATTRIBUTE})
+    p["sampling"] = choice_prop(p["sampling"], LOBES, plugin, "sampling")
+    p["interpolate"] = bool_prop(p["interpolate"], plugin, "interpolate")
+    if not str(p["attribute"]).strip():
+        raise PluginError(f"{plugin}: attribute={p['attribute']!r} is empty")
+    return p
+
+
+class SparseLibrary(GlossyBSDF):
+    """A library of sparse materials (``sparse_library``): the model of ``sparse_brdf``
+    for each of its files, the file picked per shape.
+
+    A shape that uses the library holds a ``uniform`` texture ``sbrdf_index`` (or the
+    name ``attribute`` gives): the index of its material in ``filenames`` (0, 1, ...).
+    Every material's data lives in buffers of the library: per (b, c) pair of atoms of
+    each channel, the mode-1 contraction of its terms (n1 floats, about 45 kB a
+    material), with U2 and U3 read from the ensemble's rows that strict-decoded
+    ``sparse_brdf`` materials also share. A shape without the attribute gets material
+    0; an index outside the list renders black (``render_scene`` checks the indices:
+    :func:`check_scene`).
+
+    .. list-table::
+       :header-rows: 1
+
+       * - Parameter
+         - Type
+         - Description
+       * - filenames
+         - string
+         - The ``.sbrdf`` files, separated by commas: material 0, 1, ... All of one
+           ensemble and one grid.
+       * - ensemble
+         - string
+         - Optional ensemble ``.npz`` the files were encoded with (default: the shipped
+           one the first file names).
+       * - sampling
+         - string
+         - ``lobe`` (default: each material's own lobe) or ``cosine``, as for
+           ``sparse_brdf``.
+       * - interpolate
+         - boolean
+         - Trilinear interpolation, as for ``sparse_brdf`` (default: false).
+       * - attribute
+         - string
+         - The shape attribute holding the index (default: ``sbrdf_index``).
+
+    Example::
+
+        <bsdf type="sparse_library" id="lib">
+            <string name="filenames" value="gold.sbrdf,blue-acrylic.sbrdf"/>
+        </bsdf>
+        <shape type="sphere">
+            <ref id="lib"/>
+            <texture name="sbrdf_index" type="uniform"><float name="value" value="1"/>
+            </texture>
+        </shape>
+    """
+
+    plugin = "sparse_library"
+    per_lane = True
+
+    def __init__(self, props) -> None:
+        GlossyBSDF.__init__(self, props)
+        ops = self._ops
+        p = _read_props(props, self.plugin)
+        self.interpolate, self.attribute = p["interpolate"], str(p["attribute"]).strip()
+        self.filenames = [resolve_file(f) for f in split_names(p["filenames"])]
+        ens_path = None if p["ensemble"] is None else resolve_file(str(p["ensemble"]))
+        models, ens = load_models(self.filenames, ens_path, self.plugin)
+        self.n_materials = len(models)
+        self._shape = shared_shape(ops, models[0].shape)
+        shared, rows = shared_rows(ops, ens)
+        lobes = ([fit_lobe(sparse_profile(m, ens), m.shape) for m in models]
+                 if p["sampling"] == "lobe" else None)
+        header = pair_header(models, shared, lobes)
+        try:
+            self._buf = upload_pairs(ops, (material_pairs(m, ens, shared) for m in models),
+                                     header.n_pairs, models[0].shape[0], header, rows)
+        except ValueError as exc:
+            raise PluginError(f"{self.plugin}: {exc}") from None
+        # each material's lobe is in the header (_lobe); none of the library's own
+        self._setup_sampling("cosine", None, models[0].shape)
+        self.sampling = p["sampling"]
+        # Python branches at trace time: a library of "rgb" materials traces no mix, one
+        # of the paper's transforms (scale 1) no multiply
+        self._mixed = any(m.basis != "rgb" for m in models)
+        self._scaled = bool((header.f[:, 1] != 1.0).any())
+        self._n_f = ops.f(float(self.n_materials))
+        self.memory_bytes = (header.n_pairs * (4 * models[0].shape[0] + 4) + header.nbytes)
+        self.shared_bytes = shared.nbytes
+        if not ops.jit:  # scalar variants: one numpy lookup per call
+            self._header = header
+            self._lookup = PairLookup(self._buf.tables, self._buf.packed, header,
+                                      shared.rows, models[0].shape)
+
+    # per-lane materials (GlossyBSDF.per_lane) ----------------------------------------
+    def _material(self, si, active):
+        """(index, in range) of each lane's material, from its shape's attribute."""
+        x = si.shape.eval_attribute_1(self.attribute, si, active)
+        if not self._ops.jit:
+            idx = int(x + 0.5) if x > -0.5 else -1
+            return idx, 0 <= idx < self.n_materials
+        ok = (x > -0.5) & (x < self._n_f - 0.5)
+        return self._ops.to_u(dr.maximum(x + 0.5, 0.0)), ok
+
+    def _lobe(self, mat):
+        idx, ok = mat
+        if not self._ops.jit:
+            return tuple(float(v) for v in self._header.f[idx if ok else 0, 11:13])
+        hf = self._buf.header_f
+        return (dr.select(ok, self._ops.gather(hf, idx * HEADER_F + 11, ok), 1.0),
+                self._ops.gather(hf, idx * HEADER_F + 12, ok))
+
+    def _rho_at(self, mat, wi, wo, active):
+        idx, ok = mat
+        if not self._ops.jit:
+            return self._point_rho(idx, wi, wo, active and ok)
+        ops, sh, hf = self._ops, self._shape, self._buf.header_f
+        active = active & ok
+        coords = angle_coords(ops, sh, wi, wo)
+        use_cos = ops.gather(hf, idx * HEADER_F, active)
+        if self.interpolate:
+            lin, bins = linear_bins(ops, sh, coords), None
+            w, valid = interp_weight(ops, sh, lin, use_cos)
+        else:
+            lin, bins = None, nearest_bins(ops, sh, coords)
+            w, in_bin = bin_weight(ops, sh, *bins, use_cos)
+            active = active & in_bin  # invalid bins hold no measurement: 0
+            valid = dr.select(in_bin, 1.0, 0.0)
+        xs = pair_x(ops, self._buf, sh, idx, bins, lin, active)
+        if self._mixed:  # the lane's material's M^T (the identity for "rgb")
+            mt = [ops.gather(hf, idx * HEADER_F + 2 + r, active) for r in range(9)]
+            xs = [dr.fma(mt[3 * r], xs[0], dr.fma(mt[3 * r + 1], xs[1], mt[3 * r + 2] * xs[2]))
+                  for r in range(3)]
+        if self._scaled:
+            w = w * ops.gather(hf, idx * HEADER_F + 1, active)
+        return self._m.Color3f(*rho_from_x(ops, xs, valid, w))
+
+    def _point_rho(self, idx: int, wi, wo, active: bool):
+        """:meth:`_rho_at` in a scalar variant: one direction pair, numpy lookups."""
+        if not active:
+            return self._zero3
+        ops, sh = self._ops, self._shape
+        use_cos, scale = (float(v) for v in self._header.f[idx, :2])
+        coords = angle_coords(ops, sh, wi, wo)
+        if self.interpolate:
+            lin = linear_bins(ops, sh, coords)
+            w, valid = interp_weight(ops, sh, lin, use_cos)
+            xs = self._lookup.point_linear(idx, lin)
+            return self._m.Color3f(*rho_from_x(ops, xs, valid, w * scale))
+        bins = nearest_bins(ops, sh, coords)
+        xs = self._lookup.point(idx, *bins)
+        return self._m.Color3f(*point_rho_from_cos(*xs, cos_terms(ops, sh, *bins),
+                                                   use_cos > 0.5, scale))
+
+    def to_string(self):
+        return (f"{type(self).__name__}[materials={self.n_materials}, "
+                f"first={self.filenames[0]!r}, sampling={self.sampling}, "
+                f"interpolate={self.interpolate}, attribute={self.attribute!r}, "
+                f"memory_bytes={self.memory_bytes}]")
+
+
+def check_scene(scene) -> int:
+    """Check that every shape of ``scene`` that uses a ``sparse_library`` names one of
+    its materials: its attribute holds an integer in range. Returns the number of such
+    shapes; a :class:`PluginError` naming the first shape that does not."""
+    count = 0
+    for shape in scene.shapes():
+        bsdf = shape.bsdf()
+        if not getattr(bsdf, "per_lane", False):
+            continue
+        count += 1
+        if not shape.has_attribute(bsdf.attribute):
+            raise PluginError(f"{bsdf.plugin}: shape {shape.id()!r} uses the library but "
+                              f"has no attribute {bsdf.attribute!r}")
+        x = _attribute_value(shape, bsdf.attribute)
+        if x != round(x) or not 0 <= x < bsdf.n_materials:
+            raise PluginError(f"{bsdf.plugin}: shape {shape.id()!r}: {bsdf.attribute}={x:g}"
+                              f" is not a material of the library (0 to "
+                              f"{bsdf.n_materials - 1})")
+    return count
+
+
+def _attribute_value(shape, name: str) -> float:
+    """The value of a shape's uniform attribute (read at one point)."""
+    import mitsuba as mi  # lazy: `import mitsuba_plugin` does not load Mitsuba
+
+    v = shape.eval_attribute_1(name, dr.zeros(mi.SurfaceInteraction3f))
+    return float(v if isinstance(v, float) else v[0])
