@@ -3,8 +3,10 @@
 A grid of N spheres, each with its own material (N distinct ``.sbrdf`` files), under the
 studio map, rendered with the ``direct`` integrator in ``llvm_ad_rgb`` with cosine
 sampling (the same sample paths for every decoder), for each decoder of ``sparse_brdf``
-(``auto`` under the default memory budget, ``grouped``, ``strict``) and for the dense
-table (``tabulated_brdf`` of each file's decode) where it fits. Each case runs in a
+(``auto`` under the default memory budget, ``grouped``, ``strict``), for one
+``sparse_library`` holding the N files (``library``: each sphere names its material by
+its ``sbrdf_index`` attribute) and for the dense table (``tabulated_brdf`` of each
+file's decode) where it fits. Each case runs in a
 process of its own, which reports its load time, first and second render times and
 peak resident memory; ``empty`` is the same spheres with Mitsuba's ``diffuse`` (the
 memory a scene holds without any measured material), and ``shared`` the N spheres all
@@ -32,7 +34,7 @@ from pathlib import Path
 import numpy as np
 from harness import header, parser, write_json
 
-CASES = ("empty", "shared", "auto", "grouped", "strict", "table")
+CASES = ("empty", "shared", "library", "auto", "grouped", "strict", "table")
 
 
 def make_library(folder: Path, n: int, n_bases: int, seed: int = 0) -> list[Path]:
@@ -65,9 +67,11 @@ def make_library(folder: Path, n: int, n_bases: int, seed: int = 0) -> list[Path
     return out
 
 
-def scene_dict(mi, bsdfs, n_spheres: int, width: int, height: int, spp: int) -> dict:
+def scene_dict(mi, bsdfs, n_spheres: int, width: int, height: int, spp: int,
+               library: bool = False) -> dict:
     """A grid of ``n_spheres`` spheres filling a ``width`` x ``height`` frame, sphere s
-    holding ``bsdfs[s % len(bsdfs)]``."""
+    holding ``bsdfs[s % len(bsdfs)]``; ``library``: sphere s also holds the attribute
+    ``sbrdf_index`` = s (its material in a ``sparse_library``)."""
     from sparse_brdf.paths import SCENES_DIR
 
     cols = int(np.ceil(np.sqrt(n_spheres * width / height)))
@@ -85,6 +89,8 @@ def scene_dict(mi, bsdfs, n_spheres: int, width: int, height: int, spp: int) -> 
         r, c = divmod(s, cols)
         d[f"s{s}"] = {"type": "sphere", "radius": 0.45, "bsdf": bsdfs[s % len(bsdfs)],
                       "center": [c - cols / 2 + 0.5, r - rows / 2 + 0.5, 0.0]}
+        if library:
+            d[f"s{s}"]["sbrdf_index"] = {"type": "uniform", "value": float(s)}
     return d
 
 
@@ -105,13 +111,16 @@ def run_case(case: str, files: list[str], width: int, height: int, spp: int,
     elif case == "table":
         bsdfs = [mi.load_dict({"type": "tabulated_brdf", "filename": f, "sampling": "cosine"})
                  for f in files]
+    elif case == "library":
+        bsdfs = [mi.load_dict({"type": "sparse_library", "filenames": ",".join(files),
+                               "sampling": "cosine"})]
     else:
         dec = {"shared": "auto"}.get(case, case)
         use = files[:1] if case == "shared" else files
         bsdfs = [mi.load_dict({"type": "sparse_brdf", "filename": f, "decoder": dec,
                                "sampling": "cosine"}) for f in use]
         mitsuba_plugin.resolve()
-    scene = mi.load_dict(scene_dict(mi, bsdfs, n, width, height, spp))
+    scene = mi.load_dict(scene_dict(mi, bsdfs, n, width, height, spp, case == "library"))
     load_s, load_cpu = time.perf_counter() - t0, time.process_time() - c0
     times, cpu = [], []
     for seed in range(2):
@@ -156,7 +165,7 @@ def chart(rows, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 2, figsize=(9, 3.6))
-    for case in ("auto", "grouped", "strict", "table", "shared"):
+    for case in ("library", "auto", "grouped", "strict", "table", "shared"):
         pts = sorted((r["n"], r) for r in rows if r["case"] == case)
         if not pts:
             continue
@@ -213,7 +222,8 @@ def main() -> None:
             print(json.dumps(r), flush=True)
         ref = images / f"table-{n}.npy"
         for r in rows:
-            if r["n"] == n and ref.exists() and r["case"] in ("auto", "grouped", "strict"):
+            if r["n"] == n and ref.exists() and r["case"] in ("auto", "grouped", "strict",
+                                                              "library"):
                 r["snr_vs_table_db"] = snr(np.load(ref), np.load(images / f"{r['case']}-{n}.npy"))
     print(header())
     keys = ("case", "n", "load_s", "load_cpu_s", "render1_s", "render2_s", "render2_cpu_s",

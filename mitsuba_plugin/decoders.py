@@ -22,7 +22,6 @@ import threading
 from dataclasses import dataclass
 
 import drjit as dr
-import numpy as np
 
 from sparse_brdf.decoders.layouts import END_B, END_C, PACK_BITS, PACKET, SLOT, UNION_ATOMS
 from sparse_brdf.decoders.library import HEADER_U
@@ -274,22 +273,10 @@ class PairBuffers:
     n1: object  # UInt32: the table's row length
 
 
-def upload_pairs(ops: Ops, blocks, n_pairs: int, n1: int, header, rows) -> PairBuffers:
-    """:class:`PairBuffers` of ``blocks`` (the materials'
-    :class:`~sparse_brdf.decoders.library.MaterialPairs`, ``n_pairs`` pairs in all, in
-    the order of ``header``), read from ``rows`` (the shared rows' Float buffer). The
-    tables are written into one array as the blocks come (one block at a time held
-    besides), uploaded, and the array freed: its pages go back to the system."""
-    tables = np.empty(max(n_pairs * n1, 1), np.float32)
-    packed = np.zeros(max(n_pairs, 1), np.uint32)
-    at = 0
-    for b in blocks:
-        p = b.packed.size
-        tables[at * n1:(at + p) * n1] = b.tables.ravel()
-        packed[at:at + p] = b.packed
-        at += p
-    if at != n_pairs:
-        raise ValueError(f"the materials hold {at} pairs, their header {n_pairs}")
+def upload_pairs(ops: Ops, tables, packed, header, rows, n1: int) -> PairBuffers:
+    """:class:`PairBuffers` of a library's pair ``tables`` and ``packed`` atoms
+    (:func:`~sparse_brdf.decoders.library.pair_buffers`) and its ``header``, reading
+    ``rows`` (the shared rows' Float buffer)."""
     return PairBuffers(ops.floats(tables), ops.uints(packed), ops.uints(header.u.ravel()),
                        ops.floats(header.f.ravel()), rows, ops.u(n1))
 

@@ -18,7 +18,7 @@ from sparse_brdf.decoders.layouts import LOBES, PLUGIN_DEFAULTS
 from sparse_brdf.decoders.library import (
     HEADER_F,
     PairLookup,
-    material_pairs,
+    pair_buffers,
     pair_header,
 )
 from sparse_brdf.decoders.lobe import fit_lobe, sparse_profile
@@ -131,10 +131,11 @@ class SparseLibrary(GlossyBSDF):
                  if p["sampling"] == "lobe" else None)
         header = pair_header(models, shared, lobes)
         try:
-            self._buf = upload_pairs(ops, (material_pairs(m, ens, shared) for m in models),
-                                     header.n_pairs, models[0].shape[0], header, rows)
+            tables, packed = pair_buffers(models, ens, shared, header.n_pairs)
         except ValueError as exc:
             raise PluginError(f"{self.plugin}: {exc}") from None
+        self._buf = upload_pairs(ops, tables, packed, header, rows, models[0].shape[0])
+        del tables, packed  # (the scalar variants keep them as their buffers)
         # each material's lobe is in the header (_lobe); none of the library's own
         self._setup_sampling("cosine", None, models[0].shape)
         self.sampling = p["sampling"]
@@ -189,8 +190,8 @@ class SparseLibrary(GlossyBSDF):
             mt = [ops.gather(hf, idx * HEADER_F + 2 + r, active) for r in range(9)]
             xs = [dr.fma(mt[3 * r], xs[0], dr.fma(mt[3 * r + 1], xs[1], mt[3 * r + 2] * xs[2]))
                   for r in range(3)]
-        if self._scaled:
-            w = w * ops.gather(hf, idx * HEADER_F + 1, active)
+        if self._scaled:  # (1 where inactive: valid / w stays finite)
+            w = w * dr.select(active, ops.gather(hf, idx * HEADER_F + 1, active), 1.0)
         return self._m.Color3f(*rho_from_x(ops, xs, valid, w))
 
     def _point_rho(self, idx: int, wi, wo, active: bool):

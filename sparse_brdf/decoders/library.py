@@ -147,6 +147,26 @@ def pair_header(models, shared: SharedRows, lobes=None) -> PairHeader:
     return PairHeader(u, f)
 
 
+def pair_buffers(models, ensemble, shared: SharedRows, n_pairs: int):
+    """(tables, packed): every material's pair tables, flat float32 (``n_pairs`` n1), and
+    packed atoms, uint32 (``n_pairs``), in the order of ``models`` (as
+    :func:`pair_header` counts them). Written material by material into one array, so
+    that building a library holds one material's tables besides."""
+    n1 = int(models[0].shape[0]) if models else 1
+    tables = np.empty(max(n_pairs * n1, 1), np.float32)
+    packed = np.zeros(max(n_pairs, 1), np.uint32)
+    at = 0
+    for model in models:
+        mp = material_pairs(model, ensemble, shared)
+        p = mp.packed.size
+        tables[at * n1:(at + p) * n1] = mp.tables.ravel()
+        packed[at:at + p] = mp.packed
+        at += p
+    if at != n_pairs:
+        raise ValueError(f"the materials hold {at} pairs, their header {n_pairs}")
+    return tables, packed
+
+
 class PairLookup:
     """The pair decoder in numpy: the kernel's twin, vectorised over N bins
     (:meth:`eval`), and the scalar variants' one-point lookups (:meth:`point`,
