@@ -297,6 +297,20 @@ def pair_x(ops: Ops, buf: PairBuffers, shape: Shape, mat, bins, lin, active) -> 
         i0, i1, w = lin[mode]
         return (1.0 - w) * ops.gather(b, base + i0, act) + w * ops.gather(b, base + i1, act)
 
+    # the material's tables are an (n1, P) block from its first pair's n1-th float: pair e
+    # at bin i is float base n1 + i P + (e - base) (sparse_brdf.decoders.library)
+    first = ops.gather_u(buf.header_u, mat * HEADER_U + 12, active)
+    total = ops.gather_u(buf.header_u, mat * HEADER_U + 13, active)
+    t_rows = [first * (buf.n1 - 1) + b * total
+              for b in ((bins[0],) if lin is None else lin[0][:2])]
+
+    def read_t(e, act):
+        if lin is None:
+            return ops.gather(t_buf, t_rows[0] + e, act)
+        w = lin[0][2]
+        return ((1.0 - w) * ops.gather(t_buf, t_rows[0] + e, act)
+                + w * ops.gather(t_buf, t_rows[1] + e, act))
+
     xs = []
     for c in range(3):
         h = mat * HEADER_U + 4 * c
@@ -305,8 +319,7 @@ def pair_x(ops: Ops, buf: PairBuffers, shape: Shape, mat, bins, lin, active) -> 
         def body(t, acc, start=start, r2=r2, r3=r3):
             e = start + t
             p = ops.gather_u(p_buf, e, active)
-            v = read(t_buf, e * buf.n1, 0, active) * read(r_buf, r2 + (p & mask) * n[1], 1,
-                                                           active)
+            v = read_t(e, active) * read(r_buf, r2 + (p & mask) * n[1], 1, active)
             return (_fma(ops, v, read(r_buf, r3 + (p >> PACK_BITS) * n[2], 2, active),
                          acc[0]),)
 

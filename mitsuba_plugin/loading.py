@@ -159,3 +159,10 @@ def load_models(filenames, ens_path: str | None, plugin: str):
             raise PluginError(f"{plugin}: cannot load {f!r}: {exc}") from exc
         models.append(model)
     return models, ens
+
+
+def library_key(filename) -> tuple:
+    """(ensemble id, grid) of the ``.sbrdf`` file ``filename``: what the materials of one
+    ``sparse_library`` share (:func:`load_models`)."""
+    model = load_sbrdf(filename)
+    return model.ensemble_id, tuple(model.shape)

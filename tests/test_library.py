@@ -10,7 +10,13 @@ from conftest import SMALL, random_orthonormal
 from sparse_brdf.coding.coefficients import SparseBRDF
 from sparse_brdf.coding.ensemble import Ensemble
 from sparse_brdf.coding.fileformat import load_sbrdf, save_sbrdf
-from sparse_brdf.decoders.library import PairLookup, material_pairs, pair_counts, pair_header
+from sparse_brdf.decoders.library import (
+    PairLookup,
+    material_pairs,
+    pair_buffers,
+    pair_counts,
+    pair_header,
+)
 from sparse_brdf.decoders.lookups import model_x
 from sparse_brdf.decoders.scene import ensemble_rows
 from sparse_brdf.errors import PluginError
@@ -98,8 +104,8 @@ def test01_pair_lookup_decodes_every_material(library):
     pairs = [material_pairs(m, ens, rows) for m in models]
     header = pair_header(models, rows)
     assert header.n_pairs == sum(p.packed.size for p in pairs)
-    look = PairLookup(np.concatenate([p.tables for p in pairs]),
-                      np.concatenate([p.packed for p in pairs]), header, rows.rows, SMALL)
+    tables, packed = pair_buffers(models, ens, rows, header.n_pairs)
+    look = PairLookup(tables, packed, header, rows.rows, SMALL)
     bins = tuple(a.ravel() for a in np.indices(SMALL))
     for i, model in enumerate(models):
         np.testing.assert_allclose(look.eval(i, bins), model_x(model, ens, bins, "strict"),
@@ -139,7 +145,7 @@ def test03_memory_per_material_on_the_merl_grid(llvm, tmp_path):
     lib = mi.load_dict({"type": "sparse_library", "filenames": ",".join(files),
                         "sampling": "cosine"})
     pairs = sum(sum(pair_counts(m)) for m in models)
-    assert lib.memory_bytes == 4 * 91 * pairs + 4 * (12 + 13) * N_MATERIALS
+    assert lib.memory_bytes == 4 * 91 * pairs + 4 * (14 + 13) * N_MATERIALS
     assert lib.memory_bytes <= N_MATERIALS * PER_MATERIAL_BYTES
     assert lib.shared_bytes == ensemble_rows(ens).nbytes
 
@@ -197,3 +203,61 @@ def test06_shapes_must_name_a_material(library, llvm):
     # out of range in a render: that shape is black, the others unchanged
     img = render(scene([lib], index=[0, 7, 1]), 4)
     assert np.isfinite(img).all()
+
+
+def _scene_xml(folder, files, ensemble, wrap_first: bool = False) -> str:
+    """A scene file of ``len(files)`` spheres, sphere i with its own ``sparse_brdf`` of
+    ``files[i]`` (the first, if ``wrap_first``, a ``<ref>`` inside a ``twosided``)."""
+    shapes = []
+    for i, f in enumerate(files):
+        r, c = divmod(i, 8)
+        bsdf = (f'<bsdf type="sparse_brdf"><string name="filename" value="{f}"/>'
+                f'<string name="ensemble" value="{ensemble}"/>'
+                f'<string name="sampling" value="cosine"/></bsdf>')
+        if wrap_first and i == 0:
+            bsdf = '<bsdf type="twosided"><ref id="first"/></bsdf>'
+        shapes.append(f'<shape type="sphere" id="s{i}"><point name="center" x="{c - 3.5}" '
+                      f'y="{r - 3.0}" z="0"/><float name="radius" value="0.45"/>{bsdf}'
+                      f'</shape>')
+    first = (f'<bsdf type="sparse_brdf" id="first"><string name="filename" '
+             f'value="{files[0]}"/><string name="ensemble" value="{ensemble}"/></bsdf>'
+             if wrap_first else "")
+    path = folder / f"scene-{len(files)}-{int(wrap_first)}.xml"
+    path.write_text(
+        '<scene version="3.0.0"><integrator type="direct"/>'
+        '<sensor type="perspective"><float name="fov" value="45"/>'
+        '<transform name="to_world"><lookat origin="0, 0, 9" target="0, 0, 0" up="0, 1, 0"/>'
+        '</transform><sampler type="independent"><integer name="sample_count" value="8"/>'
+        '</sampler><film type="hdrfilm"><integer name="width" value="32"/>'
+        '<integer name="height" value="32"/></film></sensor>'
+        '<emitter type="directional"><vector name="direction" x="0.2" y="-0.3" z="-1"/>'
+        '<rgb name="irradiance" value="2"/></emitter>'
+        f'<emitter type="constant"><rgb name="radiance" value="0.3"/></emitter>{first}'
+        + "".join(shapes) + "</scene>")
+    return str(path)
+
+
+@pytest.mark.render
+def test07_render_scene_serves_many_materials_from_a_library(library):
+    """``render_scene`` writes a scene's 40 own ``sparse_brdf`` materials as one library
+    (the same image, >= 100 dB); a material inside a wrapper keeps its own BSDF."""
+    import xml.etree.ElementTree as ET
+
+    from mitsuba_plugin.loading import library_key
+    from sparse_brdf.evaluation.libraries import to_libraries
+    from sparse_brdf.evaluation.render import load_scene, render_scene
+
+    files, ens = library["files"][:40], library["ensemble"]
+    path = _scene_xml(library["folder"], files, ens)
+    scene = load_scene(path)
+    assert {type(s.bsdf()).__name__ for s in scene.shapes()} == {"SparseLibrary"}
+    img = render_scene(path, spp=8, seed=1)
+    ref = render_scene(path, spp=8, seed=1, libraries=False)
+    assert ref.mean() > 1e-3 and render_snr(ref, img) >= 100.0
+    wrapped = ET.parse(_scene_xml(library["folder"], files, ens, wrap_first=True)).getroot()
+    lines = to_libraries(wrapped, library["folder"], library_key)
+    assert len(lines) == 1 and "39 materials on 39 shapes" in lines[0]
+    assert sorted(el.get("id") for el in wrapped if el.tag == "bsdf") == [
+        "__sparse_library_0", "first"]
+    few = ET.parse(_scene_xml(library["folder"], files[:10], ens)).getroot()
+    assert to_libraries(few, library["folder"], library_key) == []

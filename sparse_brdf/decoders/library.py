@@ -35,8 +35,8 @@ from .layouts import PACK_BITS, channel_terms
 from .scene import SharedRows
 
 #: Per material, the unsigned header: per channel (first pair, pairs, U2 row offset, U3
-#: row offset).
-HEADER_U = 12
+#: row offset), then the material's first pair and its pairs in all.
+HEADER_U = 14
 #: Per material, the float header: cosine weight (1 or 0), the weight's scale, the
 #: colour basis's M^T (9 floats, row-major; the identity for "rgb"), the sampling
 #: lobe's exponent and probability.
@@ -123,7 +123,7 @@ class PairHeader:
     @property
     def n_pairs(self) -> int:
         """The pairs of every material and channel."""
-        return int(self.u[:, 1::4].sum())
+        return int(self.u[:, 13].sum())
 
 
 def pair_header(models, shared: SharedRows, lobes=None) -> PairHeader:
@@ -135,7 +135,9 @@ def pair_header(models, shared: SharedRows, lobes=None) -> PairHeader:
     f = np.zeros((len(models), HEADER_F), np.float32)
     start = 0
     for m, model in enumerate(models):
-        for c, n in enumerate(pair_counts(model)):
+        counts = pair_counts(model)
+        u[m, 12:14] = (start, sum(counts))
+        for c, n in enumerate(counts):
             d = int(model.dict_index[c])
             u[m, 4 * c:4 * c + 4] = (start, n, shared.offsets[d, 1], shared.offsets[d, 2])
             start += n
@@ -150,8 +152,10 @@ def pair_header(models, shared: SharedRows, lobes=None) -> PairHeader:
 def pair_buffers(models, ensemble, shared: SharedRows, n_pairs: int):
     """(tables, packed): every material's pair tables, flat float32 (``n_pairs`` n1), and
     packed atoms, uint32 (``n_pairs``), in the order of ``models`` (as
-    :func:`pair_header` counts them). Written material by material into one array, so
-    that building a library holds one material's tables besides."""
+    :func:`pair_header` counts them). A material's P pairs are an (n1, P) block, bin by
+    bin (a lookup then reads its pairs' values at one bin from consecutive floats: a few
+    cache lines instead of one a pair). Written material by material into one array,
+    so that building a library holds one material's tables besides."""
     n1 = int(models[0].shape[0]) if models else 1
     tables = np.empty(max(n_pairs * n1, 1), np.float32)
     packed = np.zeros(max(n_pairs, 1), np.uint32)
@@ -159,7 +163,7 @@ def pair_buffers(models, ensemble, shared: SharedRows, n_pairs: int):
     for model in models:
         mp = material_pairs(model, ensemble, shared)
         p = mp.packed.size
-        tables[at * n1:(at + p) * n1] = mp.tables.ravel()
+        tables[at * n1:(at + p) * n1] = mp.tables.T.ravel()
         packed[at:at + p] = mp.packed
         at += p
     if at != n_pairs:
@@ -175,7 +179,8 @@ class PairLookup:
     Parameters
     ----------
     tables : np.ndarray
-        (P, n1) float32: every material's pair tables, one after the other.
+        Flat float32: every material's pair tables, one after the other, each an (n1, P)
+        block (:func:`pair_buffers`).
     packed : np.ndarray
         (P,) uint32: their packed atoms.
     header : PairHeader
@@ -188,15 +193,18 @@ class PairLookup:
 
     def __init__(self, tables, packed, header: PairHeader, rows, shape) -> None:
         mask = (1 << PACK_BITS) - 1
-        self.tables = np.asarray(tables, np.float32).reshape(-1, int(shape[0]))
+        self.tables = np.asarray(tables, np.float32).ravel()
         self.b = (np.asarray(packed, np.int64) & mask)
         self.c = (np.asarray(packed, np.int64) >> PACK_BITS) & mask
         self.header, self.rows, self.shape = header, np.asarray(rows), tuple(shape)
 
     def _channel(self, m: int, ch: int):
         start, n, r2, r3 = (int(v) for v in self.header.u[m, 4 * ch:4 * ch + 4])
+        base, total = (int(v) for v in self.header.u[m, 12:14])
+        n1 = self.shape[0]
+        block = self.tables[base * n1:(base + total) * n1].reshape(n1, total)
         sl = slice(start, start + n)
-        return (self.tables[sl], r2 + self.b[sl] * self.shape[1],
+        return (block[:, start - base:start - base + n].T, r2 + self.b[sl] * self.shape[1],
                 r3 + self.c[sl] * self.shape[2])
 
     def mix(self, m: int) -> np.ndarray:
