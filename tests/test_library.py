@@ -238,25 +238,28 @@ def _scene_xml(folder, files, ensemble, wrap_first: bool = False) -> str:
 
 
 @pytest.mark.render
-def test07_render_scene_serves_many_materials_from_a_library(library):
-    """``render_scene`` writes a scene's 40 own ``sparse_brdf`` materials as one library
+def test07_render_scene_serves_many_materials_from_a_library(library, monkeypatch):
+    """``render_scene`` writes a scene's 50 own ``sparse_brdf`` materials as one library
     (the same image, >= 100 dB); a material inside a wrapper keeps its own BSDF."""
     import xml.etree.ElementTree as ET
 
     from mitsuba_plugin.loading import library_key
+    from sparse_brdf.evaluation import libraries
     from sparse_brdf.evaluation.libraries import to_libraries
     from sparse_brdf.evaluation.render import load_scene, render_scene
 
-    files, ens = library["files"][:40], library["ensemble"]
+    files, ens = library["files"], library["ensemble"]
     path = _scene_xml(library["folder"], files, ens)
+    assert {type(s.bsdf()).__name__ for s in load_scene(path).shapes()} == {"SparseBSDF"}
+    monkeypatch.setattr(libraries, "LIBRARY_MIN_MATERIALS", 40)
     scene = load_scene(path)
     assert {type(s.bsdf()).__name__ for s in scene.shapes()} == {"SparseLibrary"}
     img = render_scene(path, spp=8, seed=1)
     ref = render_scene(path, spp=8, seed=1, libraries=False)
     assert ref.mean() > 1e-3 and render_snr(ref, img) >= 100.0
     wrapped = ET.parse(_scene_xml(library["folder"], files, ens, wrap_first=True)).getroot()
-    lines = to_libraries(wrapped, library["folder"], library_key)
-    assert len(lines) == 1 and "39 materials on 39 shapes" in lines[0]
+    lines = to_libraries(wrapped, library["folder"], library_key, min_materials=40)
+    assert len(lines) == 1 and "49 materials on 49 shapes" in lines[0]
     assert sorted(el.get("id") for el in wrapped if el.tag == "bsdf") == [
         "__sparse_library_0", "first"]
     few = ET.parse(_scene_xml(library["folder"], files[:10], ens)).getroot()

@@ -6,9 +6,10 @@ Mitsuba traces every BSDF instance of a scene on every render, about a milliseco
 material by an attribute. :func:`to_libraries` rewrites a scene's XML so: the
 ``sparse_brdf`` materials that shapes use directly (their own ``<bsdf>`` or a ``<ref>``
 to one that nothing else refers to), on the automatic decoder, become one library per
-set of options, ensemble and grid, when a set holds at least ``min_materials``
-materials; each of their shapes refers to the library and holds ``sbrdf_index``. Other
-materials (inside wrappers, on a decoder asked for by name) stay as they are.
+set of options, ensemble and grid, when a set holds at least
+:data:`LIBRARY_MIN_MATERIALS` materials; each of their shapes refers to the library and
+holds ``sbrdf_index``. Other materials (inside wrappers, on a decoder asked for by name)
+stay as they are.
 :func:`~sparse_brdf.evaluation.render.load_scene` applies it.
 """
 
@@ -19,9 +20,11 @@ from collections.abc import Callable
 from pathlib import Path
 
 #: The fewest materials that :func:`to_libraries` serves from one library: below, each
-#: ``sparse_brdf`` keeps its own BSDF (under the scene's budget, the grouped decoder,
-#: faster per lookup than the library's pair decoder).
-LIBRARY_MIN_MATERIALS = 32
+#: ``sparse_brdf`` keeps its own BSDF, and the scene's budget gives most of them the
+#: grouped decoder, about twice as fast per lookup as the library's pair decoder. Measured
+#: (``benchmarks/many_materials.py``, 2026-12-07): at 32 materials each their own BSDF
+#: rendered faster, at 100 the library did.
+LIBRARY_MIN_MATERIALS = 64
 
 #: The properties a ``sparse_brdf`` may set to join a library (their values must agree
 #: within one); ``decoder`` only as "auto", ``layout`` and ``memory_budget`` only
@@ -93,16 +96,19 @@ def _group_key(props: dict, scene_dir: Path, file_key, seen: dict) -> tuple | No
 
 
 def to_libraries(root: ET.Element, scene_dir: Path, file_key: Callable[[Path], object],
-                 min_materials: int = LIBRARY_MIN_MATERIALS) -> list[str]:
+                 min_materials: int | None = None) -> list[str]:
     """Rewrite the scene ``root`` (its ``<include>``s inlined, as
     :func:`~sparse_brdf.evaluation.scenes.replaced_materials` gives it; relative file
     names are the folder ``scene_dir``'s) in place: see the module docstring.
     ``file_key(path)``: what the files of one library share (their ensemble and grid:
     :func:`mitsuba_plugin.loading.library_key`). Returns one line per library written
-    (for Mitsuba's log)."""
+    (for Mitsuba's log). ``min_materials``: the fewest materials a library serves
+    (None: :data:`LIBRARY_MIN_MATERIALS`)."""
     groups: dict[tuple, list] = {}
     seen: dict = {}
     found = _candidates(root)
+    if min_materials is None:
+        min_materials = LIBRARY_MIN_MATERIALS
     if len({p["filename"] for _, _, p in found}) < min_materials:
         return []  # (no file read: a scene of a few materials loads as before)
     for shape, elem, props in found:
