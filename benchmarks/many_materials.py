@@ -121,6 +121,8 @@ def run_case(case: str, files: list[str], width: int, height: int, spp: int,
                                "sampling": "cosine"}) for f in use]
         mitsuba_plugin.resolve()
     scene = mi.load_dict(scene_dict(mi, bsdfs, n, width, height, spp, case == "library"))
+    if case == "library":  # as render_scene does: the indices checked, read by shape id
+        mitsuba_plugin.check_scene(scene)
     load_s, load_cpu = time.perf_counter() - t0, time.process_time() - c0
     times, cpu = [], []
     for seed in range(2):

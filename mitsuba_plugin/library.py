@@ -144,6 +144,10 @@ class SparseLibrary(GlossyBSDF):
         self._mixed = any(m.basis != "rgb" for m in models)
         self._scaled = bool((header.f[:, 1] != 1.0).any())
         self._n_f = ops.f(float(self.n_materials))
+        # JIT variants: each shape's index by its registry id, once check_scene has read
+        # them (no virtual call over the scene's shapes per lookup); until then the
+        # attribute itself
+        self._ids, self._known = None, {}
         self.memory_bytes = (header.n_pairs * (4 * models[0].shape[0] + 4) + header.nbytes)
         self.shared_bytes = shared.nbytes
         if not ops.jit:  # scalar variants: one numpy lookup per call
@@ -153,8 +157,16 @@ class SparseLibrary(GlossyBSDF):
 
     # per-lane materials (GlossyBSDF.per_lane) ----------------------------------------
     def _material(self, si, active):
-        """(index, in range) of each lane's material, from its shape's attribute."""
-        x = si.shape.eval_attribute_1(self.attribute, si, active)
+        """(index, in range) of each lane's material: its shape's attribute, read from
+        the table of shape ids once :func:`check_scene` has made it (-1, out of range,
+        for a shape it did not see)."""
+        if self._ids is not None:
+            ids, n_ids = self._ids
+            sid = dr.reinterpret_array(self._m.UInt32, si.shape)
+            seen = active & (sid < n_ids)
+            x = dr.select(seen, self._ops.gather(ids, sid, seen), -1.0)
+        else:
+            x = si.shape.eval_attribute_1(self.attribute, si, active)
         if not self._ops.jit:
             idx = int(x + 0.5) if x > -0.5 else -1
             return idx, 0 <= idx < self.n_materials
@@ -211,6 +223,18 @@ class SparseLibrary(GlossyBSDF):
         return self._m.Color3f(*point_rho_from_cos(*xs, cos_terms(ops, sh, *bins),
                                                    use_cos > 0.5, scale))
 
+    def bind(self, indices: dict) -> None:
+        """Read the materials of the shapes ``indices`` ({shape registry id: index},
+        checked) from a table instead of their attribute (JIT variants; each call adds
+        to the shapes known)."""
+        if not self._ops.jit or not indices:
+            return
+        self._known.update(indices)
+        table = [-1.0] * (max(self._known) + 1)
+        for sid, x in self._known.items():
+            table[sid] = x
+        self._ids = (self._ops.floats(table), self._ops.u(len(table)))
+
     def to_string(self):
         return (f"{type(self).__name__}[materials={self.n_materials}, "
                 f"first={self.filenames[0]!r}, sampling={self.sampling}, "
@@ -220,9 +244,10 @@ class SparseLibrary(GlossyBSDF):
 
 def check_scene(scene) -> int:
     """Check that every shape of ``scene`` that uses a ``sparse_library`` names one of
-    its materials: its attribute holds an integer in range. Returns the number of such
-    shapes; a :class:`PluginError` naming the first shape that does not."""
-    count = 0
+    its materials: its attribute holds an integer in range; then each library reads its
+    shapes' materials by their ids (:meth:`SparseLibrary.bind`). Returns the number of
+    such shapes; a :class:`PluginError` naming the first shape that does not."""
+    count, bound = 0, {}
     for shape in scene.shapes():
         bsdf = shape.bsdf()
         if not getattr(bsdf, "per_lane", False):
@@ -236,6 +261,11 @@ def check_scene(scene) -> int:
             raise PluginError(f"{bsdf.plugin}: shape {shape.id()!r}: {bsdf.attribute}={x:g}"
                               f" is not a material of the library (0 to "
                               f"{bsdf.n_materials - 1})")
+        if bsdf._ops.jit:
+            sid = dr.reinterpret_array(bsdf._m.UInt32, bsdf._m.ShapePtr(shape))
+            bound.setdefault(id(bsdf), (bsdf, {}))[1][int(sid[0])] = x
+    for bsdf, indices in bound.values():
+        bsdf.bind(indices)
     return count
 
 

@@ -128,6 +128,11 @@ def test02_library_renders_what_each_material_renders(library, llvm, opts):
     assert lib.n_materials == N_MATERIALS
     img = render(scene([lib], index=range(N_MATERIALS)))
     assert ref.mean() > 1e-3 and render_snr(ref, img) >= 100.0
+    # read by shape id once the scene is checked (no virtual call over the shapes)
+    checked = mi.load_dict(scene([lib], index=range(N_MATERIALS)))
+    assert mitsuba_plugin.check_scene(checked) == N_MATERIALS and lib._ids is not None
+    img_ids = np.array(mi.render(checked, spp=8, seed=1), np.float64)
+    assert render_snr(ref, img_ids) >= 100.0
     order = np.random.default_rng(0).permutation(N_MATERIALS)
     lib2 = mi.load_dict(_library(library, files=[files[i] for i in order], **opts))
     img2 = render(scene([lib2], index=np.argsort(order)))
