@@ -74,7 +74,9 @@ class SparseLibrary(GlossyBSDF):
     material), with U2 and U3 read from the ensemble's rows that strict-decoded
     ``sparse_brdf`` materials also share. A shape without the attribute gets material
     0; an index outside the list renders black (``render_scene`` checks the indices:
-    :func:`check_scene`).
+    :func:`check_scene`). Mitsuba merges the meshes that share a BSDF when a scene loads
+    with ``optimize=True`` (the default), dropping their attributes: load a scene whose
+    meshes share a library with ``optimize=False`` (``render_scene`` does).
 
     .. list-table::
        :header-rows: 1
@@ -255,7 +257,9 @@ def check_scene(scene) -> int:
         count += 1
         if not shape.has_attribute(bsdf.attribute):
             raise PluginError(f"{bsdf.plugin}: shape {shape.id()!r} uses the library but "
-                              f"has no attribute {bsdf.attribute!r}")
+                              f"has no attribute {bsdf.attribute!r} (meshes that share a "
+                              f"BSDF are merged, attributes dropped, unless the scene "
+                              f"loads with optimize=False)")
         x = _attribute_value(shape, bsdf.attribute)
         if x != round(x) or not 0 <= x < bsdf.n_materials:
             raise PluginError(f"{bsdf.plugin}: shape {shape.id()!r}: {bsdf.attribute}={x:g}"

@@ -269,3 +269,46 @@ def test07_render_scene_serves_many_materials_from_a_library(library, monkeypatc
         "__sparse_library_0", "first"]
     few = ET.parse(_scene_xml(library["folder"], files[:10], ens)).getroot()
     assert to_libraries(few, library["folder"], library_key) == []
+
+
+@pytest.mark.render
+def test08_meshes_sharing_a_library_stay_apart(library, tmp_path, monkeypatch):
+    """Mitsuba merges meshes that share a BSDF (and drops their attributes) unless the
+    scene loads with optimize=False, as ``render_scene`` does once it writes a library:
+    two cubes keep their own materials."""
+    from sparse_brdf.evaluation import libraries
+    from sparse_brdf.evaluation.render import render_scene
+
+    files, ens = library["files"][:2], library["ensemble"]
+
+    def cube(x, f):
+        return (f'<shape type="cube"><transform name="to_world"><scale value="0.4"/>'
+                f'<rotate y="1" angle="30"/><translate x="{x}"/></transform>'
+                f'<bsdf type="sparse_brdf"><string name="filename" value="{f}"/>'
+                f'<string name="ensemble" value="{ens}"/></bsdf></shape>')
+
+    path = tmp_path / "cubes.xml"
+    path.write_text(
+        '<scene version="3.0.0"><integrator type="direct"/>'
+        '<sensor type="perspective"><float name="fov" value="40"/><transform name="to_world">'
+        '<lookat origin="0, 1, 5" target="0, 0, 0" up="0, 1, 0"/></transform>'
+        '<film type="hdrfilm"><integer name="width" value="32"/>'
+        '<integer name="height" value="16"/></film></sensor>'
+        '<emitter type="constant"><rgb name="radiance" value="1"/></emitter>'
+        f'{cube(-0.6, files[0])}{cube(0.6, files[1])}</scene>')
+    ref = render_scene(path, spp=4, seed=1, libraries=False)
+    monkeypatch.setattr(libraries, "LIBRARY_MIN_MATERIALS", 2)
+    img = render_scene(path, spp=4, seed=1)
+    assert ref.mean() > 1e-3 and render_snr(ref, img) >= 100.0
+    # loaded as written (optimize=True), the two cubes become one mesh without attribute
+    lib = (f'<bsdf type="sparse_library" id="lib"><string name="filenames" '
+           f'value="{",".join(files)}"/><string name="ensemble" value="{ens}"/></bsdf>')
+    shapes = "".join(
+        f'<shape type="cube"><transform name="to_world"><translate x="{x}"/></transform>'
+        f'<ref id="lib"/><texture name="sbrdf_index" type="uniform">'
+        f'<float name="value" value="{i}"/></texture></shape>'
+        for i, x in enumerate((-1.5, 1.5)))
+    xml = f'<scene version="3.0.0">{lib}{shapes}</scene>'
+    with pytest.raises(PluginError, match="optimize=False"):
+        mitsuba_plugin.check_scene(mi.load_string(xml))
+    assert mitsuba_plugin.check_scene(mi.load_string(xml, optimize=False)) == 2

@@ -234,7 +234,9 @@ def load_scene(
     try:
         budget = None if memory_budget is None else int(float(memory_budget) * 2**20)
         with scene_dir_resolver(scene_path), mitsuba_plugin.memory_budget(budget):
-            scene = mi.load_string(xml, **kwargs)
+            # a library's meshes must stay apart: Mitsuba merges the meshes that share a
+            # BSDF (optimize=True), and their attributes with them
+            scene = mi.load_string(xml, **kwargs, **({"optimize": False} if lines else {}))
         mitsuba_plugin.resolve()  # the auto materials' decoders, under the scene's budget
         if lines:
             mitsuba_plugin.check_scene(scene)
