@@ -19,7 +19,7 @@ encoded with the default encoder, then blends of random pairs of them at random 
 (``sparse_brdf.interpolate``), each a file of its own.
 
 Run: ``.venv/bin/python benchmarks/many_materials.py --json many.json --chart
-docs/many_materials.png`` (the results in docs/benchmarks.md, "Many materials").
+docs/figures/many_materials.png`` (the results in docs/benchmarks.md, "Many materials").
 """
 
 from __future__ import annotations
