@@ -43,6 +43,9 @@ class GroupedBuffers:
     sel: list  # for modes (p, q, g): three 0/1 UInt32 that pick that mode's bin index
     fsel: list  # the same as Floats, to pick that mode's interpolation weight
     n_q: object  # UInt32: the size of mode q (the table's row stride in bin pairs)
+    #: (first packet of the material's tables, of its atom values) in shared buffers (a
+    #: library's, per lane); None: the buffers are the material's own
+    base: tuple | None = None
 
 
 def upload_grouped(ops: Ops, lay, ch) -> GroupedBuffers:
@@ -85,12 +88,14 @@ def _grouped_rows(buf: GroupedBuffers, bins, lin):
     return pairs, gs
 
 
-def _blend(ops: Ops, buf, rows, stride, h, active):
+def _blend(ops: Ops, buf, rows, stride, h, active, base=None):
     """Packet h of each of ``rows`` [(row index, weight)] of ``buf`` (a row is
-    ``stride`` packets), summed with the weights; a weight of None: that row alone."""
+    ``stride`` packets, the first at packet ``base``, None: 0), summed with the
+    weights; a weight of None: that row alone."""
     out = None
     for row, wt in rows:
-        pk = ops.gather_packet(buf, row * stride + h, PACKET, active)
+        at = row * stride + h
+        pk = ops.gather_packet(buf, at if base is None else at + base, PACKET, active)
         if wt is None:
             return list(pk)
         pk = [wt * x for x in pk]
@@ -126,16 +131,17 @@ def grouped_x(ops: Ops, buf: GroupedBuffers, bins, lin, active):
     n_s, n_u = buf.chunks["slots"], buf.chunks["union"]
     pairs, gs = _grouped_rows(buf, bins, lin)
     t_buf, v_buf = buf.tables, buf.values
+    tb, vb = (None, None) if buf.base is None else buf.base
 
     def body_slots(h, acc):
-        tv = _blend(ops, t_buf, pairs, n_s, h, active)
-        vv = _blend(ops, v_buf, gs, n_s, h, active)
+        tv = _blend(ops, t_buf, pairs, n_s, h, active, tb)
+        vv = _blend(ops, v_buf, gs, n_s, h, active, vb)
         return tuple(_fma(ops, a, b, c) for a, b, c in zip(tv, vv, acc, strict=True))
 
     def body_union(h, acc):
-        tv = (_blend(ops, t_buf, pairs, 2 * n_u, 2 * h, active)
-              + _blend(ops, t_buf, pairs, 2 * n_u, 2 * h + 1, active))
-        return _union_chunk(ops, tv, _blend(ops, v_buf, gs, n_u, h, active), acc)
+        tv = (_blend(ops, t_buf, pairs, 2 * n_u, 2 * h, active, tb)
+              + _blend(ops, t_buf, pairs, 2 * n_u, 2 * h + 1, active, tb))
+        return _union_chunk(ops, tv, _blend(ops, v_buf, gs, n_u, h, active, vb), acc)
 
     zero = ops.m.Float(0.0) if ops.jit else 0.0
     acc_s = ops.loop(n_s, body_slots, (zero,) * PACKET)
@@ -326,3 +332,20 @@ def pair_x(ops: Ops, buf: PairBuffers, shape: Shape, mat, bins, lin, active) -> 
         zero = ops.m.Float(0.0) if ops.jit else 0.0
         xs.append(ops.loop(count, body, (zero,))[0])
     return xs
+
+
+def lane_grouped(ops: Ops, tables, values, header_u, mat, active) -> GroupedBuffers:
+    """:class:`GroupedBuffers` of each lane's library material ``mat`` (its header's
+    columns 14-21, :data:`~sparse_brdf.decoders.library.HEADER_U`): the library's grouped
+    ``tables`` and ``values`` from the material's first packets, its chunks (0 for a
+    material on the pair decoder: :func:`grouped_x` then adds nothing), modes and n_q."""
+    h = mat * HEADER_U + 14
+    t0, v0, n_s, n_u, mp, mq, mg, nq = (ops.gather_u(header_u, h + f, active)
+                                        for f in range(8))
+    m = ops.m
+    sel = [[dr.select(mode == s, m.UInt32(1), m.UInt32(0)) for s in range(3)]
+           for mode in (mp, mq, mg)]
+    fsel = [[dr.select(mode == s, m.Float(1.0), m.Float(0.0)) for s in range(3)]
+            for mode in (mp, mq, mg)]
+    return GroupedBuffers(tables, values, {"slots": n_s, "union": n_u}, sel, fsel, nq,
+                          (t0, v0))

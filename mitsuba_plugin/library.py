@@ -14,17 +14,21 @@ from __future__ import annotations
 
 import drjit as dr
 
-from sparse_brdf.decoders.layouts import LOBES, PLUGIN_DEFAULTS
+from sparse_brdf.decoders.layouts import LOBES, PACKET, PLUGIN_DEFAULTS, grouped_plan
 from sparse_brdf.decoders.library import (
     HEADER_F,
+    HEADER_U,
     PairLookup,
+    grouped_blocks,
     pair_buffers,
+    pair_counts,
     pair_header,
 )
 from sparse_brdf.decoders.lobe import fit_lobe, sparse_profile
+from sparse_brdf.decoders.scene import MEMORY_BUDGET_MIB, MaterialCost, plan_decoders
 from sparse_brdf.errors import PluginError
 
-from .decoders import pair_x, shared_rows, upload_pairs
+from .decoders import grouped_x, lane_grouped, pair_x, shared_rows, upload_pairs
 from .glossy import GlossyBSDF
 from .kernels import (
     angle_coords,
@@ -55,7 +59,10 @@ ATTRIBUTE = "sbrdf_index"
 def _read_props(props, plugin: str) -> dict:
     p = read_props(props, plugin, {
         "filenames": REQUIRED, "ensemble": None, "sampling": PLUGIN_DEFAULTS["sampling"],
-        "interpolate": False, "attribute": ATTRIBUTE})
+        "interpolate": False, "attribute": ATTRIBUTE, "memory_budget": None})
+    if p["memory_budget"] is not None and p["memory_budget"] not in MEMORY_BUDGET_MIB:
+        raise PluginError(f"{plugin}: memory_budget={p['memory_budget']!r}: "
+                          f"expected MiB, {MEMORY_BUDGET_MIB.describe()}")
     p["sampling"] = choice_prop(p["sampling"], LOBES, plugin, "sampling")
     p["interpolate"] = bool_prop(p["interpolate"], plugin, "interpolate")
     if not str(p["attribute"]).strip():
@@ -102,6 +109,12 @@ class SparseLibrary(GlossyBSDF):
        * - attribute
          - string
          - The shape attribute holding the index (default: ``sbrdf_index``).
+       * - memory_budget
+         - float
+         - MiB of decoder data the library may hold: within it, the grouped decoder's
+           tables (faster per lookup, 1.0-1.6 MB a material) go to the materials with the
+           largest speed gain per byte first, the others keep their pairs (default:
+           none, pairs for all; ``n_grouped`` says how many).
 
     Example::
 
@@ -129,33 +142,48 @@ class SparseLibrary(GlossyBSDF):
         self.n_materials = len(models)
         self._shape = shared_shape(ops, models[0].shape)
         shared, rows = shared_rows(ops, ens)
-        lobes = ([fit_lobe(sparse_profile(m, ens), m.shape) for m in models]
-                 if p["sampling"] == "lobe" else None)
-        header = pair_header(models, shared, lobes)
-        try:
-            tables, packed = pair_buffers(models, ens, shared, header.n_pairs)
-        except ValueError as exc:
-            raise PluginError(f"{self.plugin}: {exc}") from None
-        self._buf = upload_pairs(ops, tables, packed, header, rows, models[0].shape[0])
-        del tables, packed  # (the scalar variants keep them as their buffers)
+        budget = p["memory_budget"]
+        self._build(models, ens, shared, rows, p["sampling"] == "lobe",
+                    None if budget is None else int(float(budget) * 2**20))
         # each material's lobe is in the header (_lobe); none of the library's own
         self._setup_sampling("cosine", None, models[0].shape)
         self.sampling = p["sampling"]
         # Python branches at trace time: a library of "rgb" materials traces no mix, one
         # of the paper's transforms (scale 1) no multiply
         self._mixed = any(m.basis != "rgb" for m in models)
-        self._scaled = bool((header.f[:, 1] != 1.0).any())
         self._n_f = ops.f(float(self.n_materials))
         # JIT variants: each shape's index by its registry id, once check_scene has read
         # them (no virtual call over the scene's shapes per lookup); until then the
         # attribute itself
         self._ids, self._known = None, {}
-        self.memory_bytes = (header.n_pairs * (4 * models[0].shape[0] + 4) + header.nbytes)
         self.shared_bytes = shared.nbytes
+
+    def _build(self, models, ens, shared, rows, lobe: bool, budget: int | None) -> None:
+        """The library's buffers: each material's pairs, or its grouped tables where
+        ``budget`` (bytes of the library's decoder data; None: pairs for all) gives them
+        (:func:`_grouped_choice`), and the headers."""
+        ops, n1 = self._ops, models[0].shape[0]
+        lobes = [fit_lobe(sparse_profile(m, ens), m.shape) for m in models] if lobe else None
+        chosen, plans = _grouped_choice(models, ens, budget)
+        blocks, self._grouped = None, None
+        if any(chosen):
+            g_tables, g_values, blocks = grouped_blocks(models, ens, plans, chosen)
+            self._grouped = (ops.floats(g_tables), ops.floats(g_values))
+        header = pair_header(models, shared, lobes, blocks)
+        try:
+            tables, packed = pair_buffers(models, ens, shared, header.n_pairs, blocks)
+        except ValueError as exc:
+            raise PluginError(f"{self.plugin}: {exc}") from None
+        self._buf = upload_pairs(ops, tables, packed, header, rows, n1)
+        del tables, packed  # (the scalar variants keep them as their buffers)
+        self._scaled = bool((header.f[:, 1] != 1.0).any())
+        self.n_grouped = sum(chosen)
+        self.memory_bytes = (header.n_pairs * (4 * n1 + 4) + header.nbytes + (
+            0 if blocks is None else sum(ops.nbytes(b) for b in self._grouped)))
         if not ops.jit:  # scalar variants: one numpy lookup per call
             self._header = header
             self._lookup = PairLookup(self._buf.tables, self._buf.packed, header,
-                                      shared.rows, models[0].shape)
+                                      shared.rows, models[0].shape, blocks)
 
     # per-lane materials (GlossyBSDF.per_lane) ----------------------------------------
     def _material(self, si, active):
@@ -186,7 +214,7 @@ class SparseLibrary(GlossyBSDF):
     def _rho_at(self, mat, wi, wo, active):
         idx, ok = mat
         if not self._ops.jit:
-            return self._point_rho(idx, wi, wo, active and ok)
+            return _point_rho(self, idx, wi, wo, active and ok)
         ops, sh, hf = self._ops, self._shape, self._buf.header_f
         active = active & ok
         coords = angle_coords(ops, sh, wi, wo)
@@ -200,6 +228,10 @@ class SparseLibrary(GlossyBSDF):
             active = active & in_bin  # invalid bins hold no measurement: 0
             valid = dr.select(in_bin, 1.0, 0.0)
         xs = pair_x(ops, self._buf, sh, idx, bins, lin, active)
+        if self._grouped is not None:  # the materials on the grouped decoder (0 elsewhere)
+            gbuf = lane_grouped(ops, *self._grouped, self._buf.header_u, idx, active)
+            xs = [a + b for a, b in zip(xs, grouped_x(ops, gbuf, bins, lin, active)[0],
+                                        strict=True)]
         if self._mixed:  # the lane's material's M^T (the identity for "rgb")
             mt = [ops.gather(hf, idx * HEADER_F + 2 + r, active) for r in range(9)]
             xs = [dr.fma(mt[3 * r], xs[0], dr.fma(mt[3 * r + 1], xs[1], mt[3 * r + 2] * xs[2]))
@@ -207,23 +239,6 @@ class SparseLibrary(GlossyBSDF):
         if self._scaled:  # (1 where inactive: valid / w stays finite)
             w = w * dr.select(active, ops.gather(hf, idx * HEADER_F + 1, active), 1.0)
         return self._m.Color3f(*rho_from_x(ops, xs, valid, w))
-
-    def _point_rho(self, idx: int, wi, wo, active: bool):
-        """:meth:`_rho_at` in a scalar variant: one direction pair, numpy lookups."""
-        if not active:
-            return self._zero3
-        ops, sh = self._ops, self._shape
-        use_cos, scale = (float(v) for v in self._header.f[idx, :2])
-        coords = angle_coords(ops, sh, wi, wo)
-        if self.interpolate:
-            lin = linear_bins(ops, sh, coords)
-            w, valid = interp_weight(ops, sh, lin, use_cos)
-            xs = self._lookup.point_linear(idx, lin)
-            return self._m.Color3f(*rho_from_x(ops, xs, valid, w * scale))
-        bins = nearest_bins(ops, sh, coords)
-        xs = self._lookup.point(idx, *bins)
-        return self._m.Color3f(*point_rho_from_cos(*xs, cos_terms(ops, sh, *bins),
-                                                   use_cos > 0.5, scale))
 
     def bind(self, indices: dict) -> None:
         """Read the materials of the shapes ``indices`` ({shape registry id: index},
@@ -242,6 +257,44 @@ class SparseLibrary(GlossyBSDF):
                 f"first={self.filenames[0]!r}, sampling={self.sampling}, "
                 f"interpolate={self.interpolate}, attribute={self.attribute!r}, "
                 f"memory_bytes={self.memory_bytes}]")
+
+
+def _point_rho(lib, idx: int, wi, wo, active: bool):
+    """:meth:`SparseLibrary._rho_at` in a scalar variant: one direction pair, numpy
+    lookups (:class:`~sparse_brdf.decoders.library.PairLookup`) of ``lib``'s material
+    ``idx``."""
+    if not active:
+        return lib._zero3
+    ops, sh = lib._ops, lib._shape
+    use_cos, scale = (float(v) for v in lib._header.f[idx, :2])
+    coords = angle_coords(ops, sh, wi, wo)
+    if lib.interpolate:
+        lin = linear_bins(ops, sh, coords)
+        w, valid = interp_weight(ops, sh, lin, use_cos)
+        xs = lib._lookup.point_linear(idx, lin)
+        return lib._m.Color3f(*rho_from_x(ops, xs, valid, w * scale))
+    bins = nearest_bins(ops, sh, coords)
+    xs = lib._lookup.point(idx, *bins)
+    return lib._m.Color3f(*point_rho_from_cos(*xs, cos_terms(ops, sh, *bins),
+                                              use_cos > 0.5, scale))
+
+
+def _grouped_choice(models, ens, budget: int | None):
+    """(per material, whether it gets the grouped decoder; their grouped plans): within
+    ``budget`` bytes of the library's decoder data, the largest speed gain per byte first
+    (:func:`~sparse_brdf.decoders.scene.plan_decoders`, a material's pairs its compact
+    data); None: every material on pairs (no plan made)."""
+    if budget is None:
+        return [False] * len(models), None
+    plans = [grouped_plan(m, ens) for m in models]
+    n1 = models[0].shape[0]
+    costs = []
+    for model, plan in zip(models, plans, strict=True):
+        pairs = sum(pair_counts(model))
+        costs.append(MaterialCost(plan.nbytes, 4 * (n1 + 1) * pairs, 4.0 * pairs - plan.packets))
+    # the headers, and each grouped block's padding to whole packets, count too
+    room = budget - len(models) * (4 * (HEADER_U + HEADER_F) + 2 * 4 * PACKET)
+    return [d == "grouped" for d in plan_decoders(costs, max(room, 0))], plans
 
 
 def check_scene(scene) -> int:

@@ -11,6 +11,8 @@ from sparse_brdf.coding.coefficients import SparseBRDF
 from sparse_brdf.coding.ensemble import Ensemble
 from sparse_brdf.coding.fileformat import load_sbrdf, save_sbrdf
 from sparse_brdf.decoders.library import (
+    HEADER_F,
+    HEADER_U,
     PairLookup,
     material_pairs,
     pair_buffers,
@@ -114,18 +116,24 @@ def test01_pair_lookup_decodes_every_material(library):
 
 
 @pytest.mark.render
-@pytest.mark.parametrize("opts", [{"sampling": "cosine"}, {"sampling": "lobe"},
-                                  {"sampling": "cosine", "interpolate": True}])
+@pytest.mark.parametrize("opts", [
+    {"sampling": "cosine"}, {"sampling": "lobe"}, {"sampling": "cosine", "interpolate": True},
+    {"sampling": "cosine", "memory_budget": 1.5},
+    {"sampling": "lobe", "interpolate": True, "memory_budget": 1.5}])
 def test02_library_renders_what_each_material_renders(library, llvm, opts):
     """50 materials at 32 x 32: one library renders what 50 ``sparse_brdf`` render (the
     same sample paths: each material's own lobe), to >= 100 dB, in any order of the
     shapes' indices."""
     files = library["files"]
+    per_opts = {k: v for k, v in opts.items() if k != "memory_budget"}
     per = [mi.load_dict({"type": "sparse_brdf", "filename": f, "decoder": "strict",
-                         "ensemble": library["ensemble"], **opts}) for f in files]
+                         "ensemble": library["ensemble"], **per_opts}) for f in files]
     ref = render(scene(per))
     lib = mi.load_dict(_library(library, **opts))
     assert lib.n_materials == N_MATERIALS
+    if "memory_budget" in opts:  # some materials on the grouped decoder, the others pairs
+        assert 0 < lib.n_grouped < N_MATERIALS
+        assert lib.memory_bytes <= opts["memory_budget"] * 2**20
     img = render(scene([lib], index=range(N_MATERIALS)))
     assert ref.mean() > 1e-3 and render_snr(ref, img) >= 100.0
     # read by shape id once the scene is checked (no virtual call over the shapes)
@@ -150,7 +158,7 @@ def test03_memory_per_material_on_the_merl_grid(llvm, tmp_path):
     lib = mi.load_dict({"type": "sparse_library", "filenames": ",".join(files),
                         "sampling": "cosine"})
     pairs = sum(sum(pair_counts(m)) for m in models)
-    assert lib.memory_bytes == 4 * 91 * pairs + 4 * (14 + 13) * N_MATERIALS
+    assert lib.memory_bytes == 4 * 91 * pairs + 4 * (HEADER_U + HEADER_F) * N_MATERIALS
     assert lib.memory_bytes <= N_MATERIALS * PER_MATERIAL_BYTES
     assert lib.shared_bytes == ensemble_rows(ens).nbytes
 
@@ -158,7 +166,8 @@ def test03_memory_per_material_on_the_merl_grid(llvm, tmp_path):
 @pytest.mark.render
 @pytest.mark.parametrize("variant", CPU_VARIANTS)
 def test04_every_variant(library, variant):
-    """In each CPU variant a library of 4 materials renders what they render alone."""
+    """In each CPU variant a library of 4 materials (one on the grouped decoder, three
+    on pairs) renders what they render alone."""
     set_variant(variant)
     mitsuba_plugin.register()
     files = library["files"][:4]
@@ -166,7 +175,8 @@ def test04_every_variant(library, variant):
     per = [{"type": "sparse_brdf", "filename": f, "decoder": "strict",
             "ensemble": library["ensemble"], "sampling": "lobe"} for f in files]
     ref = render(scene(per, res=res, spp=spp), spp)
-    lib = _library(library, files=files, sampling="lobe")
+    lib = _library(library, files=files, sampling="lobe", memory_budget=0.1)
+    assert mi.load_dict(lib).n_grouped == 1
     img = render(scene([lib], index=[0, 1, 2, 3], res=res, spp=spp), spp)
     assert np.isfinite(img).all() and ref.mean() > 1e-4
     assert render_snr(ref, img) >= 100.0, variant
@@ -259,6 +269,9 @@ def test07_render_scene_serves_many_materials_from_a_library(library, monkeypatc
     monkeypatch.setattr(libraries, "LIBRARY_MIN_MATERIALS", 40)
     scene = load_scene(path)
     assert {type(s.bsdf()).__name__ for s in scene.shapes()} == {"SparseLibrary"}
+    assert scene.shapes()[0].bsdf().n_grouped == 0
+    budgeted = load_scene(path, memory_budget=1.5)  # the render's budget: the library's
+    assert 0 < budgeted.shapes()[0].bsdf().n_grouped < len(files)
     img = render_scene(path, spp=8, seed=1)
     ref = render_scene(path, spp=8, seed=1, libraries=False)
     assert ref.mean() > 1e-3 and render_snr(ref, img) >= 100.0

@@ -31,12 +31,16 @@ import numpy as np
 from ..transforms import scale as transform_scale
 from ..transforms import uses_cosine
 from .buffers import colour_mix
-from .layouts import PACK_BITS, channel_terms
+from .layouts import PACK_BITS, PACKET, channel_terms, grouped_channels, grouped_layout
+from .lookups import GroupedLookup
 from .scene import SharedRows
 
 #: Per material, the unsigned header: per channel (first pair, pairs, U2 row offset, U3
-#: row offset), then the material's first pair and its pairs in all.
-HEADER_U = 14
+#: row offset), then the material's first pair and its pairs in all; then, for a
+#: material on the grouped decoder (:func:`grouped_blocks`; 0 otherwise), the first
+#: packet of its tables and of its atom values, its chunks in the slot and the union
+#: layout (one of them 0), its modes p, q, g and n_q.
+HEADER_U = 22
 #: Per material, the float header: cosine weight (1 or 0), the weight's scale, the
 #: colour basis's M^T (9 floats, row-major; the identity for "rgb"), the sampling
 #: lobe's exponent and probability.
@@ -126,16 +130,21 @@ class PairHeader:
         return int(self.u[:, 13].sum())
 
 
-def pair_header(models, shared: SharedRows, lobes=None) -> PairHeader:
+def pair_header(models, shared: SharedRows, lobes=None, grouped=None) -> PairHeader:
     """The :class:`PairHeader` of ``models``, whose pairs (:func:`material_pairs`) are
     stored one after the other in that order and whose U2 and U3 rows are read from
     ``shared``; ``lobes``: each material's (exponent, probability) of the sampling lobe
-    (default: (1, 0), cosine sampling)."""
+    (default: (1, 0), cosine sampling); ``grouped``: per material, its
+    :class:`GroupedBlock` (:func:`grouped_blocks`) or None: a material on the grouped
+    decoder has no pairs."""
     u = np.zeros((len(models), HEADER_U), np.uint32)
     f = np.zeros((len(models), HEADER_F), np.float32)
     start = 0
     for m, model in enumerate(models):
-        counts = pair_counts(model)
+        block = None if grouped is None else grouped[m]
+        counts = (0, 0, 0) if block is not None else pair_counts(model)
+        if block is not None:
+            u[m, 14:22] = block.header()
         u[m, 12:14] = (start, sum(counts))
         for c, n in enumerate(counts):
             d = int(model.dict_index[c])
@@ -149,7 +158,7 @@ def pair_header(models, shared: SharedRows, lobes=None) -> PairHeader:
     return PairHeader(u, f)
 
 
-def pair_buffers(models, ensemble, shared: SharedRows, n_pairs: int):
+def pair_buffers(models, ensemble, shared: SharedRows, n_pairs: int, grouped=None):
     """(tables, packed): every material's pair tables, flat float32 (``n_pairs`` n1), and
     packed atoms, uint32 (``n_pairs``), in the order of ``models`` (as
     :func:`pair_header` counts them). A material's P pairs are an (n1, P) block, bin by
@@ -160,7 +169,9 @@ def pair_buffers(models, ensemble, shared: SharedRows, n_pairs: int):
     tables = np.empty(max(n_pairs * n1, 1), np.float32)
     packed = np.zeros(max(n_pairs, 1), np.uint32)
     at = 0
-    for model in models:
+    for m, model in enumerate(models):
+        if grouped is not None and grouped[m] is not None:
+            continue  # on the grouped decoder: no pairs
         mp = material_pairs(model, ensemble, shared)
         p = mp.packed.size
         tables[at * n1:(at + p) * n1] = mp.tables.T.ravel()
@@ -169,6 +180,48 @@ def pair_buffers(models, ensemble, shared: SharedRows, n_pairs: int):
     if at != n_pairs:
         raise ValueError(f"the materials hold {at} pairs, their header {n_pairs}")
     return tables, packed
+
+
+@dataclass(frozen=True)
+class GroupedBlock:
+    """A library material on the grouped decoder: its layout and channels
+    (:func:`~sparse_brdf.decoders.layouts.grouped_layout`) and where its tables and atom
+    values start in the library's buffers, in packets of ``PACKET`` floats."""
+
+    layout: object
+    channel: object
+    table_packet: int
+    value_packet: int
+
+    def header(self) -> tuple:
+        """Columns 14-21 of the material's :data:`HEADER_U` header."""
+        lay, ch = self.layout, self.channel
+        slots, union = (lay.chunks, 0) if lay.kind == "slots" else (0, lay.chunks)
+        return (self.table_packet, self.value_packet, slots, union, ch.mode_p, ch.mode_q,
+                ch.mode_g, ch.n_q)
+
+
+def grouped_blocks(models, ensemble, plans, chosen):
+    """(tables, values, blocks): the grouped decoder's data of the materials ``chosen``
+    (booleans, one per model; ``plans``: their
+    :func:`~sparse_brdf.decoders.layouts.grouped_plan`), flat float32 buffers with each
+    material's block whole packets long, and per material its :class:`GroupedBlock` or
+    None."""
+    tables, values, blocks, at_t, at_v = [], [], [], 0, 0
+    for model, plan, on in zip(models, plans, chosen, strict=True):
+        if not on:
+            blocks.append(None)
+            continue
+        chans = grouped_channels(model, ensemble, plan.mode)
+        lay = grouped_layout(chans, tuple(model.shape), plan.kind)
+        blocks.append(GroupedBlock(lay, chans[0], at_t, at_v))
+        for buf, flat in ((tables, lay.tables), (values, lay.values)):
+            pad = -flat.size % PACKET
+            buf.append(np.concatenate([flat, np.zeros(pad, np.float32)]) if pad else flat)
+        at_t += tables[-1].size // PACKET
+        at_v += values[-1].size // PACKET
+    empty = [np.zeros(PACKET, np.float32)]
+    return np.concatenate(tables or empty), np.concatenate(values or empty), blocks
 
 
 class PairLookup:
@@ -189,14 +242,18 @@ class PairLookup:
         The shared rows (:attr:`~sparse_brdf.decoders.scene.SharedRows.rows`).
     shape : tuple of int
         The grid (n1, n2, n3).
+    grouped : list, optional
+        Per material, its :class:`GroupedBlock` (on the grouped decoder) or None.
     """
 
-    def __init__(self, tables, packed, header: PairHeader, rows, shape) -> None:
+    def __init__(self, tables, packed, header: PairHeader, rows, shape, grouped=None) -> None:
         mask = (1 << PACK_BITS) - 1
         self.tables = np.asarray(tables, np.float32).ravel()
         self.b = (np.asarray(packed, np.int64) & mask)
         self.c = (np.asarray(packed, np.int64) >> PACK_BITS) & mask
         self.header, self.rows, self.shape = header, np.asarray(rows), tuple(shape)
+        self.grouped = [None if g is None else GroupedLookup(g.layout, g.channel)
+                        for g in (grouped or [None] * len(header.u))]
 
     def _channel(self, m: int, ch: int):
         start, n, r2, r3 = (int(v) for v in self.header.u[m, 4 * ch:4 * ch + 4])
@@ -213,6 +270,8 @@ class PairLookup:
 
     def eval(self, m: int, bins) -> np.ndarray:
         """(3, N) transformed R, G, B of material ``m`` at integer bins (i, j, k)."""
+        if self.grouped[m] is not None:
+            return self.mix(m) @ self.grouped[m].eval(bins)[:, :3].T
         i, j, k = (np.asarray(v, np.int64) for v in bins)
         xs = []
         for ch in range(3):
@@ -229,6 +288,8 @@ class PairLookup:
     def point_linear(self, m: int, lin) -> list:
         """X of material ``m`` interpolated trilinearly at one point (``lin``: per mode
         (i0, i1, t)): each mode's atoms interpolated linearly, as the kernel does."""
+        if self.grouped[m] is not None:
+            return (self.mix(m) @ np.array(self.grouped[m].point_linear(lin)[:3])).tolist()
         (i0, i1, ti), (j0, j1, tj), (k0, k1, tk) = ((int(a), int(b), float(t))
                                                      for a, b, t in lin)
         xs = []

@@ -47,6 +47,10 @@ def _props(elem: ET.Element) -> dict | None:
         out[name] = value
     if "filename" not in out or out.get("decoder", "auto") != "auto":
         return None
+    try:  # a budget that is no number: left to the material's own plugin to report
+        float(out.get("memory_budget", 0.0))
+    except ValueError:
+        return None
     return out
 
 
@@ -96,14 +100,16 @@ def _group_key(props: dict, scene_dir: Path, file_key, seen: dict) -> tuple | No
 
 
 def to_libraries(root: ET.Element, scene_dir: Path, file_key: Callable[[Path], object],
-                 min_materials: int | None = None) -> list[str]:
+                 min_materials: int | None = None,
+                 memory_budget: float | None = None) -> list[str]:
     """Rewrite the scene ``root`` (its ``<include>``s inlined, as
     :func:`~sparse_brdf.evaluation.scenes.replaced_materials` gives it; relative file
     names are the folder ``scene_dir``'s) in place: see the module docstring.
     ``file_key(path)``: what the files of one library share (their ensemble and grid:
     :func:`mitsuba_plugin.loading.library_key`). Returns one line per library written
     (for Mitsuba's log). ``min_materials``: the fewest materials a library serves
-    (None: :data:`LIBRARY_MIN_MATERIALS`)."""
+    (None: :data:`LIBRARY_MIN_MATERIALS`). ``memory_budget`` (MiB): the library's, for
+    the grouped decoder's tables (None: the smallest its materials state, else none)."""
     groups: dict[tuple, list] = {}
     seen: dict = {}
     found = _candidates(root)
@@ -130,6 +136,10 @@ def to_libraries(root: ET.Element, scene_dir: Path, file_key: Callable[[Path], o
                     value = str(Path(scene_dir) / value)
                 ET.SubElement(lib, "string", {"name": name, "value": value})
         ET.SubElement(lib, "boolean", {"name": "interpolate", "value": key[3]})
+        stated = [float(p["memory_budget"]) for _, _, p in members if "memory_budget" in p]
+        budget = memory_budget if memory_budget is not None else min(stated, default=None)
+        if budget is not None:
+            ET.SubElement(lib, "float", {"name": "memory_budget", "value": str(budget)})
         root.insert(_first_shape(root), lib)
         index = {f: i for i, f in enumerate(files)}
         dropped = set()

@@ -223,8 +223,8 @@ def load_scene(
     # many sparse_brdf materials: one sparse_library (libraries.py), said in Mitsuba's log
     from mitsuba_plugin.loading import library_key  # lazy, as mitsuba_plugin above
 
-    lines = (to_libraries(root, scene_path.parent, library_key)
-             if libraries and _edit is None else [])
+    lines = (to_libraries(root, scene_path.parent, library_key,
+                          memory_budget=memory_budget) if libraries and _edit is None else [])
     check_scene_data(scene_path, kwargs, replaced=materials or ())
     set_variant(variant)
     mitsuba_plugin.register()
