@@ -301,7 +301,8 @@ def check_scene(scene) -> int:
     """Check that every shape of ``scene`` that uses a ``sparse_library`` names one of
     its materials: its attribute holds an integer in range; then each library reads its
     shapes' materials by their ids (:meth:`SparseLibrary.bind`). Returns the number of
-    such shapes; a :class:`PluginError` naming the first shape that does not."""
+    such shapes; a :class:`PluginError` naming the first shape that does not. (A scene
+    with instances keeps reading the attribute: their shapes are not listed.)"""
     count, bound = 0, {}
     for shape in scene.shapes():
         bsdf = shape.bsdf()
@@ -321,8 +322,11 @@ def check_scene(scene) -> int:
         if bsdf._ops.jit:
             sid = dr.reinterpret_array(bsdf._m.UInt32, bsdf._m.ShapePtr(shape))
             bound.setdefault(id(bsdf), (bsdf, {}))[1][int(sid[0])] = x
-    for bsdf, indices in bound.values():
-        bsdf.bind(indices)
+    # a shape inside an instance is not among the scene's shapes: with instances the
+    # libraries keep reading the attribute itself
+    if not any(shape.class_name() == "Instance" for shape in scene.shapes()):
+        for bsdf, indices in bound.values():
+            bsdf.bind(indices)
     return count
 
 

@@ -325,3 +325,29 @@ def test08_meshes_sharing_a_library_stay_apart(library, tmp_path, monkeypatch):
     with pytest.raises(PluginError, match="optimize=False"):
         mitsuba_plugin.check_scene(mi.load_string(xml))
     assert mitsuba_plugin.check_scene(mi.load_string(xml, optimize=False)) == 2
+
+
+@pytest.mark.render
+def test09_instances_keep_reading_the_attribute(library, llvm):
+    """Shapes inside an ``instance`` are not among the scene's shapes: a scene with one
+    keeps reading the attribute (no table of shape ids), and renders the same."""
+    files = library["files"][:2]
+    lib = mi.load_dict(_library(library, files=files, sampling="cosine"))
+    per = [mi.load_dict({"type": "sparse_brdf", "filename": f, "decoder": "strict",
+                         "ensemble": library["ensemble"], "sampling": "cosine"})
+           for f in files]
+
+    def with_instance(d, inner, index=None):
+        d["group"] = {"type": "shapegroup", "inner": {
+            "type": "sphere", "center": [0.0, 2.5, 0.0], "radius": 0.45, "bsdf": inner}}
+        if index is not None:
+            d["group"]["inner"]["sbrdf_index"] = {"type": "uniform", "value": index}
+        d["inst"] = {"type": "instance", "shape": {"type": "ref", "id": "group"}}
+        return d
+
+    ref = render(with_instance(scene(per), per[1]), 4)
+    d = with_instance(scene([lib], index=[0, 1]), lib, 1.0)
+    checked = mi.load_dict(d)
+    assert mitsuba_plugin.check_scene(checked) == 2 and lib._ids is None
+    img = np.array(mi.render(checked, spp=4, seed=1), np.float64)
+    assert render_snr(ref, img) >= 100.0
