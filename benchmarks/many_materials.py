@@ -3,9 +3,12 @@
 A grid of N spheres, each with its own material (N distinct ``.sbrdf`` files), under the
 studio map, rendered with the ``direct`` integrator in ``llvm_ad_rgb`` with cosine
 sampling (the same sample paths for every decoder), for each decoder of ``sparse_brdf``
-(``auto`` under the default memory budget, ``grouped``, ``strict``) and for the dense
-table (``tabulated_brdf`` of each file's decode) where it fits. Each case runs in a
-process of its own, which reports its load time, first and second render times and
+(``auto`` under the default memory budget, ``grouped``, ``strict``), for one
+``sparse_library`` holding the N files (``library``: each sphere names its material by
+its ``sbrdf_index`` attribute; ``library_grouped``: the same with a memory budget,
+``--library-budget``, for the grouped decoder's tables, up to ``--table-max`` materials)
+and for the dense table (``tabulated_brdf`` of each file's decode) where it fits. Each
+case runs in a process of its own, which reports its load time, first and second render times and
 peak resident memory; ``empty`` is the same spheres with Mitsuba's ``diffuse`` (the
 memory a scene holds without any measured material), and ``shared`` the N spheres all
 holding the first material. The SNR (whole image, dB) of each decoder's image against
@@ -17,7 +20,7 @@ encoded with the default encoder, then blends of random pairs of them at random 
 (``sparse_brdf.interpolate``), each a file of its own.
 
 Run: ``.venv/bin/python benchmarks/many_materials.py --json many.json --chart
-docs/many_materials.png`` (the results in docs/benchmarks.md, "Many materials").
+docs/figures/many_materials.png`` (the results in docs/benchmarks.md, "Many materials").
 """
 
 from __future__ import annotations
@@ -32,7 +35,8 @@ from pathlib import Path
 import numpy as np
 from harness import header, parser, write_json
 
-CASES = ("empty", "shared", "auto", "grouped", "strict", "table")
+CASES = ("empty", "shared", "library", "library_grouped", "auto", "grouped", "strict",
+         "table")
 
 
 def make_library(folder: Path, n: int, n_bases: int, seed: int = 0) -> list[Path]:
@@ -65,9 +69,11 @@ def make_library(folder: Path, n: int, n_bases: int, seed: int = 0) -> list[Path
     return out
 
 
-def scene_dict(mi, bsdfs, n_spheres: int, width: int, height: int, spp: int) -> dict:
+def scene_dict(mi, bsdfs, n_spheres: int, width: int, height: int, spp: int,
+               library: bool = False) -> dict:
     """A grid of ``n_spheres`` spheres filling a ``width`` x ``height`` frame, sphere s
-    holding ``bsdfs[s % len(bsdfs)]``."""
+    holding ``bsdfs[s % len(bsdfs)]``; ``library``: sphere s also holds the attribute
+    ``sbrdf_index`` = s (its material in a ``sparse_library``)."""
     from sparse_brdf.paths import SCENES_DIR
 
     cols = int(np.ceil(np.sqrt(n_spheres * width / height)))
@@ -85,11 +91,13 @@ def scene_dict(mi, bsdfs, n_spheres: int, width: int, height: int, spp: int) -> 
         r, c = divmod(s, cols)
         d[f"s{s}"] = {"type": "sphere", "radius": 0.45, "bsdf": bsdfs[s % len(bsdfs)],
                       "center": [c - cols / 2 + 0.5, r - rows / 2 + 0.5, 0.0]}
+        if library:
+            d[f"s{s}"]["sbrdf_index"] = {"type": "uniform", "value": float(s)}
     return d
 
 
 def run_case(case: str, files: list[str], width: int, height: int, spp: int,
-             image: str) -> dict:
+             image: str, library_budget: float = 256.0) -> dict:
     """Load and render one case in this process; its timings and peak memory."""
     import drjit as dr
     import mitsuba as mi
@@ -105,13 +113,20 @@ def run_case(case: str, files: list[str], width: int, height: int, spp: int,
     elif case == "table":
         bsdfs = [mi.load_dict({"type": "tabulated_brdf", "filename": f, "sampling": "cosine"})
                  for f in files]
+    elif case in ("library", "library_grouped"):
+        budget = {"memory_budget": library_budget} if case == "library_grouped" else {}
+        bsdfs = [mi.load_dict({"type": "sparse_library", "filenames": ",".join(files),
+                               "sampling": "cosine", **budget})]
     else:
         dec = {"shared": "auto"}.get(case, case)
         use = files[:1] if case == "shared" else files
         bsdfs = [mi.load_dict({"type": "sparse_brdf", "filename": f, "decoder": dec,
                                "sampling": "cosine"}) for f in use]
         mitsuba_plugin.resolve()
-    scene = mi.load_dict(scene_dict(mi, bsdfs, n, width, height, spp))
+    lib = case.startswith("library")
+    scene = mi.load_dict(scene_dict(mi, bsdfs, n, width, height, spp, lib))
+    if lib:  # as render_scene does: the indices checked, read by shape id
+        mitsuba_plugin.check_scene(scene)
     load_s, load_cpu = time.perf_counter() - t0, time.process_time() - c0
     times, cpu = [], []
     for seed in range(2):
@@ -124,6 +139,7 @@ def run_case(case: str, files: list[str], width: int, height: int, spp: int,
     np.save(image, np.array(img, np.float32))
     held = [b.memory_bytes for b in bsdfs if hasattr(b, "memory_bytes")]
     decs = [getattr(b, "decoder", None) for b in bsdfs]
+    decs += ["grouped"] * sum(getattr(b, "n_grouped", 0) for b in bsdfs)
     # process CPU seconds (all threads) beside wall seconds: on a shared machine the
     # CPU time is the steadier measure of the work done
     return {"case": case, "n": n, "load_s": load_s, "load_cpu_s": load_cpu,
@@ -137,6 +153,7 @@ def measure(case: str, files, args, image: Path) -> dict:
     """:func:`run_case` in a child process (its own peak memory)."""
     cmd = [sys.executable, __file__, "--child", case, "--width", str(args.width),
            "--height", str(args.height), "--spp", str(args.spp), "--image", str(image),
+           "--library-budget", str(args.library_budget),
            *map(str, files)]
     out = subprocess.run(cmd, capture_output=True, text=True, check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -156,7 +173,7 @@ def chart(rows, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 2, figsize=(9, 3.6))
-    for case in ("auto", "grouped", "strict", "table", "shared"):
+    for case in ("library", "library_grouped", "auto", "grouped", "strict", "table", "shared"):
         pts = sorted((r["n"], r) for r in rows if r["case"] == case)
         if not pts:
             continue
@@ -183,6 +200,8 @@ def main() -> None:
     p.add_argument("--table-max", type=int, default=100,
                    help="largest N rendered with the dense tables (17.5 MB each)")
     p.add_argument("--cases", default=",".join(CASES))
+    p.add_argument("--library-budget", type=float, default=256.0,
+                   help="MiB of decoder data of the library_grouped case")
     p.add_argument("--width", type=int, default=256)
     p.add_argument("--height", type=int, default=128)
     p.add_argument("--spp", type=int, default=16)
@@ -193,7 +212,7 @@ def main() -> None:
     args = p.parse_args()
     if args.child:
         print(json.dumps(run_case(args.child, args.files, args.width, args.height,
-                                  args.spp, args.image)))
+                                  args.spp, args.image, args.library_budget)))
         return
     ns = [int(v) for v in args.ns.split(",")]
     files = make_library(Path(args.library), max(ns), args.bases)
@@ -203,7 +222,7 @@ def main() -> None:
     for n in ns:
         empty = None
         for case in args.cases.split(","):
-            if case == "table" and n > args.table_max:
+            if case in ("table", "library_grouped") and n > args.table_max:
                 continue
             r = measure(case, files[:n], args, images / f"{case}-{n}.npy")
             empty = r["peak_mb"] if case == "empty" else empty
@@ -213,7 +232,8 @@ def main() -> None:
             print(json.dumps(r), flush=True)
         ref = images / f"table-{n}.npy"
         for r in rows:
-            if r["n"] == n and ref.exists() and r["case"] in ("auto", "grouped", "strict"):
+            if r["n"] == n and ref.exists() and r["case"] in (
+                    "auto", "grouped", "strict", "library", "library_grouped"):
                 r["snr_vs_table_db"] = snr(np.load(ref), np.load(images / f"{r['case']}-{n}.npy"))
     print(header())
     keys = ("case", "n", "load_s", "load_cpu_s", "render1_s", "render2_s", "render2_cpu_s",

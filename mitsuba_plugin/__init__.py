@@ -1,4 +1,5 @@
 """Mitsuba 3 plugins for sparse-brdf: the BSDFs ``sparse_brdf`` (the sparse model),
+``sparse_library`` (many sparse materials in one BSDF, picked per shape),
 ``tabulated_brdf`` (a measured table, the reference) and ``neural_brdf`` (a Neural-BRDF
 network), single-sided glossy reflectors for every variant's colours.
 
@@ -21,7 +22,8 @@ One job per module, each building on those before it:
   material gets (:func:`memory_budget`, :func:`resolve`);
 - :mod:`~mitsuba_plugin.glossy`: the BSDFs' shared base (sampling, pdf, colours);
 - :mod:`~mitsuba_plugin.tabulated`, :mod:`~mitsuba_plugin.sparse`,
-  :mod:`~mitsuba_plugin.neural`: one BSDF each, its parameters in its class docstring
+  :mod:`~mitsuba_plugin.neural`, :mod:`~mitsuba_plugin.library`: one BSDF each, its
+  parameters in its class docstring
   (the choices: :data:`DECODERS`, :data:`LAYOUTS`, :data:`LOBES`,
   the importance-sampling strategies);
 - :mod:`~mitsuba_plugin.registration`: the variants' classes, and :func:`register`;
@@ -38,8 +40,9 @@ from sparse_brdf.decoders.layouts import DECODERS, LAYOUTS, LOBES
 from sparse_brdf.errors import PluginError
 
 from .budget import memory_budget, resolve
+from .library import check_scene
 from .loading import load_ensemble
 from .registration import classes, make_classes, register
 
 __all__ = ["register", "classes", "make_classes", "PluginError", "DECODERS", "LAYOUTS",
-           "LOBES", "load_ensemble", "memory_budget", "resolve"]
+           "LOBES", "load_ensemble", "memory_budget", "resolve", "check_scene"]

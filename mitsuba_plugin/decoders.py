@@ -7,6 +7,8 @@ tensor (docs/method.md).
   ("slots" or "union"), in one kernel.
 - strict (:func:`strict_x`): one loop over the nonzero terms, closing partial sums at
   the ends of their groups; also the derivative carrier of differentiable renders.
+- pair (:func:`pair_x`): a library's materials (``sparse_library``), the material
+  picked per lane; one loop over the lane's material's (b, c) pairs of atoms.
 
 The buffers (:class:`GroupedBuffers`, :class:`StrictBuffers`) are uploaded from the
 numpy layouts of :mod:`sparse_brdf.decoders.layouts`, as opaque Dr.Jit scalars, so every
@@ -22,6 +24,7 @@ from dataclasses import dataclass
 import drjit as dr
 
 from sparse_brdf.decoders.layouts import END_B, END_C, PACK_BITS, PACKET, SLOT, UNION_ATOMS
+from sparse_brdf.decoders.library import HEADER_U
 from sparse_brdf.decoders.scene import ensemble_rows
 
 from .kernels import Ops, Shape
@@ -40,6 +43,9 @@ class GroupedBuffers:
     sel: list  # for modes (p, q, g): three 0/1 UInt32 that pick that mode's bin index
     fsel: list  # the same as Floats, to pick that mode's interpolation weight
     n_q: object  # UInt32: the size of mode q (the table's row stride in bin pairs)
+    #: (first packet of the material's tables, of its atom values) in shared buffers (a
+    #: library's, per lane); None: the buffers are the material's own
+    base: tuple | None = None
 
 
 def upload_grouped(ops: Ops, lay, ch) -> GroupedBuffers:
@@ -82,12 +88,14 @@ def _grouped_rows(buf: GroupedBuffers, bins, lin):
     return pairs, gs
 
 
-def _blend(ops: Ops, buf, rows, stride, h, active):
+def _blend(ops: Ops, buf, rows, stride, h, active, base=None):
     """Packet h of each of ``rows`` [(row index, weight)] of ``buf`` (a row is
-    ``stride`` packets), summed with the weights; a weight of None: that row alone."""
+    ``stride`` packets, the first at packet ``base``, None: 0), summed with the
+    weights; a weight of None: that row alone."""
     out = None
     for row, wt in rows:
-        pk = ops.gather_packet(buf, row * stride + h, PACKET, active)
+        at = row * stride + h
+        pk = ops.gather_packet(buf, at if base is None else at + base, PACKET, active)
         if wt is None:
             return list(pk)
         pk = [wt * x for x in pk]
@@ -123,16 +131,17 @@ def grouped_x(ops: Ops, buf: GroupedBuffers, bins, lin, active):
     n_s, n_u = buf.chunks["slots"], buf.chunks["union"]
     pairs, gs = _grouped_rows(buf, bins, lin)
     t_buf, v_buf = buf.tables, buf.values
+    tb, vb = (None, None) if buf.base is None else buf.base
 
     def body_slots(h, acc):
-        tv = _blend(ops, t_buf, pairs, n_s, h, active)
-        vv = _blend(ops, v_buf, gs, n_s, h, active)
+        tv = _blend(ops, t_buf, pairs, n_s, h, active, tb)
+        vv = _blend(ops, v_buf, gs, n_s, h, active, vb)
         return tuple(_fma(ops, a, b, c) for a, b, c in zip(tv, vv, acc, strict=True))
 
     def body_union(h, acc):
-        tv = (_blend(ops, t_buf, pairs, 2 * n_u, 2 * h, active)
-              + _blend(ops, t_buf, pairs, 2 * n_u, 2 * h + 1, active))
-        return _union_chunk(ops, tv, _blend(ops, v_buf, gs, n_u, h, active), acc)
+        tv = (_blend(ops, t_buf, pairs, 2 * n_u, 2 * h, active, tb)
+              + _blend(ops, t_buf, pairs, 2 * n_u, 2 * h + 1, active, tb))
+        return _union_chunk(ops, tv, _blend(ops, v_buf, gs, n_u, h, active, vb), acc)
 
     zero = ops.m.Float(0.0) if ops.jit else 0.0
     acc_s = ops.loop(n_s, body_slots, (zero,) * PACKET)
@@ -251,3 +260,92 @@ def strict_x(ops: Ops, buf: StrictBuffers, shape: Shape, c: int, bins, lin, acti
     if grad is not None:
         return ops.loop(sp["t"], body_grad, (zero,), sum_style=True)[0]
     return ops.loop(sp["t"], body, (zero, zero, zero))[0]
+
+
+# ------------------------------------------------------------------- pair decoder kernel
+
+
+@dataclass
+class PairBuffers:
+    """A library's materials as the pair decoder reads them (from
+    :mod:`sparse_brdf.decoders.library`): every material's pair tables and packed atoms,
+    their per-material headers, and the ensemble's shared rows."""
+
+    tables: object  # Float: per pair, n1 floats (T_bc at each bin of mode 1)
+    packed: object  # UInt32: per pair, b | c << PACK_BITS
+    header_u: object  # UInt32: per material, HEADER_U
+    header_f: object  # Float: per material, HEADER_F
+    rows: object  # Float: the ensemble's atom rows (shared_rows)
+    n1: object  # UInt32: the table's row length
+
+
+def upload_pairs(ops: Ops, tables, packed, header, rows, n1: int) -> PairBuffers:
+    """:class:`PairBuffers` of a library's pair ``tables`` and ``packed`` atoms
+    (:func:`~sparse_brdf.decoders.library.pair_buffers`) and its ``header``, reading
+    ``rows`` (the shared rows' Float buffer)."""
+    return PairBuffers(ops.floats(tables), ops.uints(packed), ops.uints(header.u.ravel()),
+                       ops.floats(header.f.ravel()), rows, ops.u(n1))
+
+
+def pair_x(ops: Ops, buf: PairBuffers, shape: Shape, mat, bins, lin, active) -> list:
+    """X of the three coded channels of material ``mat`` (per lane): per channel one
+    loop over the material's (b, c) pairs, ``sum T_bc[i] U2[j, b] U3[k, c]``, its trip
+    count the lane's material's (numpy twin:
+    :class:`~sparse_brdf.decoders.library.PairLookup`). At the nearest bin (``bins``) or
+    interpolated (``lin``, bins is None: each mode's values linearly)."""
+    n = shape.n
+    mask = (1 << PACK_BITS) - 1
+    t_buf, p_buf, r_buf = buf.tables, buf.packed, buf.rows
+
+    def read(b, base, mode, act):
+        if lin is None:
+            return ops.gather(b, base + bins[mode], act)
+        i0, i1, w = lin[mode]
+        return (1.0 - w) * ops.gather(b, base + i0, act) + w * ops.gather(b, base + i1, act)
+
+    # the material's tables are an (n1, P) block from its first pair's n1-th float: pair e
+    # at bin i is float base n1 + i P + (e - base) (sparse_brdf.decoders.library)
+    first = ops.gather_u(buf.header_u, mat * HEADER_U + 12, active)
+    total = ops.gather_u(buf.header_u, mat * HEADER_U + 13, active)
+    t_rows = [first * (buf.n1 - 1) + b * total
+              for b in ((bins[0],) if lin is None else lin[0][:2])]
+
+    def read_t(e, act):
+        if lin is None:
+            return ops.gather(t_buf, t_rows[0] + e, act)
+        w = lin[0][2]
+        return ((1.0 - w) * ops.gather(t_buf, t_rows[0] + e, act)
+                + w * ops.gather(t_buf, t_rows[1] + e, act))
+
+    xs = []
+    for c in range(3):
+        h = mat * HEADER_U + 4 * c
+        start, count, r2, r3 = (ops.gather_u(buf.header_u, h + f, active) for f in range(4))
+
+        def body(t, acc, start=start, r2=r2, r3=r3):
+            e = start + t
+            p = ops.gather_u(p_buf, e, active)
+            v = read_t(e, active) * read(r_buf, r2 + (p & mask) * n[1], 1, active)
+            return (_fma(ops, v, read(r_buf, r3 + (p >> PACK_BITS) * n[2], 2, active),
+                         acc[0]),)
+
+        zero = ops.m.Float(0.0) if ops.jit else 0.0
+        xs.append(ops.loop(count, body, (zero,))[0])
+    return xs
+
+
+def lane_grouped(ops: Ops, tables, values, header_u, mat, active) -> GroupedBuffers:
+    """:class:`GroupedBuffers` of each lane's library material ``mat`` (its header's
+    columns 14-21, :data:`~sparse_brdf.decoders.library.HEADER_U`): the library's grouped
+    ``tables`` and ``values`` from the material's first packets, its chunks (0 for a
+    material on the pair decoder: :func:`grouped_x` then adds nothing), modes and n_q."""
+    h = mat * HEADER_U + 14
+    t0, v0, n_s, n_u, mp, mq, mg, nq = (ops.gather_u(header_u, h + f, active)
+                                        for f in range(8))
+    m = ops.m
+    sel = [[dr.select(mode == s, m.UInt32(1), m.UInt32(0)) for s in range(3)]
+           for mode in (mp, mq, mg)]
+    fsel = [[dr.select(mode == s, m.Float(1.0), m.Float(0.0)) for s in range(3)]
+            for mode in (mp, mq, mg)]
+    return GroupedBuffers(tables, values, {"slots": n_s, "union": n_u}, sel, fsel, nq,
+                          (t0, v0))

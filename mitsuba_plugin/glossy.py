@@ -67,14 +67,33 @@ class GlossyBSDF:
         rotation between the local and world frames."""
         return self._m.depolarizer(value) if self._polarized else value
 
-    def _pdf(self, wi, wo):
+    def _pdf(self, wi, wo, lobe=None):
+        """The sampling density of ``wo``; ``lobe``: the lobe's (exponent, probability)
+        per lane (a library's, :meth:`_lobe`), else the material's."""
         m = self._m
         ci = m.Frame3f.cos_theta(wi)
         co = m.Frame3f.cos_theta(wo)
         p = m.warp.square_to_cosine_hemisphere_pdf(wo)
         if self.sampling == "lobe":
-            p = (1.0 - self._prob) * p + self._prob * lobe_pdf(self._ops, wi, wo, self._exp)
+            n, prob = (self._exp, self._prob) if lobe is None else lobe
+            p = (1.0 - prob) * p + prob * lobe_pdf(self._ops, wi, wo, n)
         return dr.select((ci > 0.0) & (co > 0.0), p, 0.0)
+
+    # per-lane materials (a library, :mod:`~mitsuba_plugin.library`) ---------------------
+    #: Whether the material varies per lane: then ``_material(si, active)`` gives what
+    #: each lane reads (a library's material index), and ``_lobe(mat)`` and
+    #: ``_rho_at(mat, wi, wo, active)`` replace the material's own lobe and ``_rho``.
+    #: A Python branch: the other BSDFs trace and run as before.
+    per_lane = False
+
+    def _material(self, si, active):  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _lobe(self, mat):  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _rho_at(self, mat, wi, wo, active):  # pragma: no cover - abstract
+        raise NotImplementedError
 
     # Mitsuba interface ---------------------------------------------------------------
     def sample(self, ctx, si, sample1, sample2, active=True):
@@ -83,12 +102,15 @@ class GlossyBSDF:
         if not ctx.is_enabled(m.BSDFFlags.GlossyReflection):
             return bs, self._out(zero)
         wi = si.wi
+        mat = self._material(si, active) if self.per_lane else None
+        lobe = None if mat is None or self.sampling != "lobe" else self._lobe(mat)
         wo = m.warp.square_to_cosine_hemisphere(sample2)
         if self.sampling == "lobe":
-            h = power_cosine_sample(self._ops, sample2, self._exp)
+            n, prob = (self._exp, self._prob) if lobe is None else lobe
+            h = power_cosine_sample(self._ops, sample2, n)
             wo_lobe = 2.0 * dr.dot(wi, h) * h - wi
-            wo = dr.select(sample1 < self._prob, wo_lobe, wo)
-        pdf = self._pdf(wi, wo)
+            wo = dr.select(sample1 < prob, wo_lobe, wo)
+        pdf = self._pdf(wi, wo, lobe)
         bs.wo = wo
         bs.pdf = pdf
         bs.eta = 1.0
@@ -96,26 +118,36 @@ class GlossyBSDF:
         bs.sampled_component = m.UInt32(0)
         co = m.Frame3f.cos_theta(wo)
         ok = active & (m.Frame3f.cos_theta(wi) > 0.0) & (co > 0.0) & (pdf > 0.0)
-        f = self._colour(self._rho(wi, wo, ok), si)
+        rgb = self._rho(wi, wo, ok) if mat is None else self._rho_at(mat, wi, wo, ok)
+        f = self._colour(rgb, si)
         weight = f * (co / dr.maximum(pdf, 1e-30))
         return bs, self._out(dr.select(ok, weight, zero))
 
-    def eval(self, ctx, si, wo, active=True):
+    def eval(self, ctx, si, wo, active=True, mat=None):
         m, zero = self._m, self._zero_s
         if not ctx.is_enabled(m.BSDFFlags.GlossyReflection):
             return self._out(zero)
         co = m.Frame3f.cos_theta(wo)
         ok = active & (m.Frame3f.cos_theta(si.wi) > 0.0) & (co > 0.0)
-        f = self._colour(self._rho(si.wi, wo, ok), si)
+        if self.per_lane:
+            mat = self._material(si, active) if mat is None else mat
+            rgb = self._rho_at(mat, si.wi, wo, ok)
+        else:
+            rgb = self._rho(si.wi, wo, ok)
+        f = self._colour(rgb, si)
         return self._out(dr.select(ok, f * co, zero))
 
-    def pdf(self, ctx, si, wo, active=True):
+    def pdf(self, ctx, si, wo, active=True, mat=None):
         if not ctx.is_enabled(self._m.BSDFFlags.GlossyReflection):
             return self._m.Float(0.0)
-        return dr.select(active, self._pdf(si.wi, wo), 0.0)
+        lobe = None
+        if self.per_lane and self.sampling == "lobe":
+            lobe = self._lobe(self._material(si, active) if mat is None else mat)
+        return dr.select(active, self._pdf(si.wi, wo, lobe), 0.0)
 
     def eval_pdf(self, ctx, si, wo, active=True):
-        return self.eval(ctx, si, wo, active), self.pdf(ctx, si, wo, active)
+        mat = self._material(si, active) if self.per_lane else None  # read once for both
+        return self.eval(ctx, si, wo, active, mat), self.pdf(ctx, si, wo, active, mat)
 
     def traverse(self, callback):
         # the material is read-only: nothing to expose for differentiation

@@ -122,3 +122,47 @@ def load_model(filename: str, ens_path: str | None, plugin: str):
     except Exception as exc:  # noqa: BLE001
         raise PluginError(f"{plugin}: cannot load {filename!r}: {exc}") from exc
     return model, ens
+
+
+def split_names(value: str) -> list[str]:
+    """The file names of a list property: separated by commas (or new lines), each
+    stripped of surrounding spaces; empty names dropped."""
+    return [n.strip() for n in str(value).replace("\n", ",").split(",") if n.strip()]
+
+
+def load_models(filenames, ens_path: str | None, plugin: str):
+    """(models, ensemble) of the ``.sbrdf`` files ``filenames``, all of one ensemble and
+    one grid: the ensemble at ``ens_path`` or the shipped one the first file names. A
+    file that cannot be loaded, or of another ensemble or grid than the first: a
+    :class:`PluginError` naming the plugin and the file."""
+    if not filenames:
+        raise PluginError(f"{plugin}: the parameter 'filenames' names no file")
+    first, ens = load_model(filenames[0], ens_path, plugin)
+    models = [first]
+    for f in filenames[1:]:
+        try:
+            model = load_sbrdf(f)
+        except Exception as exc:  # noqa: BLE001
+            raise PluginError(f"{plugin}: cannot load {f!r}: {exc}") from exc
+        if ens_path is None and model.ensemble_id != first.ensemble_id:
+            raise PluginError(f"{plugin}: {f!r} was encoded with ensemble "
+                              f"{model.ensemble_id[:12]}, {filenames[0]!r} with "
+                              f"{first.ensemble_id[:12]}: a library holds the materials of "
+                              f"one ensemble")
+        if tuple(model.shape) != tuple(first.shape):
+            raise PluginError(f"{plugin}: {f!r} is on the grid {tuple(model.shape)}, "
+                              f"{filenames[0]!r} on {tuple(first.shape)}: a library holds "
+                              f"the materials of one grid")
+        try:
+            model.check_ensemble(ens)
+        except Exception as exc:  # noqa: BLE001
+            raise PluginError(f"{plugin}: cannot load {f!r}: {exc}") from exc
+        models.append(model)
+    return models, ens
+
+
+def library_key(filename) -> tuple:
+    """(ensemble id, grid) of the ``.sbrdf`` file ``filename``: what the materials of one
+    ``sparse_library`` share (:func:`load_models`)."""
+    model = load_sbrdf(filename)
+    return model.ensemble_id, tuple(model.shape)

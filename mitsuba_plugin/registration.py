@@ -3,11 +3,13 @@
 A Python BSDF must derive from the variant's ``mi.BSDF``, so the BSDFs
 (:class:`~mitsuba_plugin.tabulated.TabulatedBRDF`,
 :class:`~mitsuba_plugin.sparse.SparseBSDF`, :class:`~mitsuba_plugin.neural.NeuralBRDF`,
-on :class:`~mitsuba_plugin.glossy.GlossyBSDF`) are written against no base and
+:class:`~mitsuba_plugin.library.SparseLibrary`, on
+:class:`~mitsuba_plugin.glossy.GlossyBSDF`) are written against no base and
 :func:`make_classes` copies their bodies onto subclasses of one variant's ``mi.BSDF``,
 with that variant's names and colour kind as class attributes; :func:`classes` caches
 them per variant, and :func:`register`, at the end as in Mitsuba's own Python plugins,
-registers ``tabulated_brdf``, ``sparse_brdf`` and ``neural_brdf`` for the current one.
+registers ``tabulated_brdf``, ``sparse_brdf``, ``neural_brdf`` and ``sparse_library`` for
+the current one.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from sparse_brdf.errors import PluginError
 
 from .glossy import GlossyBSDF
 from .kernels import Ops, SpectralUpsampling, VariantNamespace
+from .library import SparseLibrary
 from .neural import NeuralBRDF
 from .sparse import SparseBSDF
 from .tabulated import TabulatedBRDF
@@ -82,8 +85,8 @@ def _upsampling_loader(name: str, ops: Ops):
     return get
 
 
-def make_classes(module, name: str | None = None) -> tuple[type, type, type]:
-    """(TabulatedBRDF, SparseBSDF, NeuralBRDF) of variant module ``module`` (e.g.
+def make_classes(module, name: str | None = None) -> tuple[type, type, type, type]:
+    """(TabulatedBRDF, SparseBSDF, NeuralBRDF, SparseLibrary) of variant module ``module`` (e.g.
     ``mitsuba.llvm_ad_rgb``, whose variant is ``name``, default: the module's own name):
     the BSDFs' classes on that variant's ``mi.BSDF``."""
     m = VariantNamespace(module)
@@ -95,10 +98,11 @@ def make_classes(module, name: str | None = None) -> tuple[type, type, type]:
                    _glossy=int(+m.BSDFFlags.GlossyReflection), _zero3=m.Color3f(0.0),
                    _zero_s=m.UnpolarizedSpectrum(0.0), _kind=kind, _polarized=polarized,
                    _upsampling=_upsampling_loader(name, ops))
-    return _derive(TabulatedBRDF, base), _derive(SparseBSDF, base), _derive(NeuralBRDF, base)
+    return (_derive(TabulatedBRDF, base), _derive(SparseBSDF, base), _derive(NeuralBRDF, base),
+            _derive(SparseLibrary, base))
 
 
-_CLASSES: dict[str, tuple[type, type, type]] = {}
+_CLASSES: dict[str, tuple[type, type, type, type]] = {}
 _REGISTERED: set[str] = set()
 
 
@@ -112,8 +116,9 @@ def _current_variant(variant: str | None = None) -> str:
     return name
 
 
-def classes(variant: str | None = None) -> tuple[type, type, type]:
-    """(TabulatedBRDF, SparseBSDF, NeuralBRDF) classes of ``variant`` (default: the current one)."""
+def classes(variant: str | None = None) -> tuple[type, type, type, type]:
+    """(TabulatedBRDF, SparseBSDF, NeuralBRDF, SparseLibrary) classes of ``variant``
+    (default: the current one)."""
     name = _current_variant(variant)
     if name not in _CLASSES:
         variant_kind(name)  # an unsupported variant: one line naming it
@@ -127,8 +132,8 @@ def classes(variant: str | None = None) -> tuple[type, type, type]:
 
 
 def register() -> str:
-    """Register ``sparse_brdf``, ``tabulated_brdf`` and ``neural_brdf`` for the current
-    variant.
+    """Register ``sparse_brdf``, ``tabulated_brdf``, ``neural_brdf`` and
+    ``sparse_library`` for the current variant.
 
     Idempotent per variant; returns the variant's name. Call after ``mi.set_variant``
     and before loading a scene that uses the plugins.
@@ -138,9 +143,10 @@ def register() -> str:
     name = _current_variant()
     if name in _REGISTERED:
         return name
-    tabulated, sparse, neural = classes(name)
+    tabulated, sparse, neural, library = classes(name)
     mi.register_bsdf("tabulated_brdf", lambda props: tabulated(props))
     mi.register_bsdf("sparse_brdf", lambda props: sparse(props))
     mi.register_bsdf("neural_brdf", lambda props: neural(props))
+    mi.register_bsdf("sparse_library", lambda props: library(props))
     _REGISTERED.add(name)
     return name

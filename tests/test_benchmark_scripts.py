@@ -21,7 +21,7 @@ STANDARD = ROOT / "docs" / "records" / "standard_2026-12-05"
 #: Modules that scripts share (no smoke test of their own: every script runs them).
 SHARED = {"harness", "render_timing"}
 #: Scripts whose smoke test lives elsewhere, with where (being written by other work).
-TESTED_ELSEWHERE = {"many_materials": "tests/test_many_materials.py"}
+TESTED_ELSEWHERE: dict[str, str] = {}
 MATERIAL = "mitsuba:au-ggx-0.25"
 DEMO = str(DEMO_MATERIALS_DIR / "blue-metallic-paint2.h5")
 
@@ -65,6 +65,32 @@ def test_every_script_is_cited_by_a_guide():
 
 
 # The report scripts: a bench folder in, tables (and charts) out; no renders, no encodes.
+
+@pytest.mark.render
+def test_many_materials_runs(monkeypatch, capsys, tmp_path):
+    """One case process of the many-materials benchmark (the library, and the strict
+    decoder for comparison) on two small-grid files of the shipped ensemble, 8 x 4."""
+    import json
+
+    import numpy as np
+
+    from sparse_brdf.coding.coefficients import SparseBRDF
+    from sparse_brdf.coding.ensemble import Ensemble
+    from sparse_brdf.coding.fileformat import save_sbrdf
+
+    ens = Ensemble.default()
+    files = []
+    for i in range(2):
+        loc = np.array([0, 1 + i], np.int64)
+        files.append(str(save_sbrdf(tmp_path / f"m{i}.sbrdf", SparseBRDF(
+            "log-relative", ens.shape, ens.id, [0, 0, 0], [loc] * 3,
+            [np.array([30.0, 1.0], np.float32)] * 3))))
+    for case in ("library", "strict"):
+        run("many_materials", monkeypatch, "--child", case, "--width", "8", "--height", "4",
+            "--spp", "1", "--image", str(tmp_path / f"{case}.npy"), *files)
+        row = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+        assert row["case"] == case and row["n"] == 2 and row["material_bytes"] > 0
+
 
 def test_ablation_table_runs(monkeypatch, capsys):
     run("ablation_table", monkeypatch, str(STANDARD))

@@ -214,8 +214,8 @@ def test_register_is_idempotent_per_variant():
         set_variant(v)
         assert mitsuba_plugin.register() == v
         assert mitsuba_plugin.register() == v
-    t1, s1, n1 = mitsuba_plugin.classes("llvm_ad_rgb")
-    t2, s2, n2 = mitsuba_plugin.classes("scalar_rgb")
+    t1, s1, n1, _ = mitsuba_plugin.classes("llvm_ad_rgb")
+    t2, s2, n2, _ = mitsuba_plugin.classes("scalar_rgb")
     assert t1 is not t2 and s1 is not s2 and n1 is not n2
 
 

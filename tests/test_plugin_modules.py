@@ -18,7 +18,7 @@ from mitsuba_plugin import loading, registration  # noqa: E402
 def test_package_names():
     assert sorted(mitsuba_plugin.__all__) == sorted(
         ["register", "classes", "make_classes", "PluginError", "DECODERS", "LAYOUTS",
-         "LOBES", "load_ensemble", "memory_budget", "resolve"])
+         "LOBES", "load_ensemble", "memory_budget", "resolve", "check_scene"])
     for name in mitsuba_plugin.__all__:
         assert getattr(mitsuba_plugin, name) is not None, name
     assert mitsuba_plugin.register is registration.register

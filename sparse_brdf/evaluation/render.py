@@ -34,6 +34,7 @@ from ..fileio import require_file
 from ..metrics import SNRForms, snr_forms
 from ..mitsuba_env import DEFAULT_VARIANT, set_variant
 from ..params import check, check_choice
+from .libraries import to_libraries
 from .scenes import (
     RENDER_PARAMETERS,
     cause_message,
@@ -205,6 +206,7 @@ def load_scene(
     sampling: str | None = None,
     _edit=None,
     memory_budget: float | None = None,
+    libraries: bool = True,
 ):
     """Load a scene with material overrides (see :func:`render_scene`); returns mi.Scene.
     ``scene_path`` is a path, or the name of a shipped scene (:func:`find_scene`)."""
@@ -218,15 +220,26 @@ def load_scene(
     kwargs = _settings(root, scene_path, spp, seed, res, params)
     if _edit is not None:
         _edit(root)
+    # many sparse_brdf materials: one sparse_library (libraries.py), said in Mitsuba's log
+    from mitsuba_plugin.loading import library_key  # lazy, as mitsuba_plugin above
+
+    lines = (to_libraries(root, scene_path.parent, library_key,
+                          memory_budget=memory_budget) if libraries and _edit is None else [])
     check_scene_data(scene_path, kwargs, replaced=materials or ())
     set_variant(variant)
     mitsuba_plugin.register()
+    for line in lines:
+        mi.Log(mi.LogLevel.Info, line)
     xml = ET.tostring(root, encoding="unicode")
     try:
         budget = None if memory_budget is None else int(float(memory_budget) * 2**20)
         with scene_dir_resolver(scene_path), mitsuba_plugin.memory_budget(budget):
-            scene = mi.load_string(xml, **kwargs)
+            # a library's meshes must stay apart: Mitsuba merges the meshes that share a
+            # BSDF (optimize=True), and their attributes with them
+            scene = mi.load_string(xml, **kwargs, **({"optimize": False} if lines else {}))
         mitsuba_plugin.resolve()  # the auto materials' decoders, under the scene's budget
+        if lines:
+            mitsuba_plugin.check_scene(scene)
         return scene
     except Exception as exc:  # noqa: BLE001 - re-raised with the cause's message
         raise RenderError(f"{scene_path}: cannot load the scene: {cause_message(exc)}") from exc
@@ -244,6 +257,7 @@ def render_scene(
     tabulated_options: Mapping[str, object] | None = None,
     sampling: str | None = None,
     memory_budget: float | None = None,
+    libraries: bool = True,
 ) -> np.ndarray:
     """Render ``scene_path`` (any Mitsuba 3 scene file) in Mitsuba's ``variant`` (one of
     :data:`~sparse_brdf.mitsuba_env.VARIANTS`) and return a linear float32 image of shape
@@ -267,13 +281,16 @@ def render_scene(
     per-material decoder data: its ``sparse_brdf`` materials whose decoder is ``auto``
     get the fast (grouped) tables, largest speed gain per byte first, while they fit,
     and the compact (strict) decoder otherwise (docs/rendering.md, "Scenes with many
-    materials").
+    materials"). ``libraries``: a scene's many ``sparse_brdf`` materials (at least
+    :data:`~sparse_brdf.evaluation.libraries.LIBRARY_MIN_MATERIALS` on the automatic
+    decoder, used by shapes directly) are served by one ``sparse_library``, said in
+    Mitsuba's log (:func:`~sparse_brdf.evaluation.libraries.to_libraries`).
     """
     import mitsuba as mi  # lazy: Mitsuba is slow to import (see the module doc)
 
     scene = load_scene(scene_path, materials, spp, seed, res, variant, params,
                        sparse_options, tabulated_options, sampling,
-                       memory_budget=memory_budget)
+                       memory_budget=memory_budget, libraries=libraries)
     try:
         img = mi.render(scene, spp=int(spp), seed=int(seed))
         out = np.array(img, dtype=np.float32)
