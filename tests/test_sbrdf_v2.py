@@ -255,6 +255,14 @@ def test_encode_to_bytes_fits_and_spends_the_budget(small_ensemble):
     assert kept[1] > 2 * int(v1.n_coeffs.sum())
     with pytest.raises(ValueError, match="--bytes 60: .* takes 9[0-9] bytes"):
         encode_to_bytes(brdf, small_ensemble, 60)
+    # a level transform's file holds its gain too: a budget between the two floors is
+    # refused at once (it once searched for a count forever)
+    plain = min_file_size(len(brdf.name.encode()))
+    with pytest.raises(ValueError, match=f"--bytes {plain + 2}: .* takes {plain + 4} bytes "
+                                         ".*level transform's gain"):
+        encode_to_bytes(brdf, small_ensemble, plain + 2, transform="log-level")
+    m = encode_to_bytes(brdf, small_ensemble, plain + 40, transform="log-level")
+    assert m.transform == "log-level" and len(to_bytes(m)) <= plain + 40
     # the first guess: 8 bytes a coefficient in version 1; fewer bytes a coefficient the
     # more there are in version 2 (within the range measured, 1.5-2.4)
     assert budget.first_count(800, 1) == 100

@@ -96,7 +96,7 @@ def fit_bytes(model: SparseBRDF, n_bytes: int, version: int = VERSION) -> Sparse
     steps where version 2's quantisation step gets finer, ``fileformat.step_exponent``): a
     bracket from the count the bytes would hold in proportion, then bisection in it.
     """
-    check_budget(model.name, n_bytes, version)
+    check_budget(model.name, n_bytes, version, (model.transform,))
     return _fit_bytes(model, n_bytes, version)
 
 
@@ -139,20 +139,28 @@ def _largest(lo: int, hi: int, ok) -> int:
     return lo
 
 
-def check_budget(name: str, n_bytes: int, version: int = VERSION) -> None:
+def check_budget(name: str, n_bytes: int, version: int = VERSION,
+                 transforms: tuple[str, ...] = ()) -> None:
     """:class:`~sparse_brdf.errors.UsageError` (a ValueError) unless a file of ``version``
-    named ``name`` can hold a coefficient in ``n_bytes`` (the message names ``--bytes``)."""
+    named ``name`` can hold a coefficient in ``n_bytes`` under each of ``transforms``
+    (none given: a transform without a gain; the message names ``--bytes``)."""
     check_version(version)
-    _check_floor(name, n_bytes, version)
+    _check_floor(name, n_bytes, version, transforms)
 
 
-def _check_floor(name: str, n_bytes: int, version: int) -> None:
-    """:func:`check_budget` for a checked version."""
-    floor = min_file_size(len(name.encode("utf-8")[:255]), version)
+def _check_floor(name: str, n_bytes: int, version: int,
+                 transforms: tuple[str, ...] = ()) -> int:
+    """:func:`check_budget` for a checked version; the floor checked against."""
+    plain = min_file_size(len(name.encode("utf-8")[:255]), version)
+    floor = max([plain, *(min_file_size(len(name.encode("utf-8")[:255]), version, t)
+                          for t in transforms)])
     if not isinstance(n_bytes, (int, np.integer)) or n_bytes <= floor:
+        what = "header, name and checksum" + (", and the level transform's gain"
+                                              if floor > plain else "")
         raise UsageError(f"--bytes {n_bytes}: a version-{version} .sbrdf file of {name!r} "
-                         f"takes {floor} bytes before its first coefficient (header, name "
-                         f"and checksum); give more than {floor}")
+                         f"takes {floor} bytes before its first coefficient ({what}); give "
+                         f"more than {floor}")
+    return floor
 
 
 def encode_to_bytes(brdf: BRDF, ensemble: Ensemble | None = None, n_bytes: int | None = None,
@@ -209,9 +217,7 @@ def encode_to_bytes_with(brdf: BRDF, spec: EncodeSpec) -> SparseBRDF:
     material's file holds a coefficient in the budget is checked (its name's bytes count).
     """
     n_bytes, version, ens = spec.n_bytes, spec.version, spec.ensemble
-    _check_floor(brdf.name, n_bytes, version)
-    floor = max(min_file_size(len(brdf.name.encode("utf-8")[:255]), version, t)
-                for t in spec.transforms)
+    floor = _check_floor(brdf.name, n_bytes, version, tuple(spec.transforms))
     atoms = int(np.prod(ens.shape))
     n = _clip(math.ceil(first_count(n_bytes - floor, version) / 3), atoms)
     joint = spec.joint
