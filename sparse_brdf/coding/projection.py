@@ -18,6 +18,7 @@ from ..transforms import (
     check_transform,
     forward,
     material_gain,
+    per_material,
     to_basis,
 )
 from .coefficients import SparseBRDF
@@ -266,7 +267,8 @@ def search_many(brdf: BRDF, ens: Ensemble, ys: dict[str, np.ndarray],
     for t, p in ps.items():
         models[t] = select(p, o.n, o.max_error, brdf.name)
         models[t].basis = o.basis
-        models[t].gain = material_gain(t, brdf.channel_first(), brdf.valid)
+        if per_material(t):  # a level transform: the material's own gain, as forward's
+            models[t].gain = material_gain(t, brdf.channel_first(), brdf.valid)
     if o.joint:
         coded = code_many([(ys[t], models[t], ps[t].norms) for t in ys], ens, o)
         models = dict(zip(ys, coded, strict=True))
