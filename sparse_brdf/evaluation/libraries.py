@@ -20,10 +20,10 @@ from collections.abc import Callable
 from pathlib import Path
 
 #: The fewest materials that :func:`to_libraries` serves from one library: below, each
-#: ``sparse_brdf`` keeps its own BSDF, and the scene's budget gives most of them the
-#: grouped decoder, about twice as fast per lookup as the library's pair decoder. Measured
-#: (``benchmarks/many_materials.py``, 2026-12-07): at 32 materials each their own BSDF
-#: rendered faster, at 100 the library did.
+#: ``sparse_brdf`` keeps its own BSDF, as the scene was written. Measured
+#: (``benchmarks/many_materials.py``, 2026-12-07): on its pair decoder alone the library
+#: rendered slower than separate BSDFs at 32 materials and faster at 100; under the
+#: render's 64 MiB budget it was as fast from 24 on and took 0.62x their time at 64.
 LIBRARY_MIN_MATERIALS = 64
 
 #: The properties a ``sparse_brdf`` may set to join a library (their values must agree
