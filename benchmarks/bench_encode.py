@@ -4,6 +4,7 @@
     .venv/bin/python benchmarks/bench_encode.py \
         --options selector=render,fill=invalid,basis=opponent
     .venv/bin/python benchmarks/bench_encode.py --whole --n 8 [--code OTHER_CHECKOUT]
+    .venv/bin/python benchmarks/bench_encode.py --whole --also "--transform lobe"
 
 In-process (the default): times `encode` at 262 coefficients per channel, both
 transforms (the default) and one forced transform; tabulation is excluded (materials are
@@ -13,6 +14,8 @@ loaded first).
 material from the tabulation cache, encoding, writing the file): ``sparse-brdf encode SRC
 -o OUT`` (262 per channel) and ``sparse-brdf encode SRC -o OUT --bytes 6300``. The
 package is compiled to bytecode first, as an installed package is. With
+``--also "ARGS"`` each command also runs with ARGS appended (e.g. the lobe pair,
+``--transform lobe``), interleaved with the plain one. With
 ``--code DIR`` (another checkout, e.g. ``git worktree`` of an older commit) every command
 also runs with that checkout's package first on ``PYTHONPATH``, interleaved with this
 one's (which goes first alternates), and the files both write are compared byte for
@@ -110,6 +113,9 @@ def _compile(root: Path) -> None:
 
 def whole(args) -> None:
     corpus, mats = _materials(args)
+    commands = dict(COMMANDS)
+    for extra in args.also:  # the same commands with more arguments
+        commands.update({f"{k} {extra}": [*v, *extra.split()] for k, v in COMMANDS.items()})
     for m in mats:
         m.load()  # tabulate into the cache first: the commands then read it
     codes: dict[str, Path | None] = {"this checkout": None}
@@ -117,14 +123,14 @@ def whole(args) -> None:
         codes["--code"] = Path(args.code).resolve()
     for root in codes.values():
         _compile(root or Path(__file__).resolve().parents[1])
-    cases = [(c, k) for c in codes for k in COMMANDS]
+    cases = [(c, k) for c in codes for k in commands]
     times = {case: np.zeros((args.repeats, len(mats))) for case in cases}
     same, compared = 0, 0
     load0 = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as tmp:
 
         def out(i: int, case: tuple) -> Path:
-            return Path(tmp) / f"{i}-{list(codes).index(case[0])}-{list(COMMANDS).index(case[1])}"
+            return Path(tmp) / f"{i}-{list(codes).index(case[0])}-{list(commands).index(case[1])}"
 
         _run(None, str(mats[0].source), Path(tmp) / "warm.sbrdf", [])  # page cache
         for r in range(args.repeats):
@@ -134,9 +140,9 @@ def whole(args) -> None:
                 for case in (cases if (r + i) % 2 == 0 else cases[::-1]):
                     times[case][r, i] = _run(codes[case[0]], str(m.source),
                                              out(i, case).with_suffix(".sbrdf"),
-                                             COMMANDS[case[1]])
+                                             commands[case[1]])
                 if r == 0 and args.code:
-                    for k in COMMANDS:
+                    for k in commands:
                         a, b = (out(i, (c, k)).with_suffix(".sbrdf").read_bytes()
                                 for c in codes)
                         compared += 1
@@ -150,7 +156,7 @@ def whole(args) -> None:
         print(f"| {c} | {k} | {np.mean(v):.2f} | {np.max(v):.2f} |")
     if args.code:
         print()
-        for k in COMMANDS:
+        for k in commands:
             ratio = np.median(med[("this checkout", k)] / med[("--code", k)])
             print(f"{k}: this checkout / --code, median over materials {ratio:.2f}")
         print(f"files byte-identical between the two: {same} of {compared}")
@@ -174,6 +180,9 @@ def main() -> None:
                         "--bytes 6300), each a new process")
     p.add_argument("--code", help="with --whole: another checkout to time interleaved "
                                   "with this one, and to compare files with")
+    p.add_argument("--also", action="append", default=[], metavar="ARGS",
+                   help="with --whole: also time each command with ARGS appended (e.g. "
+                        "'--transform lobe'); repeatable")
     args = p.parse_args()
     (whole if args.whole else in_process)(args)
 

@@ -17,7 +17,10 @@ The scalar variants (every BSDF call a Python call) render ``--scalar-res`` at
 ``--scalar-spp``; their renders are short, so on a loaded machine use more rounds.
 
     .venv/bin/python benchmarks/bench_variants.py [--material SOURCE] [--json PATH]
-        [--variants llvm_ad_rgb,...] [--no-neural]
+        [--variants llvm_ad_rgb,...] [--no-neural] [--also-transform lobe]
+
+``--also-transform T`` adds a case: the material encoded with ``--transform T`` (e.g. the
+lobe pair), rendered in the same rounds, its ratio to the table printed below the table.
 """
 
 from __future__ import annotations
@@ -68,7 +71,7 @@ def _updated(scene):
     return scene
 
 
-def bench_variant(variant: str, src: str, sbrdf: Path, args) -> dict:
+def bench_variant(variant: str, src: str, sbrdf: Path, args, more=()) -> dict:
     import mitsuba as mi  # lazy: as above
 
     set_variant(variant)
@@ -80,6 +83,8 @@ def bench_variant(variant: str, src: str, sbrdf: Path, args) -> dict:
              "sparse_brdf": {"type": "sparse_brdf", "filename": str(sbrdf)}}
     if args.neural and src.lower().endswith(".h5"):
         cases["neural_brdf"] = {"type": "neural_brdf", "filename": src}
+    for t, path in more:  # the same material in other transforms
+        cases[f"sparse_brdf, --transform {t}"] = {"type": "sparse_brdf", "filename": str(path)}
     scenes = {k: mi.load_dict(swap_material(scene_path, d, run)) for k, d in cases.items()}
     if "_ad_" in variant:
         scenes["sparse_brdf after update()"] = _updated(
@@ -106,14 +111,19 @@ def main() -> None:
     p.add_argument("--variants", default=",".join(VARIANTS))
     p.add_argument("--plugin-root", type=Path, default=None,
                    help="a checkout whose mitsuba_plugin and sparse_brdf are used instead")
+    p.add_argument("--also-transform", action="append", default=[], metavar="T",
+                   help="also render the material encoded with --transform T; repeatable")
     p.add_argument("--no-neural", dest="neural", action="store_false",
                    help="no neural_brdf case (e.g. for a --plugin-root without it)")
     args = p.parse_args()
     info = machine()
     src = default_material(args.material)
     with tempfile.TemporaryDirectory() as tmp:
-        sbrdf = save_sbrdf(Path(tmp) / "m.sbrdf", encode(load_brdf(src)))
-        rows = [bench_variant(v, src, sbrdf, args) for v in args.variants.split(",")]
+        brdf = load_brdf(src)
+        sbrdf = save_sbrdf(Path(tmp) / "m.sbrdf", encode(brdf))
+        more = [(t, save_sbrdf(Path(tmp) / f"m-{i}.sbrdf", encode(brdf, transform=t)))
+                for i, t in enumerate(args.also_transform)]
+        rows = [bench_variant(v, src, sbrdf, args, more) for v in args.variants.split(",")]
     print(header(info))
     import mitsuba_plugin  # lazy: only to print where it came from
 
@@ -129,6 +139,11 @@ def main() -> None:
         print(f"| {r['variant']} | {r['res']}, {r['spp']} | "
               f"{r['tabulated_brdf']['median_s']:.3f} | {r['sparse_brdf']['median_s']:.3f} | "
               f"{r['sparse_brdf']['vs_tabulated']:.2f} | {net} | {upd} |")
+    for t in args.also_transform:
+        key = f"sparse_brdf, --transform {t}"
+        print("\n" + "; ".join(
+            f"{r['variant']}: {key} / table {r[key]['vs_tabulated']:.2f}, / sparse_brdf "
+            f"{r[key]['median_s'] / r['sparse_brdf']['median_s']:.2f}" for r in rows))
     if args.json:
         write_json(args.json, rows, args, info)
 

@@ -25,9 +25,10 @@ from sparse_brdf.decoders.buffers import (
     read_rgb2spec_table,
     uint_buffer,
 )
-from sparse_brdf.transforms import COS_CLIP
+from sparse_brdf.transforms import COS_CLIP, LOBE_KNEE, LOBE_POWER
 
 _W_LO, _W_HI = COS_CLIP
+_LOG_KNEE = math.log(LOBE_KNEE)
 
 
 class VariantNamespace:
@@ -204,6 +205,46 @@ def rho_from_x(ops: Ops, xs, valid, w) -> list | tuple:
         return point_rho(xs[0], xs[1], xs[2], scale)
     scale = valid * dr.rcp(w)
     return [dr.select(scale > 0.0, dr.maximum(expm1(x) * scale, 0.0), 0.0) for x in xs[:3]]
+
+
+def lobe_d(ops: Ops, shape: Shape, i, alpha):
+    """The base lobe's GGX D(theta_h; alpha) at the lower edge of theta_h row ``i``:
+    alpha^2 / (pi (alpha^2 cos^2 + sin^2)^2) from the angle tables (the sine keeps it
+    exact near the peak, where a float32 cosine rounds to 1), as
+    :func:`sparse_brdf.transforms.ggx`."""
+    c, s = ops.gather(shape.trig[0], i), ops.gather(shape.trig[1], i)
+    a2 = alpha * alpha
+    den = a2 * c * c + s * s
+    return a2 / (math.pi * den * den)
+
+
+def lobe_d_at(ops: Ops, shape: Shape, bins, lin, alpha):
+    """:func:`lobe_d` at the nearest bin (``bins``) or, interpolating (``lin``), its
+    linear blend between the two theta_h rows around the point."""
+    if lin is None:
+        return lobe_d(ops, shape, bins[0], alpha)
+    i0, i1, ti = lin[0]
+    return (1.0 - ti) * lobe_d(ops, shape, i0, alpha) + ti * lobe_d(ops, shape, i1, alpha)
+
+
+def lobe_x(ops: Ops, xs, w, d, lobe) -> list:
+    """A lobe transform's coded R, G, B back to x = ln(rho w + 1), the value
+    :func:`rho_from_x` inverts: ``x_c = X_c (K / (b_c w + 1))^G + ln(b_c w + 1)`` with
+    ``b_c = kd_c + ks_c d`` (:func:`sparse_brdf.transforms.from_lobe`). ``w``: the full
+    weight (scale included); ``d``: :func:`lobe_d_at`; ``lobe``: alpha, kd (R, G, B), ks
+    (R, G, B), opaque scalars (Python floats in scalar variants). ln(1 + u) as
+    ln(v) u / (v - 1), v = 1 + u, exact for small u without a log1p."""
+    out = []
+    for c in range(3):
+        u = (lobe[1 + c] + lobe[4 + c] * d) * w
+        if ops.jit:
+            v = 1.0 + u
+            o = dr.select(v == 1.0, u, dr.log(v) * u / (v - 1.0))
+            out.append(dr.fma(xs[c], dr.exp(LOBE_POWER * (_LOG_KNEE - o)), o))
+        else:
+            o = math.log1p(u)
+            out.append(xs[c] * math.exp(LOBE_POWER * (_LOG_KNEE - o)) + o)
+    return out
 
 
 def mix_colour(xs, mt):

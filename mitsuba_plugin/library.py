@@ -36,8 +36,12 @@ from .kernels import (
     cos_terms,
     interp_weight,
     linear_bins,
+    lobe_d_at,
+    lobe_x,
     nearest_bins,
+    point_rho,
     point_rho_from_cos,
+    point_weight,
     rho_from_x,
     shared_shape,
 )
@@ -177,6 +181,7 @@ class SparseLibrary(GlossyBSDF):
         self._buf = upload_pairs(ops, tables, packed, header, rows, n1)
         del tables, packed  # (the scalar variants keep them as their buffers)
         self._scaled = bool((header.f[:, 1] != 1.0).any())
+        self._lobed = bool((header.f[:, 13] > 0.5).any())  # a lobe transform's material
         self.n_grouped = sum(chosen)
         self.memory_bytes = (header.n_pairs * (4 * n1 + 4) + header.nbytes + (
             0 if blocks is None else sum(ops.nbytes(b) for b in self._grouped)))
@@ -238,6 +243,11 @@ class SparseLibrary(GlossyBSDF):
                   for r in range(3)]
         if self._scaled:  # (1 where inactive: valid / w stays finite)
             w = w * dr.select(active, ops.gather(hf, idx * HEADER_F + 1, active), 1.0)
+        if self._lobed:  # the lane's material's base lobe, where it has one
+            lobe = [ops.gather(hf, idx * HEADER_F + 14 + r, active) for r in range(7)]
+            lx = lobe_x(ops, xs, w, lobe_d_at(ops, sh, bins, lin, lobe[0]), lobe)
+            on = ops.gather(hf, idx * HEADER_F + 13, active) > 0.5
+            xs = [dr.select(on, a, b) for a, b in zip(lx, xs, strict=True)]
         return self._m.Color3f(*rho_from_x(ops, xs, valid, w))
 
     def bind(self, indices: dict) -> None:
@@ -267,16 +277,26 @@ def _point_rho(lib, idx: int, wi, wo, active: bool):
         return lib._zero3
     ops, sh = lib._ops, lib._shape
     use_cos, scale = (float(v) for v in lib._header.f[idx, :2])
+    lobe = ([float(v) for v in lib._header.f[idx, 14:21]]
+            if lib._header.f[idx, 13] > 0.5 else None)
     coords = angle_coords(ops, sh, wi, wo)
     if lib.interpolate:
         lin = linear_bins(ops, sh, coords)
         w, valid = interp_weight(ops, sh, lin, use_cos)
-        xs = lib._lookup.point_linear(idx, lin)
-        return lib._m.Color3f(*rho_from_x(ops, xs, valid, w * scale))
+        xs, w = lib._lookup.point_linear(idx, lin), w * scale
+        if lobe is not None:
+            xs = lobe_x(ops, xs, w, lobe_d_at(ops, sh, None, lin, lobe[0]), lobe)
+        return lib._m.Color3f(*rho_from_x(ops, xs, valid, w))
     bins = nearest_bins(ops, sh, coords)
     xs = lib._lookup.point(idx, *bins)
-    return lib._m.Color3f(*point_rho_from_cos(*xs, cos_terms(ops, sh, *bins),
-                                              use_cos > 0.5, scale))
+    c = cos_terms(ops, sh, *bins)
+    if lobe is not None:
+        if not c > 0.0:
+            return lib._zero3
+        w = (point_weight(c) if use_cos > 0.5 else 1.0) * scale
+        xs = lobe_x(ops, xs, w, lobe_d_at(ops, sh, bins, None, lobe[0]), lobe)
+        return lib._m.Color3f(*point_rho(*xs, 1.0 / w))
+    return lib._m.Color3f(*point_rho_from_cos(*xs, c, use_cos > 0.5, scale))
 
 
 def _grouped_choice(models, ens, budget: int | None):

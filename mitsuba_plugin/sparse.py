@@ -32,9 +32,13 @@ from .kernels import (
     cos_terms,
     interp_weight,
     linear_bins,
+    lobe_d_at,
+    lobe_x,
     mix_colour,
     nearest_bins,
+    point_rho,
     point_rho_from_cos,
+    point_weight,
     rho_from_x,
     shared_shape,
 )
@@ -65,9 +69,9 @@ class SparseBSDF(GlossyBSDF):
     Evaluates ``X = sum_t s_t U1[i, a_t] U2[j, b_t] U3[k, c_t]`` per coded channel at the
     bin of (wi, wo), mixes the three back to the transformed R, G, B if the file's colour
     basis is "opponent" (:func:`~mitsuba_plugin.kernels.mix_colour`; "rgb" materials trace
-    no mix, so their kernel is unchanged), then ``rho = max((exp(X) - 1) / w, 0)``, without
-    ever building the full tensor (:func:`~mitsuba_plugin.decoders.grouped_x`,
-    :func:`~mitsuba_plugin.decoders.strict_x`; data from :mod:`sparse_brdf.decoders.layouts`).
+    no mix), maps a lobe transform's by its base lobe (:func:`~mitsuba_plugin.kernels.lobe_x`),
+    then ``rho = max((exp(X) - 1) / w, 0)``, never building the full tensor (decoders:
+    :mod:`~mitsuba_plugin.decoders`; data from :mod:`sparse_brdf.decoders.layouts`).
     Per-material data lives in Dr.Jit arrays and opaque scalars, so every material shares
     one compiled kernel. ``memory_bytes`` reports the bytes of the arrays the BSDF holds.
 
@@ -136,9 +140,10 @@ class SparseBSDF(GlossyBSDF):
         self._shape = shared_shape(ops, model.shape)
         self._cos_on = uses_cosine(model.transform)
         self._use_cos = ops.f(1.0 if self._cos_on else 0.0)
-        # the relative transforms' constant factor s of the weight (a Python float: the
-        # paper's transforms, s = 1, trace no multiply)
+        # the weight's constant factor s (a Python float: s = 1 traces no multiply)
         self._scale = material_scale(model.transform, model.gain)
+        # a lobe transform's base lobe as opaque scalars (None: other kernels unchanged)
+        self._lobe = None if model.lobe is None else tuple(ops.f(v) for v in model.lobe)
         self._grad = False
         budget = p["memory_budget"]
         #: The decoder data (built now, or once the scene's budget decides: budget.py).
@@ -248,6 +253,8 @@ class SparseBSDF(GlossyBSDF):
             xs = mix_colour(xs, self._mix)
         if self._scale != 1.0:
             w = w * self._scale
+        if self._lobe is not None:  # a Python branch: only lobe materials trace it
+            xs = lobe_x(ops, xs, w, lobe_d_at(ops, sh, bins, lin, self._lobe[0]), self._lobe)
         return self._m.Color3f(*rho_from_x(ops, xs, valid, w))
 
     def to_string(self):
@@ -276,6 +283,7 @@ class ScalarRho:
         self.buffers, self.interpolate = bsdf.buffers, bsdf.interpolate
         self._ops, self._shape, self._m, self._zero3 = bsdf._ops, bsdf._shape, bsdf._m, bsdf._zero3
         self._use_cos, self._cos_on, self._scale = bsdf._use_cos, bsdf._cos_on, bsdf._scale
+        self._lobe = bsdf._lobe
 
     def __call__(self, wi, wo, active):
         """The material's value at (wi, wo): a Color3f."""
@@ -290,7 +298,11 @@ class ScalarRho:
             if not active:
                 return self._zero3
             xs = buf.lookup.point_linear(lin)
-            return self._m.Color3f(*rho_from_x(ops, xs, valid, w * self._scale))
+            w = w * self._scale
+            if self._lobe is not None:
+                xs = lobe_x(ops, xs, w, lobe_d_at(ops, sh, None, lin, self._lobe[0]),
+                            self._lobe)
+            return self._m.Color3f(*rho_from_x(ops, xs, valid, w))
         bins = nearest_bins(ops, sh, coords)
         if not active:
             return self._zero3
@@ -298,5 +310,16 @@ class ScalarRho:
             x0, x1, x2, c = buf.lookup.point(*bins)
         else:
             (x0, x1, x2), c = buf.lookup.point(*bins), cos_terms(ops, sh, *bins)
+        if self._lobe is not None:
+            return self._m.Color3f(*self._lobe_point((x0, x1, x2), c, bins))
         return self._m.Color3f(*point_rho_from_cos(x0, x1, x2, c, self._cos_on,
                                                    self._scale))
+
+    def _lobe_point(self, xs, c: float, bins) -> tuple:
+        """One bin of a lobe material: its weight, the lobe's x, the inverse transform."""
+        if not c > 0.0:
+            return (0.0, 0.0, 0.0)
+        w = (point_weight(c) if self._cos_on else 1.0) * self._scale
+        xs = lobe_x(self._ops, xs, w, lobe_d_at(self._ops, self._shape, bins, None,
+                                                self._lobe[0]), self._lobe)
+        return point_rho(*xs, 1.0 / w)

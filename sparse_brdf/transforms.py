@@ -11,14 +11,22 @@ Non-parametric BRDF Model", eq. 1 and 2) and their relative-precision twins
 - ``log-level``:           t = ln(rho k / L + 1),    rho = (exp(t) - 1) L / k,
 - ``log-level-cosine``:    t = ln(rho c k / L + 1),  rho = (exp(t) - 1) L / (c k),
   with k = :data:`LEVEL_KNEE` and L the material's own level (:func:`material_level`,
-  1/sr), stored in its file. ln(1 + x) is linear for x much below 1, so the
+  1/sr), stored in its file;
+- ``log-lobe``:            t = m (ln(rho W + 1) - ln(b W + 1)),  m = ((b W + 1) / K)^G,
+- ``log-lobe-cosine``:     the same with W holding c,
+  with W = K [c] / L, K = :data:`LOBE_KNEE`, G = :data:`LOBE_POWER` and b the material's
+  base lobe (:func:`fit_base_lobe`: b = kd + ks D(theta_h; alpha), GGX, per channel),
+  stored in its file with L. ln(1 + x) is linear for x much below 1, so the
   paper's transforms code dim values (rho << 1/sr) with absolute precision: a coding
   error that is small beside a highlight is a large relative error where the material is
   dim, and a hue shift where one colour channel is dim. With s the logarithm reaches down
   to rho = 1/s, so errors are relative over the values materials have. The level
 transforms put that knee at a fixed fraction of each material's own level instead of at
 one value for all, so that a bright material's dim lobe and a dim material's highlight are
-coded alike.
+coded alike. The lobe transforms code each material relative to a lobe fitted to it: the
+lobe carries the narrow bright peak that dictionaries code least compactly, the ratio
+keeps coding errors relative down to L / K, and m weighs them toward where the lobe is
+bright, where light reflected from an environment is.
 
 Every transform is t = ln(rho w + 1) with a weight w (:func:`weight`), declared once as
 data (:data:`TRANSFORM_SPECS`: its scale, whether the cosine weighs it and whether a
@@ -36,7 +44,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .coords import cosine_product
+from .coords import bin_angles, cosine_product
 from .params import check_choice
 
 #: The relative transforms' scale s (sr): values are coded relative to each other down to
@@ -45,6 +53,15 @@ RELATIVE_SCALE = 300.0
 #: The level transforms' knee k: t = ln(1 + k rho / L) is linear below rho = L / k and
 #: logarithmic above, L the material's level. Chosen in docs/method.md, "Transforms".
 LEVEL_KNEE = 3.0
+#: The lobe transforms' knee K: their ratio is logarithmic down to L / K, L the material's
+#: level. Chosen in docs/method.md, "Transforms".
+LOBE_KNEE = 100.0
+#: The lobe transforms' power G: a coded value is the log ratio times ((b W + 1) / K)^G.
+LOBE_POWER = 0.35
+#: The roughness values among which a material's base lobe takes its alpha.
+LOBE_ALPHAS = tuple(float(a) for a in np.geomspace(0.003, 0.6, 30))
+#: Numbers of a base lobe, in its file's order: alpha, kd (R, G, B), ks (R, G, B).
+LOBE_SIZE = 7
 #: The smallest level L (1/sr) a material is given: a black material keeps a finite gain.
 LEVEL_FLOOR = 1e-4
 #: Luminance weights of linear R, G, B (Rec. 709) for a material's level.
@@ -66,6 +83,7 @@ class TransformSpec:
     scale: float  # s (sr), 1 for the paper's transforms; k (no unit) for the level ones
     cosine: bool  # weighted by the clipped cos_i cos_o of the bin
     per_material: bool = False  # weighted by the material's gain 1/L (sr)
+    lobe: bool = False  # coded relative to the material's base lobe (its file holds it)
 
 
 #: Every transform, in file-id order (a transform's index is its id in a ``.sbrdf``
@@ -77,6 +95,8 @@ TRANSFORM_SPECS: tuple[TransformSpec, ...] = (
     TransformSpec("log-relative-cosine", RELATIVE_SCALE, True),
     TransformSpec("log-level", LEVEL_KNEE, False, True),
     TransformSpec("log-level-cosine", LEVEL_KNEE, True, True),
+    TransformSpec("log-lobe", LOBE_KNEE, False, True, True),
+    TransformSpec("log-lobe-cosine", LOBE_KNEE, True, True, True),
 )
 _SPECS = {t.name: t for t in TRANSFORM_SPECS}
 #: The transforms (declared choices of every ``transform`` parameter; ``encode`` adds
@@ -84,6 +104,8 @@ _SPECS = {t.name: t for t in TRANSFORM_SPECS}
 TRANSFORMS: tuple[str, ...] = tuple(_SPECS)
 #: The paper's two transforms: those of the ensembles trained before the relative ones.
 PAPER_TRANSFORMS: tuple[str, str] = ("log-plus", "log-plus-cosine")
+#: The lobe pair: what ``encode(transform="lobe")`` chooses between, over any ensemble.
+LOBE_TRANSFORMS: tuple[str, str] = ("log-lobe", "log-lobe-cosine")
 
 
 def transform_spec(name: str) -> TransformSpec:
@@ -99,6 +121,11 @@ def uses_cosine(name: str) -> bool:
 def per_material(name: str) -> bool:
     """Whether transform ``name``'s weight holds the material's own gain 1/L."""
     return transform_spec(name).per_material
+
+
+def has_lobe(name: str) -> bool:
+    """Whether transform ``name`` codes a material relative to its base lobe."""
+    return transform_spec(name).lobe
 
 
 def material_level(rho: np.ndarray, valid: np.ndarray | None = None) -> float:
@@ -165,6 +192,150 @@ def check_transform(name: str) -> str:
     return check_choice("transform", name, TRANSFORMS)
 
 
+# ---------------------------------------------------------------------- the base lobe
+
+
+def ggx(theta_h, alpha):
+    """The GGX (Trowbridge-Reitz) distribution D(theta_h; alpha) = alpha^2 / (pi
+    (alpha^2 cos^2 theta_h + sin^2 theta_h)^2) (1/sr), at the angles ``theta_h`` (rad,
+    broadcast with ``alpha``). Written with the sine, as the kernels read it from their
+    angle tables: near theta_h = 0 a float32 cosine rounds to 1."""
+    a2 = np.asarray(alpha, np.float64) ** 2
+    th = np.asarray(theta_h, np.float64)
+    den = a2 * np.cos(th) ** 2 + np.sin(th) ** 2
+    return a2 / (np.pi * den * den)
+
+
+def lobe_rows(lobe, shape: tuple[int, int, int]) -> np.ndarray:
+    """The base lobe b = kd + ks D(theta_h; alpha) of each channel at each theta_h row
+    of the grid (its lower-edge angle, as every bin's weight): float64 (3, n1), 1/sr.
+
+    Parameters
+    ----------
+    lobe : sequence of 7 floats
+        alpha, kd (R, G, B), ks (R, G, B) (:func:`check_lobe`).
+    shape : tuple of int
+        The grid (n1, n2, n3).
+    """
+    alpha, kd, ks = float(lobe[0]), np.asarray(lobe[1:4], np.float64), \
+        np.asarray(lobe[4:7], np.float64)
+    return kd[:, None] + ks[:, None] * ggx(bin_angles(shape)[0], alpha)[None, :]
+
+
+def fit_base_lobe(rho: np.ndarray, valid: np.ndarray | None = None,
+                  level: float | None = None) -> tuple[float, ...]:
+    """A material's base lobe: per channel b = kd + ks D(theta_h; alpha), kd, ks >= 0,
+    one alpha of :data:`LOBE_ALPHAS`, fitted by least squares relative to the material's
+    brightness (weights 1 / (mean_c rho + L) per bin), rounded to float16 (as stored).
+
+    The lobe depends on theta_h only, so the fit reduces each theta_h row to three sums
+    and solves the two-unknown nonnegative problems exactly, every alpha at once.
+
+    Parameters
+    ----------
+    rho : numpy.ndarray
+        Linear R, G, B (1/sr), channel-first: (3, n1, n2, n3).
+    valid : numpy.ndarray, optional
+        Bool (n1, n2, n3): the bins fitted; None: all.
+    level : float, optional
+        The material's level L (1/sr); None: :func:`material_level`.
+
+    Returns
+    -------
+    tuple of 7 floats
+        alpha, kd (R, G, B), ks (R, G, B), float16-exact.
+    """
+    rho = np.asarray(rho, np.float32)
+    mask = np.ones(rho.shape[1:], bool) if valid is None else np.asarray(valid, bool)
+    if level is None:
+        level = material_level(rho, mask)
+    n1 = rho.shape[1]
+    r = np.where(mask, np.maximum(rho, np.float32(0)), np.float32(0)).reshape(3, n1, -1)
+    w2 = r.mean(0) + np.float32(level)
+    w2 = np.where(mask.reshape(n1, -1), np.float32(1) / (w2 * w2), np.float32(0))
+    rows_w = w2.sum(axis=1, dtype=np.float64)  # (n1,)
+    r *= w2  # float32 products, float64 sums
+    rows_s = r.sum(axis=2, dtype=np.float64)  # (3, n1)
+    d = ggx(bin_angles(rho.shape[1:])[0][None, :], np.asarray(LOBE_ALPHAS)[:, None])  # (A, n1)
+    a00, a01, a11 = rows_w.sum(), d @ rows_w, (d * d) @ rows_w  # (), (A,), (A,)
+    b0, b1 = rows_s.sum(1)[None, :], (d @ rows_s.T)  # (1, 3), (A, 3)
+    a01, a11 = a01[:, None], a11[:, None]
+    # the best x >= 0 of 2 b.x - x'Ax: the free optimum, or either unknown alone, or 0
+    det = a00 * a11 - a01 * a01
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cands = [((a11 * b0 - a01 * b1) / det, (a00 * b1 - a01 * b0) / det),
+                 (np.maximum(b0 / a00, 0.0) + 0 * b1, 0 * b1),
+                 (0 * b1, np.maximum(b1 / a11, 0.0))]
+    best_gain = np.zeros(b1.shape)
+    best_kd, best_ks = np.zeros(b1.shape), np.zeros(b1.shape)
+    for kd, ks in cands:
+        ok = np.isfinite(kd) & np.isfinite(ks) & (kd >= 0) & (ks >= 0)
+        kd, ks = np.where(ok, kd, 0.0), np.where(ok, ks, 0.0)
+        gain = 2 * (b0 * kd + b1 * ks) - (a00 * kd * kd + 2 * a01 * kd * ks + a11 * ks * ks)
+        better = ok & (gain > best_gain)
+        best_gain = np.where(better, gain, best_gain)
+        best_kd, best_ks = np.where(better, kd, best_kd), np.where(better, ks, best_ks)
+    k = int(np.argmax(best_gain.sum(1)))  # the alpha that leaves the least residual
+    lobe = np.concatenate([[LOBE_ALPHAS[k]], best_kd[k], best_ks[k]])
+    lobe = np.minimum(lobe, float(np.finfo(np.float16).max))
+    return tuple(float(v) for v in lobe.astype(np.float16))
+
+
+def check_lobe(name: str, lobe) -> tuple[float, ...] | None:
+    """``lobe`` as 7 floats if transform ``name`` can have it: finite, float16-exact,
+    alpha > 0, kd and ks >= 0 for a lobe transform; None (and ``lobe`` None) for the
+    others. A ValueError otherwise."""
+    if not has_lobe(name):
+        if lobe is not None:
+            raise ValueError(f"transform {name!r} has no base lobe, got {lobe!r}")
+        return None
+    if lobe is None:
+        raise ValueError(f"transform {name!r} needs the material's base lobe")
+    v = np.asarray(lobe, np.float64).reshape(-1)
+    if v.size != LOBE_SIZE or not np.all(np.isfinite(v)) or not v[0] > 0 or np.any(v < 0):
+        raise ValueError(f"transform {name!r}: a base lobe is {LOBE_SIZE} finite numbers, "
+                         f"alpha > 0, kd and ks >= 0; got {lobe!r}")
+    if not np.array_equal(v.astype(np.float16).astype(np.float64), v):
+        raise ValueError(f"transform {name!r}: the base lobe's numbers must be float16 "
+                         f"values, got {lobe!r}")
+    return tuple(float(x) for x in v)
+
+
+def material_lobe(name: str, rho: np.ndarray, valid: np.ndarray | None = None
+                  ) -> tuple[float, ...] | None:
+    """The base lobe transform ``name`` gives the material ``rho`` (:func:`fit_base_lobe`),
+    None for the transforms without one."""
+    return fit_base_lobe(rho, valid) if has_lobe(name) else None
+
+
+def _lobe_offset(w, b) -> np.ndarray:
+    """o = ln(b W + 1), float32, of the weight ``w`` and the lobe ``b`` (broadcast)."""
+    return np.log1p(np.asarray(b, np.float32) * np.asarray(w, np.float32))
+
+
+def to_lobe(x, w, b) -> np.ndarray:
+    """A lobe transform's coded value t = m (x - o) from x = ln(rho W + 1), with o =
+    ln(b W + 1) and m = ((b W + 1) / K)^G: ``w`` the weight W, ``b`` the base lobe at the
+    same bins (broadcast together). float32, as the coded values are."""
+    o = _lobe_offset(w, b)
+    t = np.subtract(np.asarray(x, np.float32), o)
+    o -= np.float32(np.log(LOBE_KNEE))
+    o *= np.float32(LOBE_POWER)
+    t *= np.exp(o, out=o)
+    return t
+
+
+def from_lobe(t, w, b) -> np.ndarray:
+    """Inverse of :func:`to_lobe`: x = t (K / (b W + 1))^G + ln(b W + 1), the value the
+    inverse transform then maps to rho = (exp(x) - 1) / W; float32, as the kernels
+    compute it (``mitsuba_plugin.kernels.lobe_x``)."""
+    o = _lobe_offset(w, b)
+    x = np.exp(np.float32(LOBE_POWER) * (np.float32(np.log(LOBE_KNEE)) - o))
+    x = np.multiply(np.asarray(t, np.float32), x)  # the shape of t and the lobe's
+    x += o
+    return x
+
+
 @functools.lru_cache(maxsize=8)
 def cosine_weight(shape: tuple[int, int, int]) -> np.ndarray:
     """c = clip(cos_i cos_o, 0.01, 1) on the grid, float32, read-only."""
@@ -193,24 +364,25 @@ def _scaled_cosine_weight(shape: tuple[int, int, int], s: float) -> np.ndarray:
 
 
 def forward(rho: np.ndarray, name: str, valid: np.ndarray | None = None,
-            gain: float | None = None) -> np.ndarray:
+            gain: float | None = None, lobe=None) -> np.ndarray:
     """Transform linear BRDF values into the domain the dictionaries code.
 
     Parameters
     ----------
     rho : numpy.ndarray
-        Linear BRDF values (1/sr), channel-first: shape (..., n_h, n_d, n_p).
+        Linear BRDF values (1/sr), channel-first: shape (..., n_h, n_d, n_p); (3, n_h,
+        n_d, n_p), one material's R, G, B, for the lobe transforms.
     name : str
-        One of :data:`TRANSFORMS`: ``"log-plus"`` (t = ln(rho + 1)), ``"log-plus-cosine"``
-        (t = ln(rho c + 1), c = clip(cos_i cos_o, 0.01, 1) at each bin), or their
-        relative twins ``"log-relative"`` (t = ln(rho s + 1)) and
-        ``"log-relative-cosine"`` (t = ln(rho c s + 1)).
+        One of :data:`TRANSFORMS` (the module's docstring gives each formula).
     valid : numpy.ndarray, optional
         Bool (n_h, n_d, n_p), broadcast over the leading axes: invalid bins are set to
-        rho = 0 first. None: every bin as given.
+        rho = 0 first (and to t = 0 by the lobe transforms). None: every bin as given.
     gain : float, optional
-        The material's gain 1/L for the level transforms; None: ``rho``'s own
+        The material's gain 1/L for the level and lobe transforms; None: ``rho``'s own
         (:func:`material_gain`, ``rho`` then being one material's R, G, B).
+    lobe : sequence of 7 floats, optional
+        The material's base lobe for the lobe transforms; None: ``rho``'s own
+        (:func:`fit_base_lobe`).
 
     Returns
     -------
@@ -231,20 +403,32 @@ def forward(rho: np.ndarray, name: str, valid: np.ndarray | None = None,
     else:  # invalid bins stay 0 (rho = 0 there), without a masked copy of rho
         t = np.zeros(rho.shape, np.float32)
         np.multiply(rho, w, out=t, where=np.asarray(valid, bool))
-    return np.log1p(t, out=t)  # float32: rho and the weight are
+    t = np.log1p(t, out=t)  # float32: rho and the weight are
+    if not has_lobe(name):
+        return t
+    if lobe is None:
+        lobe = fit_base_lobe(rho, valid)
+    b = lobe_rows(check_lobe(name, lobe), rho.shape[-3:])[:, :, None, None]
+    t = to_lobe(t, w, b).astype(np.float32)
+    if valid is not None:
+        t[:, ~np.asarray(valid, bool)] = 0.0  # an invalid bin codes the lobe itself
+    return t
 
 
-def inverse(t: np.ndarray, name: str, gain: float = 1.0) -> np.ndarray:
+def inverse(t: np.ndarray, name: str, gain: float = 1.0, lobe=None) -> np.ndarray:
     """Inverse of :func:`forward`: transformed values back to linear BRDF values.
 
     Parameters
     ----------
     t : numpy.ndarray
-        Transformed values, channel-first: shape (..., n_h, n_d, n_p).
+        Transformed values, channel-first: shape (..., n_h, n_d, n_p); (3, n_h, n_d,
+        n_p) for the lobe transforms.
     name : str
         The transform they are in, one of :data:`TRANSFORMS`.
     gain : float
-        The material's gain 1/L (sr) for the level transforms; 1 for the others.
+        The material's gain 1/L (sr) for the level and lobe transforms; 1 for the others.
+    lobe : sequence of 7 floats, optional
+        The material's base lobe for the lobe transforms (:func:`check_lobe`).
 
     Returns
     -------
@@ -254,20 +438,31 @@ def inverse(t: np.ndarray, name: str, gain: float = 1.0) -> np.ndarray:
     Raises
     ------
     ValueError
-        If ``name`` is not one of :data:`TRANSFORMS`.
+        If ``name`` is not one of :data:`TRANSFORMS`, or a lobe transform's lobe is
+        missing.
     """
     t = np.asarray(t)
-    return _inverse(t, weight(name, t.shape[-3:], gain))
+    w = weight(name, t.shape[-3:], gain)
+    lobe = check_lobe(name, lobe)
+    if lobe is not None:
+        t = from_lobe(t, w, lobe_rows(lobe, t.shape[-3:])[:, :, None, None])
+    return _inverse(t, w)
 
 
 def inverse_at_bins(
     t: np.ndarray, name: str, bins: tuple[np.ndarray, ...], shape: tuple[int, int, int],
-    gain: float = 1.0,
+    gain: float = 1.0, lobe=None,
 ) -> np.ndarray:
-    """Inverse transform of values ``t`` (..., ) that belong to the bins ``(i, j, k)``,
-    for a material of gain ``gain`` (:func:`inverse`)."""
+    """Inverse transform of values ``t`` (..., N) that belong to the bins ``(i, j, k)``
+    (index arrays of shape (N,)), for a material of gain ``gain`` and base lobe ``lobe``
+    (:func:`inverse`); the lobe transforms take one material's R, G, B, ``t`` (3, N)."""
     w = weight(name, shape, gain)
-    return _inverse(np.asarray(t), w[bins] if isinstance(w, np.ndarray) else w)
+    w = w[bins] if isinstance(w, np.ndarray) else w
+    t = np.asarray(t)
+    lobe = check_lobe(name, lobe)
+    if lobe is not None:
+        t = from_lobe(t, w, lobe_rows(lobe, shape)[:, bins[0]])
+    return _inverse(t, w)
 
 
 #: Largest linear value an inverse gives: float32's largest. A model's overshoot beyond

@@ -8,6 +8,9 @@ import pytest
 from sparse_brdf.paths import shared_data_dir
 
 SMALL = (18, 18, 36)
+#: A base lobe for test materials in the lobe transforms (alpha, kd and ks per channel,
+#: float16 values): a narrow peak on a dim diffuse part, one channel without a peak.
+LOBE = (0.0625, 0.125, 0.25, 0.03125, 8.0, 0.0, 2.0)
 
 
 def pytest_report_header(config) -> list[str]:

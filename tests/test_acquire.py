@@ -409,3 +409,15 @@ def test_the_prior_cache_key_names_what_the_prior_depends_on(monkeypatch, ens):
     monkeypatch.undo()
     monkeypatch.setattr(acquisition, "PRIOR_VERSION", acquisition.PRIOR_VERSION + 1)
     assert acquisition.prior_path(ens, mats) != path
+
+
+def test_the_lobe_transforms_are_refused_from_samples(ens, prior_and_truth):
+    """A base lobe is fitted to a material's table, which samples are not: the lobe
+    transforms are not among encode_samples' choices, and asking for one names them."""
+    from sparse_brdf.errors import UsageError
+
+    _, truth = prior_and_truth
+    s = _on_bins(truth.decode(ens), 100, seed=0)
+    for t in ("lobe", "log-lobe", "log-lobe-cosine"):
+        with pytest.raises(UsageError, match=f"transform {t!r}.*log-level-cosine"):
+            encode_samples(s, ens, transform=t)

@@ -52,6 +52,31 @@ def test_errors_are_one_line_and_name_the_file(tmp_path, capsys):
     assert "truncated" in capsys.readouterr().err
 
 
+def test_encode_in_the_lobe_pair_and_info(tmp_path, capsys):
+    """``encode --transform lobe`` writes a file in one of the lobe pair, 18 bytes of
+    gain and lobe beside the coefficients; ``info`` states the lobe, in text and JSON."""
+    from sparse_brdf.coding.fileformat import load_sbrdf
+    from sparse_brdf.transforms import LOBE_TRANSFORMS
+
+    sb = tmp_path / "cu.sbrdf"
+    assert main(["encode", "mitsuba:cu-ggx-0.12", "-o", str(sb), "--coeffs", "40",
+                 "--transform", "lobe"]) == 0
+    assert "wrote" in capsys.readouterr().out
+    model = load_sbrdf(sb)
+    assert model.transform in LOBE_TRANSFORMS and model.lobe[0] > 0
+    assert main(["info", str(sb), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["lobe"] == {"alpha": model.lobe[0], "kd": list(model.lobe[1:4]),
+                            "ks": list(model.lobe[4:])}
+    assert main(["info", str(sb)]) == 0
+    assert f"base lobe alpha {model.lobe[0]:.4g}" in capsys.readouterr().out
+    # the transform's choices name the pair
+    with pytest.raises(SystemExit) as exc:  # argparse's usage error
+        main(["encode", "mitsuba:cu-ggx-0.12", "-o", str(tmp_path / "x.sbrdf"),
+              "--transform", "lobes"])
+    assert exc.value.code == 2 and "'lobe', " in capsys.readouterr().err
+
+
 def test_info_on_a_sbrdf_shows_what_the_file_holds(tmp_path, capsys):
     """``info FILE.sbrdf``: the file's version, ensemble, transform, colour basis,
     coefficients per channel and in all, bytes and dictionaries, beside the decoded

@@ -41,6 +41,13 @@ def level_mat(tmp_path_factory):
                                transform="log-level-cosine")
 
 
+@pytest.fixture(scope="module")
+def lobe_mat(tmp_path_factory):
+    """The same material coded in a lobe transform (its own lobe in the file)."""
+    return make_exact_material(tmp_path_factory.mktemp("ad-lobe"), n_coeffs=200,
+                               transform="log-lobe-cosine")
+
+
 @pytest.fixture
 def llvm():
     set_variant("llvm_ad_rgb")
@@ -140,7 +147,8 @@ def _fd(sc, params, key, j, base, w, seed):
 
 @pytest.mark.parametrize(("integrator", "decoder", "material"),
                          [("direct", "grouped", "mat"), ("prb", "grouped", "mat"),
-                          ("prb", "strict", "mat"), ("prb", "grouped", "level_mat")])
+                          ("prb", "strict", "mat"), ("prb", "grouped", "level_mat"),
+                          ("prb", "strict", "lobe_mat")])
 @pytest.mark.render
 @pytest.mark.numerics
 def test_gradients_match_finite_differences(request, llvm, integrator, decoder, material):
@@ -148,10 +156,13 @@ def test_gradients_match_finite_differences(request, llvm, integrator, decoder, 
     largest gradient in each channel, and the forward-mode derivative along one of them,
     agree with central differences of renders with the gradient pass's seed (cosine
     sampling: the sample paths do not move with the values, as in fit-images); in the
-    paper's transform and in a level transform (through the material's gain)."""
+    paper's transform, in a level transform (through the material's gain) and in a lobe
+    transform (through the lobe's x)."""
     mat = request.getfixturevalue(material)
     if material == "level_mat":
         assert load_sbrdf(mat["sbrdf"], Ensemble.load(mat["ensemble"])).gain != 1.0
+    if material == "lobe_mat":
+        assert load_sbrdf(mat["sbrdf"], Ensemble.load(mat["ensemble"])).lobe[0] > 0
     sc = scene(_bsdf(mat, decoder=decoder, sampling="cosine"), integrator)
     params = mi.traverse(sc)
     keys = [f"s.bsdf.{k}" for k in KEYS]

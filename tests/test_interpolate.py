@@ -131,3 +131,29 @@ def test_level_blends_take_the_geometric_blend_of_the_gains(small_ensemble):
     np.testing.assert_allclose(end.decode(small_ensemble).values[want.valid],
                                want.values[want.valid], rtol=1e-3,
                                atol=1e-4 * float(want.values.max()))
+
+
+def test_lobe_transforms_blend_their_lobes(small_ensemble):
+    """In a lobe transform the blend's lobe is the lobes' blend (roughness geometric, kd
+    and ks linear, float16), and the ends are the two materials: ``a`` itself, ``b`` in
+    ``a``'s dictionaries (exact with a full budget); between them each channel's energy
+    lies between the ends'."""
+    a, b = (_encode(load_brdf(f"mitsuba:{n}", shape=SMALL), small_ensemble, 64,
+                    transform="log-lobe-cosine") for n in ("au-ggx-0.25", "plastic-blue-ggx-0.2"))
+    full = int(np.prod(SMALL))
+    valid = a.decode(small_ensemble).valid
+    ends = [m.decode(small_ensemble).values[valid] for m in (a, b)]
+    assert interpolate(a, b, 0.0, small_ensemble).lobe == a.lobe
+    np.testing.assert_allclose(interpolate(a, b, 0.0, small_ensemble).decode(
+        small_ensemble).values[valid], ends[0], rtol=1e-4, atol=1e-6)
+    one = interpolate(a, b, 1.0, small_ensemble, n_coeffs=full)
+    assert one.lobe == b.lobe and one.gain == b.gain
+    np.testing.assert_allclose(one.decode(small_ensemble).values[valid], ends[1], rtol=1e-3,
+                               atol=1e-5)
+    mid = interpolate(a, b, 0.5, small_ensemble, n_coeffs=full)
+    assert mid.lobe[0] == pytest.approx(np.sqrt(a.lobe[0] * b.lobe[0]), rel=1e-3)
+    assert mid.lobe[1:] == pytest.approx(0.5 * (np.array(a.lobe[1:]) + b.lobe[1:]),
+                                         rel=1e-3, abs=1e-6)
+    energy = [np.sum(v, axis=0) for v in (*ends, mid.decode(small_ensemble).values[valid])]
+    assert np.all(energy[2] > 0.5 * np.minimum(energy[0], energy[1]))
+    assert np.all(energy[2] < 2.0 * np.maximum(energy[0], energy[1]))

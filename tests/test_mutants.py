@@ -40,6 +40,7 @@ from sparse_brdf.metrics import (
 )
 from sparse_brdf.transforms import (
     LEVEL_KNEE,
+    LOBE_KNEE,
     RELATIVE_SCALE,
     RHO_MAX,
     TRANSFORMS,
@@ -47,6 +48,7 @@ from sparse_brdf.transforms import (
     cosine_weight,
     forward,
     from_basis,
+    has_lobe,
     inverse,
     inverse_at_bins,
     per_material,
@@ -79,10 +81,11 @@ def _model(ens_id: str, basis: str = "rgb", transform: str = "log-plus-cosine",
 
 # ---------------------------------------------------------------------- transforms
 def test_transform_names_weights_and_scales():
-    assert [uses_cosine(n) for n in TRANSFORMS] == [False, True, False, True, False, True]
+    assert [uses_cosine(n) for n in TRANSFORMS] == [False, True] * 4
     assert [scale(n) for n in TRANSFORMS] == [1.0, 1.0, RELATIVE_SCALE, RELATIVE_SCALE,
-                                              LEVEL_KNEE, LEVEL_KNEE]
-    assert [per_material(n) for n in TRANSFORMS] == [False] * 4 + [True] * 2
+                                              LEVEL_KNEE, LEVEL_KNEE, LOBE_KNEE, LOBE_KNEE]
+    assert [per_material(n) for n in TRANSFORMS] == [False] * 4 + [True] * 4
+    assert [has_lobe(n) for n in TRANSFORMS] == [False] * 6 + [True] * 2
     assert weight("log-level", TINY, 0.5) == LEVEL_KNEE * 0.5
     assert weight("log-plus", TINY) == 1.0
     assert weight("log-relative", TINY) == RELATIVE_SCALE
@@ -110,12 +113,15 @@ def test_inverse_clamps_overflow_to_the_float32_maximum_without_a_warning():
 @pytest.mark.parametrize("name", TRANSFORMS)
 def test_inverse_at_bins_is_the_grid_inverse_at_those_bins(name):
     rng = np.random.default_rng(1)
-    t = rng.uniform(0, 3, (2, *TINY)).astype(np.float32)
-    full = inverse(t, name)
+    t = rng.uniform(0, 3, (3, *TINY)).astype(np.float32)
+    lobe = (0.125, 0.5, 0.25, 0.0, 2.0, 0.0, 1.0) if has_lobe(name) else None
+    full = inverse(t, name, lobe=lobe)
     bins = tuple(rng.integers(0, n, 7) for n in TINY)
-    got = inverse_at_bins(t[(slice(None), *bins)], name, bins, TINY)
+    got = inverse_at_bins(t[(slice(None), *bins)], name, bins, TINY, lobe=lobe)
     assert got.dtype == np.float32
     np.testing.assert_allclose(got, full[(slice(None), *bins)], rtol=1e-6)
+    if has_lobe(name):  # the lobe's x, then the same inverse (test_transforms_metrics)
+        return
     np.testing.assert_allclose(got, np.expm1(t[(slice(None), *bins)])
                                / (np.asarray(weight(name, TINY))[bins]
                                   if uses_cosine(name) else weight(name, TINY)), rtol=1e-5)
@@ -566,10 +572,12 @@ def test_from_bytes_refusals_name_the_source():
         bad[10] = TRANSFORMS.index("log-relative-cosine")  # the last without a gain
         last = ff.from_bytes(bytes(bad) + struct.pack("<I", zlib.crc32(bytes(bad))), "src")
         assert last.transform == "log-relative-cosine"
-        bad[10] = len(TRANSFORMS) - 1  # a level transform's file holds 4 bytes more
-        with pytest.raises(BRDFFileError, match=f"truncated: {n} bytes, its header "
-                                                f"announces {n + 4}"):
-            ff.from_bytes(bytes(bad) + struct.pack("<I", zlib.crc32(bytes(bad))), "src")
+        for t, more in (("log-level-cosine", 4), ("log-lobe", 18)):
+            # a level transform's file holds its gain, a lobe transform's its lobe too
+            bad[10] = TRANSFORMS.index(t)
+            with pytest.raises(BRDFFileError, match=f"truncated: {n} bytes, its header "
+                                                    f"announces {n + more}"):
+                ff.from_bytes(bytes(bad) + struct.pack("<I", zlib.crc32(bytes(bad))), "src")
 
 
 def test_eval_is_zero_for_a_direction_at_or_below_the_horizon(ens):
@@ -934,7 +942,8 @@ def test_describe_a_file(tmp_path):
     assert ff.describe(p1) == {
         "version": 1, "codec": None, "bytes": 57 + 1 + 8 * 4, "ensemble": PAPER_ENSEMBLE_ID,
         "ensemble_shipped": True, "grid": [4, 5, 6], "transform": "log-relative-cosine",
-        "gain": 1.0, "basis": "opponent", "channels": ["luminance", "red-green", "yellow-blue"],
+        "gain": 1.0, "lobe": None, "basis": "opponent",
+        "channels": ["luminance", "red-green", "yellow-blue"],
         "coefficients": [3, 0, 1], "coefficients_total": 4, "dictionaries": [3, 1, 2]}
     d2 = ff.describe(p2)
     data = p2.read_bytes()

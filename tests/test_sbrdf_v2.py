@@ -17,7 +17,7 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from conftest import SMALL, random_orthonormal
+from conftest import LOBE, SMALL, random_orthonormal
 from sparse_brdf.cli import main
 from sparse_brdf.coding import budget
 from sparse_brdf.coding.budget import encode_to_bytes, fit_bytes, truncate
@@ -41,7 +41,7 @@ from sparse_brdf.compared.specs import make_model
 from sparse_brdf.errors import BRDFFileError, EnsembleMismatchError
 from sparse_brdf.sources.load import load_brdf
 from sparse_brdf.sources.merl import write_merl
-from sparse_brdf.transforms import forward, from_basis
+from sparse_brdf.transforms import fit_base_lobe, forward, from_basis
 
 FUZZ = settings(max_examples=150, deadline=None, database=None)
 HEAD2 = struct.Struct("<8sHBB3H16s3H3IBB3hII")  # docs/file-format.md, version 2
@@ -594,3 +594,50 @@ def test_level_transform_files_hold_the_gain(ens, version):
             from_bytes(body + struct.pack("<I", zlib.crc32(body)), "random-rgb.sbrdf")
     with pytest.raises(ValueError, match="gain"):
         dataclasses.replace(base, gain=2.0)  # the other transforms have none
+
+
+@pytest.mark.parametrize("version", [1, 2])
+def test_lobe_transform_files_hold_the_gain_and_the_lobe(ens, version):
+    """A lobe transform's file holds the gain and the base lobe (7 float16 after it, 18
+    bytes more than without either); it reads back exactly, decodes with them, and a
+    corrupt lobe is refused naming the file."""
+    base = _model(ens.id)
+    m = dataclasses.replace(base, transform="log-lobe-cosine", gain=0.3125, lobe=LOBE)
+    data, plain = to_bytes(m, version), to_bytes(base, version)
+    assert len(data) == len(plain) + 18
+    assert min_file_size(5, version, "log-lobe") == min_file_size(5, version) + 18
+    r = from_bytes(data)
+    assert (r.transform, r.gain, r.lobe) == ("log-lobe-cosine", 0.3125, LOBE)
+    np.testing.assert_allclose(r.decode(ens).values[r.decode(ens).valid],
+                               as_stored(m, version).decode(ens).values[m.decode(ens).valid])
+    # the lobe is part of the decode: another lobe, another material
+    other = dataclasses.replace(r, lobe=(LOBE[0] * 2, *LOBE[1:])).decode(ens).values
+    assert np.abs(other - r.decode(ens).values).max() > 0.1 * r.decode(ens).values.max()
+    off = (53 if version == 1 else 68) + len(m.name.encode()) + 4
+    assert struct.unpack_from("<7e", data, off) == LOBE
+    for bad in (float("nan"), -1.0, float("inf")):
+        body = data[:off + 2] + struct.pack("<e", bad) + data[off + 4:-4]  # kd of R
+        with pytest.raises(BRDFFileError, match="random-rgb.sbrdf: .*base lobe"):
+            from_bytes(body + struct.pack("<I", zlib.crc32(body)), "random-rgb.sbrdf")
+    with pytest.raises(ValueError, match="base lobe"):
+        dataclasses.replace(base, lobe=LOBE)  # the other transforms have none
+    with pytest.raises(ValueError, match="needs the material's base lobe"):
+        dataclasses.replace(m, lobe=None)
+
+
+def test_encode_to_bytes_in_the_lobe_pair(small_ensemble):
+    """``transform="lobe"`` encodes in whichever of the pair the selector prefers, to a
+    byte budget that counts the lobe; a budget below its floor names the lobe."""
+    brdf = load_brdf("mitsuba:plastic-red-ggx-0.3", shape=SMALL)
+    plain = min_file_size(len(brdf.name.encode()))
+    with pytest.raises(ValueError, match=f"--bytes {plain + 10}: .* takes {plain + 18} "
+                                         "bytes .*lobe transform's gain and base lobe"):
+        encode_to_bytes(brdf, small_ensemble, plain + 10, transform="lobe")
+    m = encode_to_bytes(brdf, small_ensemble, 600, transform="lobe")
+    assert m.transform in ("log-lobe", "log-lobe-cosine") and len(to_bytes(m)) <= 600
+    assert set(m.stats["transforms"]) == {"log-lobe", "log-lobe-cosine"}
+    assert m.lobe == fit_base_lobe(brdf.channel_first(), brdf.valid)
+    # a GGX material is its own lobe's family: the lobe pair codes it closely
+    dec = m.decode(small_ensemble).values[brdf.valid]
+    err = np.sum((dec - brdf.values[brdf.valid]) ** 2) / np.sum(brdf.values[brdf.valid] ** 2)
+    assert err < 1e-3

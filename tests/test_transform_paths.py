@@ -9,13 +9,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conftest import SMALL
+from conftest import LOBE, SMALL
 from sparse_brdf import transforms as tf
 from sparse_brdf.coords import bin_angles, cos_io
 from sparse_brdf.decoders.buffers import bin_weight as np_bin_weight
 from sparse_brdf.transforms import (
     TRANSFORMS,
     forward,
+    has_lobe,
     inverse_at_bins,
     material_scale,
     per_material,
@@ -31,6 +32,9 @@ from mitsuba_plugin.kernels import (  # noqa: E402
     Ops,
     VariantNamespace,
     bin_weight,
+    lobe_d_at,
+    lobe_x,
+    point_rho,
     point_rho_from_cos,
     point_weight,
     rho_from_x,
@@ -92,23 +96,45 @@ def test02_inverse_on_three_paths(transform, bins_and_x):
 def _inverse_on_three_paths(transform, bins_and_x):
     bins, c, x = bins_and_x
     gain = _gain(transform)
-    rho_np = inverse_at_bins(x, transform, bins, SMALL, gain)
+    lobe = LOBE if has_lobe(transform) else None
+    x3 = np.stack([x, 0.5 * x, -x])  # R, G, B: the lobe's channels differ
+    rho_np = inverse_at_bins(x3, transform, bins, SMALL, gain, lobe)
     s = material_scale(transform, gain)
     cos_on = uses_cosine(transform)
     ops = Ops(VariantNamespace(mi.llvm_ad_rgb))
     u, f = mi.llvm_ad_rgb.UInt32, mi.llvm_ad_rgb.Float
-    w, ok = bin_weight(ops, shared_shape(ops, SMALL), *(u(b) for b in bins),
-                       ops.f(1.0 if cos_on else 0.0))
-    rho_dr = rho_from_x(ops, [f(x)] * 3, dr.select(ok, 1.0, 0.0), w * s)
-    rho_pt = np.array([point_rho_from_cos(float(v), 0.0, 0.0, float(cv), cos_on, s)[0]
-                       for v, cv in zip(x, c, strict=True)])
-    for other in (np.array(rho_dr[0]), rho_pt):
-        np.testing.assert_allclose(other, rho_np, rtol=1e-5, atol=1e-7)
+    shape = shared_shape(ops, SMALL)
+    ub = tuple(u(b) for b in bins)
+    w, ok = bin_weight(ops, shape, *ub, ops.f(1.0 if cos_on else 0.0))
+    xs = [f(v) for v in x3]
+    if lobe is not None:  # the kernels' lobe, from opaque scalars
+        lf = [ops.f(v) for v in lobe]
+        xs = lobe_x(ops, xs, w * s, lobe_d_at(ops, shape, ub, None, lf[0]), lf)
+    rho_dr = np.array(rho_from_x(ops, xs, dr.select(ok, 1.0, 0.0), w * s))
+    pt_ops = Ops(VariantNamespace(mi.scalar_rgb))
+    pt_shape = shared_shape(pt_ops, SMALL)
+    rho_pt = []
+    for n, cv in enumerate(c):
+        v = [float(a) for a in x3[:, n]]
+        if lobe is None:
+            rho_pt.append(point_rho_from_cos(*v, float(cv), cos_on, s))
+            continue
+        wp = (point_weight(float(cv)) if cos_on else 1.0) * s
+        d = lobe_d_at(pt_ops, pt_shape, (int(bins[0][n]),), None, lobe[0])
+        rho_pt.append(point_rho(*lobe_x(pt_ops, v, wp, d, lobe), 1.0 / wp))
+    # a lobe material's dim values are a float32 ratio to its bright lobe: their absolute
+    # error scales with the lobe (here 1e-10 of the largest value)
+    atol = 1e-7 if lobe is None else 1e-10 * float(np.abs(rho_np).max())
+    for other in (rho_dr, np.array(rho_pt).T):
+        np.testing.assert_allclose(other, rho_np, rtol=1e-5, atol=atol)
     # and the inverse undoes the forward transform on the grid
-    rho = np.abs(x).reshape(1, -1)[:, :1].repeat(int(np.prod(SMALL)), 1).reshape(1, *SMALL)
-    t = forward(rho, transform, gain=gain)
-    np.testing.assert_allclose(inverse_at_bins(t[0][bins], transform, bins, SMALL, gain),
-                               rho[0][bins], rtol=1e-5)
+    rho = np.abs(x)[:1].repeat(3 * int(np.prod(SMALL))).reshape(3, *SMALL)
+    t = forward(rho, transform, gain=gain, lobe=lobe)
+    # (a lobe transform's float32 ratio resolves a value 40x below its lobe's peak to
+    # a few 1e-5)
+    np.testing.assert_allclose(
+        inverse_at_bins(t[(slice(None), *bins)], transform, bins, SMALL, gain, lobe),
+        rho[(slice(None), *bins)], rtol=1e-5 if lobe is None else 5e-5)
 
 
 def test03_a_transform_added_to_the_table_reaches_every_path(bins_and_x, monkeypatch):

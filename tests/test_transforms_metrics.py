@@ -2,18 +2,28 @@ import numpy as np
 import pytest
 
 import sparse_brdf as sb
-from sparse_brdf.coords import cosine_product, geometric_valid
+from sparse_brdf.coords import bin_angles, cosine_product, geometric_valid
 from sparse_brdf.errors import ImageFileError
 from sparse_brdf.metrics import cosine_weighted_snr, gamma_mse, rae, render_snr
 from sparse_brdf.transforms import (
     LEVEL_KNEE,
+    LOBE_ALPHAS,
+    LOBE_KNEE,
+    LOBE_POWER,
     RELATIVE_SCALE,
     TRANSFORMS,
+    check_lobe,
     cosine_weight,
+    fit_base_lobe,
     forward,
+    ggx,
+    has_lobe,
     inverse,
+    lobe_rows,
     material_gain,
     material_level,
+    material_lobe,
+    to_lobe,
     weight,
 )
 
@@ -27,9 +37,18 @@ def test_inverse_of_forward_is_identity_on_valid_bins(name):
     rng = np.random.default_rng(0)
     valid = geometric_valid(SHAPE)
     rho = (rng.random((3, *SHAPE)) ** 4 * 50).astype(np.float32)
-    back = inverse(forward(rho, name, valid), name, material_gain(name, rho, valid))
-    np.testing.assert_allclose(back[:, valid], rho[:, valid], rtol=2e-6, atol=1e-7)
-    assert np.all(back[:, ~valid] == 0)  # invalid bins are set to 0 first
+    back = inverse(forward(rho, name, valid), name, material_gain(name, rho, valid),
+                   material_lobe(name, rho, valid))
+    # the lobe transforms code a float32 ratio to the lobe: far below the lobe (rho <<
+    # 1e-6 of this material's 50), its absolute error is that of the lobe's log
+    atol = 1e-6 if has_lobe(name) else 1e-7
+    np.testing.assert_allclose(back[:, valid], rho[:, valid], rtol=2e-6, atol=atol)
+    if not has_lobe(name):
+        assert np.all(back[:, ~valid] == 0)  # invalid bins are set to 0 first
+    else:  # an invalid bin codes t = 0: the lobe itself
+        lobe = np.broadcast_to(lobe_rows(material_lobe(name, rho, valid), SHAPE)[
+            :, :, None, None], rho.shape)
+        np.testing.assert_allclose(back[:, ~valid], lobe[:, ~valid], rtol=1e-5)
 
 
 def test_transform_formulas():
@@ -138,6 +157,89 @@ def test_render_proxy_kernel_is_the_full_grid_formula(shape):
     np.testing.assert_array_equal(k["cell_point"], np.add.reduceat(point, starts, axis=0))
 
 
+def _lobe_material(alpha: float, kd, ks, shape=SHAPE) -> np.ndarray:
+    """rho = kd + ks D(theta_h; alpha) per channel on the grid, (3, *shape), float32."""
+    th = np.broadcast_to(bin_angles(shape)[0][:, None, None], shape)
+    return (np.asarray(kd)[:, None, None, None]
+            + np.asarray(ks)[:, None, None, None] * ggx(th, alpha)[None]).astype(np.float32)
+
+
+def test_base_lobe_fit_recovers_a_lobe_material():
+    """A material that is a lobe of the grid's alphas is fitted back: that alpha, its kd
+    and ks to float16 rounding, and the lobe transforms code it as zeros."""
+    valid = geometric_valid(SHAPE)
+    alpha = LOBE_ALPHAS[11]
+    rho = _lobe_material(alpha, [0.05, 0.2, 0.01], [0.3, 0.1, 0.0])
+    lobe = fit_base_lobe(rho, valid)
+    assert lobe[0] == float(np.float16(alpha))
+    np.testing.assert_allclose(lobe[1:], [0.05, 0.2, 0.01, 0.3, 0.1, 0.0], rtol=2e-3,
+                               atol=1e-6)
+    assert check_lobe("log-lobe", lobe) == lobe  # float16-exact, as files hold it
+    for name in ("log-lobe", "log-lobe-cosine"):
+        t = forward(rho, name, valid)
+        assert np.abs(t).max() < 0.01 * np.log(LOBE_KNEE)  # float16 rounding of the lobe
+
+
+def test_base_lobe_fit_is_the_weighted_least_squares_solution():
+    """The row-reduced fit equals least squares over every valid bin with weights
+    1 / (mean_c rho + L) (kd, ks > 0 here, so the constraint is inactive), at the alpha
+    whose residual is smallest."""
+    rng = np.random.default_rng(2)
+    valid = geometric_valid(SHAPE)
+    rho = _lobe_material(0.08, [0.1, 0.3, 0.05], [0.2, 0.05, 0.1])
+    rho = (rho * rng.uniform(0.7, 1.3, rho.shape)).astype(np.float32)  # not a lobe
+    lobe = fit_base_lobe(rho, valid)
+    level = material_level(rho, valid)
+    w = 1.0 / (rho[:, valid].astype(np.float64).mean(0) + level)
+    th = np.broadcast_to(bin_angles(SHAPE)[0][:, None, None], SHAPE)[valid]
+    best = None
+    for a in LOBE_ALPHAS:
+        design = np.stack([np.ones(th.size), ggx(th, a)], 1) * w[:, None]
+        sol, res = [], 0.0
+        for c in range(3):
+            x, r, *_ = np.linalg.lstsq(design, rho[c, valid] * w, rcond=None)
+            sol.append(x)
+            res += float(r[0])
+        if best is None or res < best[0]:
+            best = (res, a, np.array(sol))
+    assert lobe[0] == float(np.float16(best[1]))
+    np.testing.assert_allclose(lobe[1:4], best[2][:, 0], rtol=2e-3)
+    np.testing.assert_allclose(lobe[4:], best[2][:, 1], rtol=2e-3)
+
+
+def test_lobe_transforms_formula_and_scale_invariance():
+    """t = ((b w + 1) / K)^G (ln(rho w + 1) - ln(b w + 1)), w = K [c] / L: zero where rho
+    is the lobe, invariant to the material's brightness (up to the lobe's float16
+    rounding), and the inverse gives rho back."""
+    valid = geometric_valid(SHAPE)
+    rng = np.random.default_rng(4)
+    rho = _lobe_material(0.05, [0.02, 0.05, 0.01], [0.1, 0.02, 0.3])
+    rho = (rho * rng.uniform(0.5, 2.0, rho.shape)).astype(np.float32)
+    for name in ("log-lobe", "log-lobe-cosine"):
+        gain, lobe = material_gain(name, rho, valid), material_lobe(name, rho, valid)
+        w = np.asarray(weight(name, SHAPE, gain), np.float64)
+        b = lobe_rows(lobe, SHAPE)[:, :, None, None]
+        o = np.log1p(b * w)
+        want = ((b * w + 1) / LOBE_KNEE) ** LOBE_POWER * (np.log1p(rho * w) - o)
+        t = forward(rho, name, valid)
+        np.testing.assert_allclose(t[:, valid], want[:, valid], rtol=1e-4, atol=1e-5)
+        # float32, as the coded values: absolute error ~ 1e-7 of ln(b W + 1)
+        np.testing.assert_allclose(to_lobe(np.log1p(rho * w), w, b)[:, valid],
+                                   want[:, valid], rtol=1e-5, atol=2e-5)
+        bright = forward(rho * np.float32(1000), name, valid)
+        np.testing.assert_allclose(bright, t, rtol=0, atol=5e-3 * np.abs(t).max())
+        back = inverse(t, name, gain, lobe)
+        np.testing.assert_allclose(back[:, valid], rho[:, valid], rtol=2e-5)
+    with pytest.raises(ValueError, match="needs the material's base lobe"):
+        inverse(t, "log-lobe", gain)
+    with pytest.raises(ValueError, match="has no base lobe"):
+        inverse(t, "log-level", gain, lobe)
+    for bad in [(0.0, *lobe[1:]), (*lobe[:6], -1.0), (*lobe[:6], np.nan), lobe[:6],
+                (0.1001, *lobe[1:])]:
+        with pytest.raises(ValueError, match="base lobe"):
+            check_lobe("log-lobe", bad)
+
+
 @pytest.mark.parametrize("name", TRANSFORMS)
 def test_forward_masks_exactly_as_zeroing_first(name):
     """forward with a mask equals zeroing the invalid bins and then transforming, bit for
@@ -149,11 +251,16 @@ def test_forward_masks_exactly_as_zeroing_first(name):
     rho[:, ~valid] = np.array([np.nan, np.inf, -4.0], np.float32)[:, None]
     zeroed = np.where(valid, rho, np.float32(0))
     gain = material_gain(name, rho, valid)  # a level transform's: from the valid bins
+    lobe = material_lobe(name, rho, valid)  # a lobe transform's: the same
     expect = np.log1p(zeroed * weight(name, shape, gain)).astype(np.float32)
+    if lobe is not None:  # the ratio to the lobe; an invalid bin codes the lobe itself
+        b = lobe_rows(lobe, shape)[:, :, None, None]
+        expect = np.where(valid, to_lobe(expect, weight(name, shape, gain), b),
+                          0).astype(np.float32)
     got = forward(rho, name, valid)
     assert got.dtype == np.float32
     np.testing.assert_array_equal(got, expect)
-    np.testing.assert_array_equal(forward(zeroed, name, gain=gain), expect)
+    np.testing.assert_array_equal(forward(zeroed, name, valid, gain, lobe), expect)
 
 
 def _studio_like_image(seed: int = 0) -> np.ndarray:

@@ -39,6 +39,9 @@ def materials(tmp_path_factory):
     # the coloured one in a level transform (its own gain, read by every variant's kernels)
     out["level"] = make_exact_material(tmp_path_factory.mktemp("level"), "plastic-red-ggx-0.3",
                                        n_coeffs=200, transform="log-level-cosine")
+    # and in a lobe transform (its own lobe, mapped by every variant's kernels)
+    out["lobe"] = make_exact_material(tmp_path_factory.mktemp("lobe"), "plastic-red-ggx-0.3",
+                                      n_coeffs=200, transform="log-lobe-cosine")
     return out
 
 
@@ -83,13 +86,13 @@ def render(scene: dict, spp: int, seed: int = 0) -> np.ndarray:
 
 
 @pytest.mark.render
-@pytest.mark.parametrize("material", ["plastic-red-ggx-0.3", "level"])
+@pytest.mark.parametrize("material", ["plastic-red-ggx-0.3", "level", "lobe"])
 @pytest.mark.parametrize("variant", CPU_VARIANTS)
 def test_sparse_equals_its_table_in_every_variant(materials, variant, material):
     """In each variant, ``sparse_brdf`` renders what ``tabulated_brdf`` of the model's own
     decode renders, to >= 100 dB (the same sample paths, float32 rounding only), in
     twosided, blendbsdf and mask, both decoders and both sampling modes; in the paper's
-    transform and in a level transform."""
+    transform, a level transform and a lobe transform."""
     set_variant(variant)
     mitsuba_plugin.register()
     mat = materials[material]

@@ -39,7 +39,7 @@ from ..coding.tensor import top_k
 from ..errors import UsageError
 from ..parallel import parallel_map
 from ..params import SEED, Interval, check, check_choice
-from ..transforms import TRANSFORMS
+from ..transforms import TRANSFORMS, has_lobe
 from . import _pools, defaults
 from .defaults import PRIORS
 from .measurements import Samples
@@ -65,7 +65,8 @@ __all__ = ["GreedyPath", "Operator", "Atoms", "encode_samples", "stage_sizes"]
 #: Every parameter of :func:`encode_samples` a user sets, declared once.
 PARAMETERS = {
     "n_coeffs": Interval(int, 1),
-    "transform": ("auto", *TRANSFORMS),
+    # the lobe transforms need a material's table to fit its lobe: not from samples
+    "transform": ("auto", *(t for t in TRANSFORMS if not has_lobe(t))),
     "folds": Interval(int, 2, 20),
     "candidates": Interval(int, 1, 64),
     "seed": SEED,
@@ -303,6 +304,7 @@ def encode_samples(samples: Samples, ensemble: Ensemble | str | None = None,
     MissingDataError
         For the default prior when the training corpus is not on this machine.
     """
+    check_choice("transform", transform, PARAMETERS["transform"])
     spec = EncodeSpec.build(ensemble, n_coeffs, n_bytes, transform=transform,
                             basis=ENCODE_OPTIONS["basis"])
     ens, n = spec.ensemble, spec.n_coeffs

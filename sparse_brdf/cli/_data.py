@@ -73,10 +73,15 @@ def _print_held(held: dict) -> None:
 
 
 def _level(held: dict) -> str:
-    """``; level L = ... /sr`` for a file with a per-material gain 1/L, else ""."""
+    """``; material level L = ... /sr`` for a file with a per-material gain 1/L (and its
+    base lobe, for a lobe transform), else ""."""
     if not per_material(held["transform"]):
         return ""
-    return f"; material level {1.0 / held['gain']:.4g} /sr"
+    lobe = held.get("lobe")
+    more = "" if lobe is None else (
+        f"; base lobe alpha {lobe['alpha']:.4g}, kd {', '.join(f'{v:.4g}' for v in lobe['kd'])}"
+        f", ks {', '.join(f'{v:.4g}' for v in lobe['ks'])} /sr")
+    return f"; material level {1.0 / held['gain']:.4g} /sr{more}"
 
 
 def cmd_convert(args: argparse.Namespace) -> int:

@@ -29,6 +29,7 @@ import numpy as np
 
 from ..brdf import BRDF
 from ..errors import UsageError
+from ..transforms import has_lobe
 from .coefficients import SparseBRDF
 from .encode import choose_transform, encode_with
 from .ensemble import Ensemble
@@ -155,8 +156,10 @@ def _check_floor(name: str, n_bytes: int, version: int,
     floor = max([plain, *(min_file_size(len(name.encode("utf-8")[:255]), version, t)
                           for t in transforms)])
     if not isinstance(n_bytes, (int, np.integer)) or n_bytes <= floor:
-        what = "header, name and checksum" + (", and the level transform's gain"
-                                              if floor > plain else "")
+        lobe = any(has_lobe(t) for t in transforms)
+        what = "header, name and checksum" + (
+            "" if floor <= plain else ", and the lobe transform's gain and base lobe"
+            if lobe else ", and the level transform's gain")
         raise UsageError(f"--bytes {n_bytes}: a version-{version} .sbrdf file of {name!r} "
                          f"takes {floor} bytes before its first coefficient ({what}); give "
                          f"more than {floor}")

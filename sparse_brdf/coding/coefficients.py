@@ -13,6 +13,7 @@ from ..parallel import parallel_map
 from ..transforms import (
     check_basis,
     check_gain,
+    check_lobe,
     check_transform,
     from_basis,
     inverse,
@@ -60,8 +61,11 @@ class SparseBRDF:
         ``"opponent"`` (channels are ``transforms.colour_matrix("opponent")`` times the
         transformed R, G, B; decoding mixes them back before the inverse transform).
     gain : float
-        The material's gain 1/L (sr) for the level transforms
+        The material's gain 1/L (sr) for the level and lobe transforms
         (``transforms.material_gain``, stored in the file); 1 for the others.
+    lobe : tuple of 7 floats or None
+        The material's base lobe for the lobe transforms (alpha, kd and ks per channel,
+        ``transforms.fit_base_lobe``, stored in the file as float16); None for the others.
 
     Raises
     ------
@@ -82,11 +86,13 @@ class SparseBRDF:
     stats: dict = field(default_factory=dict)
     basis: str = "rgb"
     gain: float = 1.0
+    lobe: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         check_transform(self.transform)
         check_basis(self.basis)
         self.gain = check_gain(self.transform, self.gain)
+        self.lobe = check_lobe(self.transform, self.lobe)
         self.shape = tuple(int(n) for n in self.shape)  # type: ignore[assignment]
         self.dict_index = np.asarray(self.dict_index, np.int64).reshape(3)
         self.locations = [np.asarray(a, np.int64).reshape(-1) for a in self.locations]
@@ -232,7 +238,7 @@ class SparseBRDF:
         EnsembleMismatchError
             As :meth:`check_ensemble`.
         """
-        rho = inverse(self.transformed(ensemble), self.transform, self.gain)
+        rho = inverse(self.transformed(ensemble), self.transform, self.gain, self.lobe)
         mask = geometric_valid(self.shape) if valid is None else valid
         return BRDF(np.moveaxis(rho, 0, -1), mask, name=self.name, source="sparse")
 
@@ -279,9 +285,8 @@ class SparseBRDF:
                 sl = slice(lo, lo + chunk)
                 g = u1[bins[0][sl]][:, a] * u2[bins[1][sl]][:, b] * u3[bins[2][sl]][:, k]
                 out[sl, c] = g @ s
-        out = from_basis(out.T, self.basis).T
-        rho = inverse_at_bins(out, self.transform, tuple(b[:, None] for b in bins), self.shape,
-                              self.gain)
+        out = from_basis(out.T, self.basis)  # (3, N)
+        rho = inverse_at_bins(out, self.transform, bins, self.shape, self.gain, self.lobe).T
         keep = above & geometric_valid(self.shape)[bins]  # as decode() and the plugins
         return np.where(keep[:, None], rho, 0.0).astype(np.float32)
 

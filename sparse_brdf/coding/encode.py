@@ -37,7 +37,14 @@ from ..transforms import inverse
 from .coefficients import SparseBRDF
 from .ensemble import Ensemble
 from .fill import SizeControl, fill_invalid
-from .projection import CodingOptions, coded_channels, project_all, search, select
+from .projection import (
+    CodingOptions,
+    coded_channels,
+    materials_of,
+    project_all,
+    search_many,
+    select,
+)
 from .spec import DEFAULT_N_COEFFS, ENCODE_OPTIONS, SELECTORS, EncodeSpec
 
 #: The ``stats["transforms"][t]`` entry each selector minimises.
@@ -65,13 +72,15 @@ def error_curve(brdf: BRDF, ens: Ensemble, counts: list[int]) -> dict:
     """
     check_grid_matches(brdf, ens)
     proj = {t: project_all(brdf, ens, t, max(counts)) for t in ens.transforms}
+    material = materials_of(brdf, ens.transforms)
     out: dict = {"counts": list(counts), "chosen": []}
     out.update({t: {"rae": [], "cos_snr": [], "gamma_mse": [], "mse": []}
                 for t in ens.transforms})
     for n in counts:
         stats = {}
         for t in ens.transforms:
-            rec = select(proj[t], n, name=brdf.name).decode(ens, valid=brdf.valid).values
+            rec = select(proj[t], n, None, brdf.name, *material[t]).decode(
+                ens, valid=brdf.valid).values
             ref, flat = brdf.values[brdf.valid], rec[brdf.valid]
             stats[t] = {"rae": rae(ref, flat), "gamma_mse": gamma_mse(ref, flat),
                         "mse": mse(ref, flat),
@@ -98,7 +107,8 @@ def choose_transform(brdf: BRDF, models: dict[str, SparseBRDF], ens: Ensemble,
 
     def errors(name: str, keys: tuple[str, ...]) -> dict:  # numpy only (no BLAS)
         if name not in full:
-            full[name] = inverse(models[name].transformed(ens), name, models[name].gain)
+            m = models[name]
+            full[name] = inverse(m.transformed(ens), name, m.gain, m.lobe)
         if keys != ("render_proxy",) and name not in flat:
             flat[name] = full[name][:, valid]
         metric = {"gamma_mse": lambda: gamma_mse(ref, flat[name]),
@@ -264,8 +274,9 @@ def encode_with(brdf: BRDF, spec: EncodeSpec, size: SizeControl | None = None) -
 def _encode_one(brdf: BRDF, ens: Ensemble, transform: str, o: CodingOptions) -> SparseBRDF:
     """Encode with one transform; unmeasured bins above the horizon are filled from the
     model (EM, ``fill="missing"``)."""
-    y = coded_channels(brdf, transform, o.basis)
-    model = search(brdf, ens, transform, y, o)
+    mats = materials_of(brdf, (transform,))
+    y = coded_channels(brdf, transform, o.basis, mats[transform])
+    model = search_many(brdf, ens, {transform: y}, o, mats)[transform]
     missing = geometric_valid(brdf.shape) & ~brdf.valid
     if not missing.any():
         return model
@@ -275,7 +286,7 @@ def _encode_one(brdf: BRDF, ens: Ensemble, transform: str, o: CodingOptions) -> 
     # filling the transformed R, G, B (the basis is a per-bin 3 x 3 mix).
     for _ in range(o.fill_iters):
         y[:, missing] = model.coded(ens)[:, missing]
-        model = search(brdf, ens, transform, y, o)
+        model = search_many(brdf, ens, {transform: y}, o, mats)[transform]
     model.stats["fill"] = {"rounds": o.fill_iters}
     return model
 

@@ -39,7 +39,7 @@ from ..brdf import BRDF
 from ..errors import BRDFFileError, EnsembleMismatchError, UsageError
 from ..fileio import atomic_write, require_file
 from ..params import check_choice
-from ..transforms import TRANSFORMS, per_material
+from ..transforms import LOBE_SIZE, TRANSFORMS, has_lobe, per_material
 from .coefficients import SparseBRDF
 from .ensemble import Ensemble, resolve_ensemble, shipped_ids
 
@@ -61,7 +61,8 @@ def check_version(version: int) -> int:
 _PREFIX = struct.Struct("<8sH")  # magic, version: enough to dispatch
 _HEAD = struct.Struct("<8sHBB3H16s3H3IB")  # version 1; also the first 53 bytes of v2
 _HEAD2 = struct.Struct("<8sHBB3H16s3H3IBB3hII")
-_GAIN = struct.Struct("<f")  # a level transform's gain 1/L (sr), after the name
+_GAIN = struct.Struct("<f")  # a level or lobe transform's gain 1/L (sr), after the name
+_LOBE = struct.Struct(f"<{LOBE_SIZE}e")  # a lobe transform's base lobe, after the gain
 _RECORD = np.dtype([("loc", "<u4"), ("val", "<f4")])
 #: Bytes per stored coefficient in a version-1 file (u32 location + f32 value).
 RECORD_BYTES = _RECORD.itemsize
@@ -90,8 +91,8 @@ def file_size(n_coeffs: int, name_len: int = 0, transform: str | None = None) ->
     """Bytes of a version-1 file holding ``n_coeffs`` coefficients in all and a name of
     ``name_len`` bytes, under ``transform`` (a level transform's file holds its gain; a
     version-2 file's size depends on the values: :func:`to_bytes`)."""
-    return (_HEAD.size + name_len + _gain_bytes(transform) + _RECORD.itemsize * n_coeffs
-            + 4)
+    return (_HEAD.size + name_len + _material_bytes(transform)
+            + _RECORD.itemsize * n_coeffs + 4)
 
 
 def min_file_size(name_len: int = 0, version: int = VERSION,
@@ -101,13 +102,16 @@ def min_file_size(name_len: int = 0, version: int = VERSION,
     its coefficients."""
     if version == 1:
         return file_size(0, name_len, transform)
-    return (_HEAD2.size + name_len + _gain_bytes(transform) + len(_compress(b"")[1])
+    return (_HEAD2.size + name_len + _material_bytes(transform) + len(_compress(b"")[1])
             + 4)
 
 
-def _gain_bytes(transform: str | None) -> int:
-    """4 (the f32 gain after the name) for a level transform, else 0."""
-    return _GAIN.size if transform is not None and per_material(transform) else 0
+def _material_bytes(transform: str | None) -> int:
+    """The bytes after the name: 4 (the f32 gain) for a level transform, 18 (the gain
+    and the base lobe's 7 float16) for a lobe transform, else 0."""
+    if transform is None or not per_material(transform):
+        return 0
+    return _GAIN.size + (_LOBE.size if has_lobe(transform) else 0)
 
 
 def to_bytes(model: SparseBRDF, version: int = VERSION) -> bytes:
@@ -122,6 +126,8 @@ def to_bytes(model: SparseBRDF, version: int = VERSION) -> bytes:
               bytes.fromhex(model.ensemble_id[:32]), *(int(d) for d in model.dict_index),
               *(int(n) for n in model.n_coeffs), len(name))
     gain = _GAIN.pack(model.gain) if per_material(model.transform) else b""
+    if model.lobe is not None:
+        gain += _LOBE.pack(*model.lobe)
     if version == 1:
         parts = [_HEAD.pack(*common), name, gain]
         for loc, val in zip(model.locations, model.values, strict=True):
@@ -160,7 +166,7 @@ def from_bytes(data: bytes, source: str = "<bytes>") -> SparseBRDF:
     if version == 1:
         expected = file_size(sum(counts), name_len, transform)
     else:
-        expected = _HEAD2.size + name_len + _gain_bytes(transform) + fields[-1] + 4
+        expected = _HEAD2.size + name_len + _material_bytes(transform) + fields[-1] + 4
     if len(data) != expected:
         what = "truncated" if len(data) < expected else "has trailing bytes"
         raise BRDFFileError(f"{source}: {what}: {len(data)} bytes, its header announces "
@@ -175,10 +181,13 @@ def from_bytes(data: bytes, source: str = "<bytes>") -> SparseBRDF:
     off = head.size
     name = data[off: off + name_len].decode("utf-8", errors="replace")
     off += name_len
-    gain = 1.0
-    if _gain_bytes(transform):
+    gain, lobe = 1.0, None
+    if per_material(transform):
         (gain,) = _GAIN.unpack_from(data, off)
         off += _GAIN.size
+    if has_lobe(transform):
+        lobe = _LOBE.unpack_from(data, off)
+        off += _LOBE.size
     if version == 1:
         locs, vals = _records(data, off, counts)
     else:
@@ -186,7 +195,8 @@ def from_bytes(data: bytes, source: str = "<bytes>") -> SparseBRDF:
     try:
         return SparseBRDF(transform, (n1, n2, n3), ens_id.hex(), [d0, d1, d2],
                           locs, vals, name=name,
-                          basis="opponent" if flags & FLAG_OPPONENT else "rgb", gain=gain)
+                          basis="opponent" if flags & FLAG_OPPONENT else "rgb", gain=gain,
+                          lobe=lobe)
     except ValueError as exc:
         raise BRDFFileError(f"{source}: {exc}") from exc
 
@@ -445,9 +455,11 @@ def describe(path: str | os.PathLike) -> dict:
         (the id of the ensemble the coefficients refer to) and ``ensemble_shipped``
         (whether this install ships it), ``grid`` ([n1, n2, n3]), ``transform`` (one for
         every channel) and ``gain`` (the material's gain 1/L, sr, of a level transform;
-        1 for the others), ``basis`` (the colour basis) and ``channels`` (its coded
-        channels), then per channel ``coefficients`` and ``dictionaries`` (the index of
-        the ensemble's dictionary each channel uses), and ``coefficients_total``.
+        1 for the others), ``lobe`` (a lobe transform's base lobe: ``alpha``, ``kd``
+        and ``ks``, these per channel; None for the others), ``basis`` (the colour
+        basis) and ``channels`` (its coded channels), then per channel
+        ``coefficients`` and ``dictionaries`` (the index of the ensemble's dictionary
+        each channel uses), and ``coefficients_total``.
 
     Raises
     ------
@@ -463,6 +475,8 @@ def describe(path: str | os.PathLike) -> dict:
             "ensemble": model.ensemble_id,
             "ensemble_shipped": model.ensemble_id in shipped_ids(),
             "grid": list(model.shape), "transform": model.transform, "gain": model.gain,
+            "lobe": None if model.lobe is None else {
+                "alpha": model.lobe[0], "kd": list(model.lobe[1:4]), "ks": list(model.lobe[4:7])},
             "basis": model.basis,
             "channels": list(CHANNELS[model.basis]),
             "coefficients": [int(n) for n in model.n_coeffs],

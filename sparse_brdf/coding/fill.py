@@ -20,6 +20,7 @@ from .projection import (
     coded_channels,
     coded_many,
     energies_many,
+    materials_of,
     search_many,
 )
 
@@ -42,7 +43,7 @@ def fill_invalid(brdf: BRDF, ens: Ensemble, transforms: tuple[str, ...],
 
     Minimises the residual on valid bins only, ||P_V (Y - U S)||^2 over sparse S, by hard
     thresholding pursuit on the dictionaries the search chose
-    (:func:`~sparse_brdf.coding.projection.search`, run once on the zero-filled
+    (:func:`~sparse_brdf.coding.projection.search_many`, run once on the zero-filled
     channels): the values of the current support are the least squares fit to the valid
     bins (:func:`_fit_supports`, conjugate gradients); the invalid bins of Y are then set
     to that reconstruction, the channels re-projected on their dictionaries and the
@@ -57,10 +58,11 @@ def fill_invalid(brdf: BRDF, ens: Ensemble, transforms: tuple[str, ...],
     fit's support.
     """
     invalid = ~brdf.valid
+    mats = materials_of(brdf, transforms)
     ys = dict(zip(transforms, parallel_map(  # invalid bins are 0
-        lambda t: coded_channels(brdf, t, o.basis), transforms), strict=True))
+        lambda t: coded_channels(brdf, t, o.basis, mats[t]), transforms), strict=True))
     valid_energies = energies_many(ys)  # before any filling
-    models = search_many(brdf, ens, ys, o)
+    models = search_many(brdf, ens, ys, o, mats)
     if not invalid.any() or o.fill_iters == 0:
         return models
     searched = {t: m.stats for t, m in models.items()}
@@ -180,7 +182,7 @@ def _fit_supports(jobs: list[tuple[np.ndarray, SparseBRDF]], invalid: np.ndarray
         res = [done[(id(m), c)] for c in range(3)]
         fitted = SparseBRDF(m.transform, m.shape, m.ensemble_id, m.dict_index,
                             [a for a, _, _ in res], [v for _, v, _ in res], name=m.name,
-                            basis=m.basis, gain=m.gain)
+                            basis=m.basis, gain=m.gain, lobe=m.lobe)
         out.append((fitted, np.array([e for _, _, e in res])))
     return out
 

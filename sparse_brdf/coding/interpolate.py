@@ -142,6 +142,7 @@ def _check_transforms(a: SparseBRDF, a_name, b: SparseBRDF, b_name) -> None:
                          f"({b.transform}): encode both with the same --transform")
 
 
+
 def _blend(a: SparseBRDF, b: SparseBRDF, alpha: float, ens: Ensemble,
            n_coeffs: int | None) -> SparseBRDF:
     """:func:`interpolate` on checked inputs."""
@@ -171,7 +172,23 @@ def _blend(a: SparseBRDF, b: SparseBRDF, alpha: float, ens: Ensemble,
     # blend's gain is the gains' geometric blend (1 for the other transforms)
     gain = float(np.float32(a.gain ** (1.0 - alpha) * b.gain ** alpha))
     return SparseBRDF(a.transform, a.shape, a.ensemble_id, a.dict_index.copy(), locs, vals,
-                      name=name[:255], basis=a.basis, gain=gain)
+                      name=name[:255], basis=a.basis, gain=gain, lobe=_blend_lobe(a, b, alpha))
+
+
+def _blend_lobe(a: SparseBRDF, b: SparseBRDF, alpha: float) -> tuple[float, ...] | None:
+    """The blend's base lobe (the lobe transforms; None for the others): roughness
+    blended geometrically, kd and ks linearly, as float16. The coded values, log ratios
+    to each material's own lobe, blend linearly against it: the blend is each end exactly
+    (``b`` in ``a``'s dictionaries) and between them a geometric blend of the two ratios
+    over the blended lobe."""
+    if a.lobe is None:
+        return None
+    la, lb = np.asarray(a.lobe, np.float64), np.asarray(b.lobe, np.float64)
+    out = (1.0 - alpha) * la + alpha * lb
+    out[0] = la[0] ** (1.0 - alpha) * lb[0] ** alpha
+    if alpha in (0.0, 1.0):  # exact ends (float16 values already)
+        out = la if alpha == 0.0 else lb
+    return tuple(float(v) for v in out.astype(np.float16))
 
 
 def _in_dictionary(model: SparseBRDF, c: int, k: int, ens: Ensemble) -> np.ndarray:

@@ -16,9 +16,10 @@ from ..brdf import BRDF
 from ..parallel import parallel_map
 from ..transforms import (
     check_transform,
+    fit_base_lobe,
     forward,
+    has_lobe,
     material_gain,
-    per_material,
     to_basis,
 )
 from .coefficients import SparseBRDF
@@ -199,9 +200,11 @@ def project_pruned_many(brdf: BRDF, ens: Ensemble, ys: dict[str, np.ndarray],
 
 
 def select(p: Projections, n_coeffs: int, max_error: float | None = None,
-           name: str = "brdf") -> SparseBRDF:
+           name: str = "brdf", gain: float = 1.0, lobe=None) -> SparseBRDF:
     """Per channel, the dictionary needing fewest coefficients, then least residual, then
-    lowest index; coefficients kept up to ``n_coeffs`` or a relative residual ``max_error``."""
+    lowest index; coefficients kept up to ``n_coeffs`` or a relative residual ``max_error``.
+    ``gain`` and ``lobe``: the material's, for the transforms that hold them
+    (:func:`materials_of`)."""
     if p.exact_for is not None and p.exact_for != (n_coeffs, max_error):
         raise ValueError(f"these projections were pruned for n_coeffs, max_error = "
                          f"{p.exact_for}; project again to select with "
@@ -228,7 +231,8 @@ def select(p: Projections, n_coeffs: int, max_error: float | None = None,
         locs.append(p.idx[c][k][:need])
         vals.append(p.val[c][k][:need])
         rel.append(r / norm if norm > 0 else 0.0)
-    model = SparseBRDF(p.transform, p.shape, p.ensemble_id, dicts, locs, vals, name=name)
+    model = SparseBRDF(p.transform, p.shape, p.ensemble_id, dicts, locs, vals, name=name,
+                       gain=gain, lobe=lobe)
     model.stats = {"relative_residual": rel}
     return model
 
@@ -245,30 +249,38 @@ class CodingOptions:
     joint: bool
 
 
-def coded_channels(brdf: BRDF, transform: str, basis: str) -> np.ndarray:
-    """The channels to code: ``to_basis`` of the transformed R, G, B, a fresh array."""
-    return to_basis(forward(brdf.channel_first(), transform, brdf.valid), basis)
+def coded_channels(brdf: BRDF, transform: str, basis: str,
+                   material: tuple | None = None) -> np.ndarray:
+    """The channels to code: ``to_basis`` of the transformed R, G, B, a fresh array.
+    ``material``: the (gain, lobe) of :func:`materials_of`; None: computed here."""
+    gain, lobe = material if material is not None else (None, None)
+    return to_basis(forward(brdf.channel_first(), transform, brdf.valid, gain, lobe), basis)
 
 
-def search(brdf: BRDF, ens: Ensemble, transform: str, y: np.ndarray,
-            o: CodingOptions) -> SparseBRDF:
-    """Each coded channel's dictionary by the (pruned) search over the ensemble, and its
-    coefficients: the selection's own, or with a joint budget, re-coded on the chosen
-    dictionaries (:func:`code_many`)."""
-    return search_many(brdf, ens, {transform: y}, o)[transform]
+def materials_of(brdf: BRDF, transforms) -> dict[str, tuple[float, tuple | None]]:
+    """Per transform, the gain and base lobe it gives ``brdf`` (1 and None for the
+    transforms without them), as :func:`~sparse_brdf.transforms.forward` computes them;
+    the lobe, which depends on the material only, fitted once."""
+    rho, valid = brdf.channel_first(), brdf.valid
+    lobe = fit_base_lobe(rho, valid) if any(has_lobe(t) for t in transforms) else None
+    return {t: (material_gain(t, rho, valid), lobe if has_lobe(t) else None)
+            for t in transforms}
 
 
 def search_many(brdf: BRDF, ens: Ensemble, ys: dict[str, np.ndarray],
-                 o: CodingOptions) -> dict[str, SparseBRDF]:
-    """:func:`search` of the channels of several transforms (name: channels), their
-    projections side by side on the thread pool."""
+                 o: CodingOptions, materials: dict | None = None) -> dict[str, SparseBRDF]:
+    """Each coded channel's dictionary by the (pruned) search over the ensemble, and its
+    coefficients (the selection's own, or with a joint budget re-coded on the chosen
+    dictionaries, :func:`code_many`), for the channels of several transforms (name:
+    channels), their projections side by side on the thread pool; ``materials``:
+    :func:`materials_of` the transforms (None: computed here)."""
     ps = project_pruned_many(brdf, ens, ys, o.n, o.max_error)
+    if materials is None:
+        materials = materials_of(brdf, tuple(ys))
     models = {}
     for t, p in ps.items():
-        models[t] = select(p, o.n, o.max_error, brdf.name)
+        models[t] = select(p, o.n, o.max_error, brdf.name, *materials[t])
         models[t].basis = o.basis
-        if per_material(t):  # a level transform: the material's own gain, as forward's
-            models[t].gain = material_gain(t, brdf.channel_first(), brdf.valid)
     if o.joint:
         coded = code_many([(ys[t], models[t], ps[t].norms) for t in ys], ens, o)
         models = dict(zip(ys, coded, strict=True))
@@ -333,7 +345,7 @@ def _keep(y: np.ndarray, m: SparseBRDF, top: list, o: CodingOptions) -> SparseBR
             locs.append(idx[:need])
             vals.append(v[:need])
     out = SparseBRDF(m.transform, shape, m.ensemble_id, m.dict_index, locs, vals,
-                     name=m.name, basis=o.basis, gain=m.gain)
+                     name=m.name, basis=o.basis, gain=m.gain, lobe=m.lobe)
     kept = np.array([float(np.sum(v.astype(np.float64) ** 2)) for v in vals])
     out.stats = {"relative_residual": [max(float(n - k), 0.0) / n if n > 0 else 0.0
                                        for n, k in zip(norms, kept, strict=True)],

@@ -20,7 +20,13 @@ import numpy as np
 from ..errors import UsageError
 from ..params import Interval, check, check_choice
 from ..paths import DEFAULT_ENSEMBLE_ID, PAPER_ENSEMBLE_ID
-from ..transforms import COLOUR_BASES, TRANSFORMS, check_basis, check_transform
+from ..transforms import (
+    COLOUR_BASES,
+    LOBE_TRANSFORMS,
+    TRANSFORMS,
+    check_basis,
+    check_transform,
+)
 from .ensemble import Ensemble, resolve_ensemble
 from .fileformat import VERSION, check_version
 
@@ -52,7 +58,7 @@ PAPER_OPTIONS = {"selector": "gamma-mse", "fill": "missing", "basis": "rgb"}
 PARAMETERS = {
     "n_coeffs": Interval(int, 1),
     "max_error": Interval(float, 0.0, 1.0, closed="left"),
-    "transform": ("auto", *TRANSFORMS),
+    "transform": ("auto", "lobe", *TRANSFORMS),
     "selector": SELECTORS,
     "fill": FILLS,
     "fill_iters": Interval(int, 0, 1000),
@@ -86,9 +92,10 @@ class EncodeSpec:
     max_error : float or None
         Relative squared residual at which coding stops adding coefficients, or None.
     transform : str
-        ``"auto"`` or the one transform asked for.
+        ``"auto"``, ``"lobe"`` or the one transform asked for.
     transforms : tuple of str
-        The transforms tried: the ensemble's for ``"auto"``, else ``(transform,)``.
+        The transforms tried: the ensemble's for ``"auto"``, the lobe pair for ``"lobe"``,
+        else ``(transform,)``.
     selector, fill, basis, budget : str
         The encoder's options (``SELECTORS``, ``FILLS``, ``COLOUR_BASES``, ``BUDGETS``),
         ``budget`` resolved from ``basis`` when not given.
@@ -135,7 +142,8 @@ class EncodeSpec:
         max_error : float, optional
             In [0, 1).
         transform : str
-            ``"auto"`` or one of ``TRANSFORMS``.
+            ``"auto"`` (the ensemble's transforms), ``"lobe"`` (the lobe pair,
+            ``LOBE_TRANSFORMS``) or one of ``TRANSFORMS``.
         version : int
             The ``.sbrdf`` version of a byte budget.
         **options
@@ -159,7 +167,8 @@ class EncodeSpec:
         if max_error is not None:
             check("max_error", max_error, PARAMETERS["max_error"])
         o = check_options(**options)
-        names = ens.transforms if transform == "auto" else (check_transform(transform),)
+        names = (ens.transforms if transform == "auto" else LOBE_TRANSFORMS
+                 if transform == "lobe" else (check_transform(transform),))
         if n_bytes is not None:
             check("n_bytes", n_bytes, N_BYTES)
             check_version(version)

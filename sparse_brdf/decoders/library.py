@@ -42,8 +42,9 @@ from .scene import SharedRows
 HEADER_U = 22
 #: Per material, the float header: cosine weight (1 or 0), the weight's scale, the
 #: colour basis's M^T (9 floats, row-major; the identity for "rgb"), the sampling
-#: lobe's exponent and probability.
-HEADER_F = 13
+#: lobe's exponent and probability, then whether the material has a base lobe (a lobe
+#: transform: 1, else 0) and the base lobe (alpha, kd R, G, B, ks R, G, B; 0 without).
+HEADER_F = 21
 
 
 @dataclass(frozen=True)
@@ -154,6 +155,8 @@ def pair_header(models, shared: SharedRows, lobes=None, grouped=None) -> PairHea
         f[m, 1] = material_scale(model.transform, model.gain)  # a level file: its own gain
         f[m, 2:11] = np.eye(3).ravel() if mix is None else np.asarray(mix).ravel()
         f[m, 11:13] = (1.0, 0.0) if lobes is None else lobes[m]
+        if model.lobe is not None:
+            f[m, 13], f[m, 14:21] = 1.0, model.lobe
     return PairHeader(u, f)
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..coords import bin_angles
+from ..transforms import from_lobe, lobe_rows
 from .buffers import bin_weight, mix_channels
 from .layouts import channel_terms
 
@@ -76,6 +77,8 @@ def sparse_profile(model, ensemble, n_d: int = 3) -> np.ndarray:
     w = bin_weight(np.arange(n1)[None, :, None], js[:, None, None],
                    np.arange(n3)[None, None, :], model.shape, model.transform,
                    model.gain)
+    if model.lobe is not None:  # a lobe transform: x from the coded values and the lobe
+        xs = from_lobe(xs, w, lobe_rows(model.lobe, model.shape)[:, None, :, None])
     with np.errstate(over="ignore"):  # fit_lobe treats a non-finite profile
         rho = np.maximum(np.expm1(xs) / w, 0.0)  # (3, len(js), n1, n3)
     return rho.mean(axis=3).sum(axis=(0, 1)) / (3 * js.size)
