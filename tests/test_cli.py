@@ -118,8 +118,8 @@ def test_info_on_a_sbrdf_shows_what_the_file_holds(tmp_path, capsys):
     assert main(["info", str(old), "--json"]) == 0
     v1 = json.loads(capsys.readouterr().out)
     assert (v1["version"], v1["codec"]) == (1, None)
-    assert v1["bytes"] == old.stat().st_size == file_size(info["coefficients_total"],
-                                                          len(model.name.encode()))
+    assert v1["bytes"] == old.stat().st_size == file_size(
+        info["coefficients_total"], len(model.name.encode()), model.transform)
     assert v1["coefficients"] == info["coefficients"]
     # a material that is not a file of coefficients has none of these keys
     assert main(["info", "mitsuba:cu-ggx-0.12", "--json"]) == 0

@@ -324,7 +324,9 @@ def encode_samples(samples: Samples, ensemble: Ensemble | str | None = None,
         raise UsageError(f"encode_samples: the atom prior is of ensemble "
                          f"{prior.ensemble_id}, not {ens.id}")
     t0 = time.perf_counter()
-    model = _recover(samples, ens, n, spec.transforms, folds, candidates, seed, prior)
+    # "auto" from samples: the ensemble's own pair (a lobe needs the material's table)
+    names = ens.transforms if transform == "auto" else spec.transforms
+    model = _recover(samples, ens, n, names, folds, candidates, seed, prior)
     if n_bytes is not None:
         model = fit_bytes(model, n_bytes, spec.version)
     model.stats["seconds"] = time.perf_counter() - t0

@@ -160,11 +160,11 @@ def add_encode(sub) -> None:
                         "budget decides)")
     e.add_argument("--transform", default=default_of(encode, "transform"),
                    choices=ENCODE["transform"],
-                   help="auto: the one --selector prefers among the ensemble's; lobe: "
-                        "the one it prefers of log-lobe(-cosine), each material coded "
-                        "relative to a GGX lobe fitted to it (glossy, coloured highlights); "
-                        "log-level(-cosine): the knee at the material's own level "
-                        "(docs/method.md, Transforms)")
+                   help="auto: the one --selector prefers of log-lobe(-cosine), each "
+                        "material coded relative to a GGX lobe fitted to it (over an "
+                        "ensemble trained for the paper's transforms: those); lobe: the "
+                        "lobe pair over any ensemble; or one transform (docs/method.md, "
+                        "Transforms)")
     e.add_argument("--selector", default=default_of(encode, "selector"),
                    choices=ENCODE["selector"],
                    help="how auto picks the transform: the smaller render-proxy error, or "

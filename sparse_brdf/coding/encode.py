@@ -45,7 +45,7 @@ from .projection import (
     search_many,
     select,
 )
-from .spec import DEFAULT_N_COEFFS, ENCODE_OPTIONS, SELECTORS, EncodeSpec
+from .spec import DEFAULT_N_COEFFS, ENCODE_OPTIONS, SELECTORS, EncodeSpec, auto_transforms
 
 #: The ``stats["transforms"][t]`` entry each selector minimises.
 SELECTOR_KEYS = {"gamma-mse": "gamma_mse", "render": "render_proxy"}
@@ -71,14 +71,14 @@ def error_curve(brdf: BRDF, ens: Ensemble, counts: list[int]) -> dict:
     "gamma_mse": [...], "mse": [...]}, "chosen": [...]}`` (one projection per transform).
     """
     check_grid_matches(brdf, ens)
-    proj = {t: project_all(brdf, ens, t, max(counts)) for t in ens.transforms}
-    material = materials_of(brdf, ens.transforms)
+    names = auto_transforms(ens)
+    proj = {t: project_all(brdf, ens, t, max(counts)) for t in names}
+    material = materials_of(brdf, names)
     out: dict = {"counts": list(counts), "chosen": []}
-    out.update({t: {"rae": [], "cos_snr": [], "gamma_mse": [], "mse": []}
-                for t in ens.transforms})
+    out.update({t: {"rae": [], "cos_snr": [], "gamma_mse": [], "mse": []} for t in names})
     for n in counts:
         stats = {}
-        for t in ens.transforms:
+        for t in names:
             rec = select(proj[t], n, None, brdf.name, *material[t]).decode(
                 ens, valid=brdf.valid).values
             ref, flat = brdf.values[brdf.valid], rec[brdf.valid]
@@ -169,7 +169,10 @@ def encode(
         relative to the total ||Y||^2 (the basis is orthonormal, so that is the
         transformed R, G, B energy in either basis).
     transform : str
-        ``"auto"`` (``selector`` picks), ``"log-plus"`` or ``"log-plus-cosine"``.
+        ``"auto"`` (``selector`` picks among :func:`~sparse_brdf.coding.spec.
+        auto_transforms`: the lobe pair over the default ensemble, the paper's pair over
+        the paper's), ``"lobe"`` (the lobe pair over any ensemble) or one of
+        ``TRANSFORMS``.
     fill_iters : int, optional
         Rounds of filling (see ``fill``); None: ``DEFAULT_FILL_ITERS[fill]`` (3 for
         either); 0 disables filling (the paper fits every invalid bin as zero).

@@ -83,9 +83,10 @@ class Ensemble:
 
     @property
     def transforms(self) -> tuple[str, ...]:
-        """The transforms this ensemble was trained for (``meta["transforms"]``): those an
-        ``auto`` encoding chooses among. The paper's two where the provenance does not
-        say (ensembles built by hand, or trained before the relative transforms)."""
+        """The transforms this ensemble was trained for (``meta["transforms"]``), from
+        which :func:`~sparse_brdf.coding.spec.auto_transforms` decides what an ``auto``
+        encoding chooses among. The paper's two where the provenance does not say
+        (ensembles built by hand, or trained before the relative transforms)."""
         names = self.meta.get("transforms")
         if not names and "parts" in self.meta:  # a union: the parts' transforms
             names = [t for part in self.meta["parts"] for t in part.get("transforms", [])]

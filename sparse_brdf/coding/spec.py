@@ -23,6 +23,7 @@ from ..paths import DEFAULT_ENSEMBLE_ID, PAPER_ENSEMBLE_ID
 from ..transforms import (
     COLOUR_BASES,
     LOBE_TRANSFORMS,
+    PAPER_TRANSFORMS,
     TRANSFORMS,
     check_basis,
     check_transform,
@@ -94,8 +95,8 @@ class EncodeSpec:
     transform : str
         ``"auto"``, ``"lobe"`` or the one transform asked for.
     transforms : tuple of str
-        The transforms tried: the ensemble's for ``"auto"``, the lobe pair for ``"lobe"``,
-        else ``(transform,)``.
+        The transforms tried: :func:`auto_transforms` for ``"auto"`` (the lobe pair over
+        the default ensemble), the lobe pair for ``"lobe"``, else ``(transform,)``.
     selector, fill, basis, budget : str
         The encoder's options (``SELECTORS``, ``FILLS``, ``COLOUR_BASES``, ``BUDGETS``),
         ``budget`` resolved from ``basis`` when not given.
@@ -142,7 +143,7 @@ class EncodeSpec:
         max_error : float, optional
             In [0, 1).
         transform : str
-            ``"auto"`` (the ensemble's transforms), ``"lobe"`` (the lobe pair,
+            ``"auto"`` (:func:`auto_transforms`), ``"lobe"`` (the lobe pair,
             ``LOBE_TRANSFORMS``) or one of ``TRANSFORMS``.
         version : int
             The ``.sbrdf`` version of a byte budget.
@@ -167,7 +168,7 @@ class EncodeSpec:
         if max_error is not None:
             check("max_error", max_error, PARAMETERS["max_error"])
         o = check_options(**options)
-        names = (ens.transforms if transform == "auto" else LOBE_TRANSFORMS
+        names = (auto_transforms(ens) if transform == "auto" else LOBE_TRANSFORMS
                  if transform == "lobe" else (check_transform(transform),))
         if n_bytes is not None:
             check("n_bytes", n_bytes, N_BYTES)
@@ -191,6 +192,17 @@ class EncodeSpec:
             f"n_coeffs={self.n_coeffs}"
         return (f"EncodeSpec(ensemble={self.ensemble.id}, {size}, transforms="
                 f"{list(self.transforms)}, max_error={self.max_error}, {self.options})")
+
+
+def auto_transforms(ens: Ensemble) -> tuple[str, ...]:
+    """The transforms ``encode(transform="auto")`` chooses among over ``ens``: the lobe
+    pair (``docs/method.md``, "Transforms"), whose log ratios to a material's own lobe
+    have the relative precision that ensembles trained for the relative or level pairs
+    code; over an ensemble trained for the paper's transforms alone (or one that does not
+    say, :attr:`Ensemble.transforms`), those, so that ``--paper`` keeps the paper's
+    model."""
+    own = ens.transforms
+    return own if set(own) <= set(PAPER_TRANSFORMS) else LOBE_TRANSFORMS
 
 
 def encoder_ensemble(ensemble: Ensemble | str | os.PathLike | None,
@@ -229,5 +241,5 @@ def check_options(**options) -> dict:
 
 
 __all__ = ["BUDGETS", "DEFAULT_FILL_ITERS", "DEFAULT_N_COEFFS", "ENCODE_OPTIONS", "FILLS",
-           "EncodeSpec", "PAPER_OPTIONS", "PARAMETERS", "SELECTORS", "check_options",
-           "encoder_ensemble"]
+           "EncodeSpec", "PAPER_OPTIONS", "PARAMETERS", "SELECTORS", "auto_transforms",
+           "check_options", "encoder_ensemble"]
