@@ -188,6 +188,18 @@ def point_rho_from_cos(x0: float, x1: float, x2: float, c: float, use_cos: bool,
     return point_rho(x0, x1, x2, 1.0 / ((point_weight(c) if use_cos else 1.0) * s))
 
 
+def point_rho_lobe(ops: Ops, shape: Shape, xs, c: float, use_cos: bool, s: float, lobe,
+                   i: int) -> tuple:
+    """:func:`point_rho_from_cos` for a lobe transform's material in a scalar variant:
+    the bin's weight, the lobe's x (:func:`lobe_x`, the lobe at theta_h row ``i``), the
+    inverse transform; 0 where the bin is invalid (c <= 0)."""
+    if not c > 0.0:
+        return (0.0, 0.0, 0.0)
+    w = (point_weight(c) if use_cos else 1.0) * s
+    xs = lobe_x(ops, xs, w, lobe_d(ops, shape, i, lobe[0]), lobe)
+    return point_rho(xs[0], xs[1], xs[2], 1.0 / w)
+
+
 def rho_from_x(ops: Ops, xs, valid, w) -> list | tuple:
     """The inverse transform of the transformed values ``xs`` (R, G, B: its first three
     items) at a bin (or point) of validity ``valid`` (1 or 0, or interpolated) and weight

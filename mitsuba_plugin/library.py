@@ -39,9 +39,8 @@ from .kernels import (
     lobe_d_at,
     lobe_x,
     nearest_bins,
-    point_rho,
     point_rho_from_cos,
-    point_weight,
+    point_rho_lobe,
     rho_from_x,
     shared_shape,
 )
@@ -291,11 +290,8 @@ def _point_rho(lib, idx: int, wi, wo, active: bool):
     xs = lib._lookup.point(idx, *bins)
     c = cos_terms(ops, sh, *bins)
     if lobe is not None:
-        if not c > 0.0:
-            return lib._zero3
-        w = (point_weight(c) if use_cos > 0.5 else 1.0) * scale
-        xs = lobe_x(ops, xs, w, lobe_d_at(ops, sh, bins, None, lobe[0]), lobe)
-        return lib._m.Color3f(*point_rho(*xs, 1.0 / w))
+        return lib._m.Color3f(*point_rho_lobe(ops, sh, xs, c, use_cos > 0.5, scale, lobe,
+                                              bins[0]))
     return lib._m.Color3f(*point_rho_from_cos(*xs, c, use_cos > 0.5, scale))
 
 

@@ -36,9 +36,8 @@ from .kernels import (
     lobe_x,
     mix_colour,
     nearest_bins,
-    point_rho,
     point_rho_from_cos,
-    point_weight,
+    point_rho_lobe,
     rho_from_x,
     shared_shape,
 )
@@ -311,15 +310,7 @@ class ScalarRho:
         else:
             (x0, x1, x2), c = buf.lookup.point(*bins), cos_terms(ops, sh, *bins)
         if self._lobe is not None:
-            return self._m.Color3f(*self._lobe_point((x0, x1, x2), c, bins))
+            return self._m.Color3f(*point_rho_lobe(ops, sh, (x0, x1, x2), c, self._cos_on,
+                                                   self._scale, self._lobe, bins[0]))
         return self._m.Color3f(*point_rho_from_cos(x0, x1, x2, c, self._cos_on,
                                                    self._scale))
-
-    def _lobe_point(self, xs, c: float, bins) -> tuple:
-        """One bin of a lobe material: its weight, the lobe's x, the inverse transform."""
-        if not c > 0.0:
-            return (0.0, 0.0, 0.0)
-        w = (point_weight(c) if self._cos_on else 1.0) * self._scale
-        xs = lobe_x(self._ops, xs, w, lobe_d_at(self._ops, self._shape, bins, None,
-                                                self._lobe[0]), self._lobe)
-        return point_rho(*xs, 1.0 / w)

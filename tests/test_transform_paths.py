@@ -34,8 +34,8 @@ from mitsuba_plugin.kernels import (  # noqa: E402
     bin_weight,
     lobe_d_at,
     lobe_x,
-    point_rho,
     point_rho_from_cos,
+    point_rho_lobe,
     point_weight,
     rho_from_x,
     shared_shape,
@@ -119,9 +119,8 @@ def _inverse_on_three_paths(transform, bins_and_x):
         if lobe is None:
             rho_pt.append(point_rho_from_cos(*v, float(cv), cos_on, s))
             continue
-        wp = (point_weight(float(cv)) if cos_on else 1.0) * s
-        d = lobe_d_at(pt_ops, pt_shape, (int(bins[0][n]),), None, lobe[0])
-        rho_pt.append(point_rho(*lobe_x(pt_ops, v, wp, d, lobe), 1.0 / wp))
+        rho_pt.append(point_rho_lobe(pt_ops, pt_shape, v, float(cv), cos_on, s, lobe,
+                                     int(bins[0][n])))
     # a lobe material's dim values are a float32 ratio to its bright lobe: their absolute
     # error scales with the lobe (here 1e-10 of the largest value)
     atol = 1e-7 if lobe is None else 1e-10 * float(np.abs(rho_np).max())
