@@ -16,10 +16,10 @@ from ..brdf import BRDF
 from ..parallel import parallel_map
 from ..transforms import (
     check_transform,
-    fit_base_lobe,
     forward,
     has_lobe,
     material_gain,
+    material_lobe,
     to_basis,
 )
 from .coefficients import SparseBRDF
@@ -262,7 +262,7 @@ def materials_of(brdf: BRDF, transforms) -> dict[str, tuple[float, tuple | None]
     transforms without them), as :func:`~sparse_brdf.transforms.forward` computes them;
     the lobe, which depends on the material only, fitted once."""
     rho, valid = brdf.channel_first(), brdf.valid
-    lobe = fit_base_lobe(rho, valid) if any(has_lobe(t) for t in transforms) else None
+    lobe = next((material_lobe(t, rho, valid) for t in transforms if has_lobe(t)), None)
     return {t: (material_gain(t, rho, valid), lobe if has_lobe(t) else None)
             for t in transforms}
 
