@@ -466,11 +466,11 @@ def test_sizes_and_steps():
 
 def test_step_exponent_follows_its_rules():
     assert ff.step_exponent(np.zeros(0)) == 0 and ff.step_exponent(np.zeros(5)) == 0
-    v = np.array([1.0, 1.0] + [4096.0] * 18)  # the 10th percentile / 8 rules: 2^(k/4) = 1/8
-    assert ff.step_exponent(v) == -12
-    v = np.full(20, 4096.0)  # top / 4096 = 1 rules
+    v = np.array([1.0, 1.0] + [4096.0] * 18)  # the 10th percentile / 2 rules: 2^(k/4) = 1/2
+    assert ff.step_exponent(v) == -4
+    v = np.full(20, 4096.0)  # top / 256 = 32 rules
     v[0] = 8192.0
-    assert ff.step_exponent(v) == 4
+    assert ff.step_exponent(v) == 20
     # a tiny 10th percentile: the step stops at 2^-22 of the largest
     v = np.array([1e-30] * 2 + [1.0] * 18)
     assert ff.step_exponent(v) == 4 * (math.frexp(1.0)[1] - 22)
@@ -843,7 +843,7 @@ def test_brdf_metric_edge_cases():
 
 def test_step_exponent_at_its_limits():
     # the 10th percentile of 11 values is the second smallest
-    assert ff.step_exponent(np.array([1e-3] + [1.0] * 10)) == -48
+    assert ff.step_exponent(np.array([1e-3] + [1.0] * 10)) == -32  # 1 / 256, not 1e-3 / 2
     # below 2^-126 steps stop at 2^-126
     assert ff.step_exponent(np.array([1e-40])) == ff._K_MIN
     # values on the grid one finer than the rule's (the rule capped by |q| <= 2^22):

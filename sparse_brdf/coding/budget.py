@@ -39,13 +39,14 @@ from .spec import N_BYTES, EncodeSpec
 #: The byte budget of a file (at least its header, name and checksum: :func:`check_budget`).
 PARAMETERS = {"n_bytes": N_BYTES}
 #: First guess of the bytes per coefficient beyond the fixed part, per file version, as
-#: ``(a, b)``: a - b ln(total coefficients). Version 2 compresses: measured 2.2-2.4 bytes
-#: at 180 coefficients, 1.8-1.9 at 1,200 and 1.5-1.7 at 7,500 on six merl training
-#: materials (2026-12-03); the guess is 0.95 of that fit, a little on the low side, so
+#: ``(a, b)``: a - b ln(total coefficients). Version 2 compresses: with the step rule of
+#: 2026-12-07, measured 1.9-2.0 bytes at 180 coefficients, 1.4-1.5 at 1,200 and 1.3-1.4
+#: at 7,500 on six merl training materials (the default encoder); the guess is 0.95 of
+#: that fit, a little on the low side, so
 #: that the first count tends to overshoot the budget by a few per cent and is trimmed
 #: rather than grown. The dictionary search runs at that count, so the closer the guess
 #: the better the dictionaries suit the count that fits. Version 1: 8 bytes, exactly.
-BYTES_GUESS = {1: (8.0, 0.0), 2: (3.07, 0.173)}
+BYTES_GUESS = {1: (8.0, 0.0), 2: (2.22, 0.116)}
 #: Without fill rounds to revise the count in: the largest share of an encoding's
 #: coefficients a trim may drop and still be the result; a larger trim re-encodes at the
 #: count that fitted, so that the encoder's own choices (transform, dictionaries) are made

@@ -11,16 +11,17 @@ dictionaries, counts, name length) and end with a CRC-32 of every preceding byte
   payload. The payload holds each channel's locations, sorted and delta-coded, then each
   channel's quantised values q (value = q 2^(k/4)), all as LEB128 varints (q
   zigzag-mapped), stored as is, deflated (zlib) or LZMA2-compressed (lzma), whichever is
-  smallest. 72 + L + P bytes: about 2 bytes per coefficient at 262 per channel.
+  smallest. 72 + L + P bytes: about 1.7 bytes per coefficient at 300 per channel.
 
 Quantisation (version 2): channel c's step is 2^(k_c/4), the largest such step at most
-1/4096 of the channel's largest |value| and at most 1/8 of its 10th-percentile |value|
+1/256 of the channel's largest |value| and at most 1/2 of its 10th-percentile |value|
 (but not below 2^-22 of the largest, nor 2^-126; :func:`step_exponent`). Every decoded
 value is within half a step of the encoded one (plus float32 rounding, 2^-24 relative):
-at most max|value| / 8192 and 1/16 of the 10th-percentile |value|. Measured on real
-materials, this changes the reconstruction's cosine-weighted SNR by < 0.03 dB
-(``docs/file-format.md``). Values already on a grid (a file read back) are written back
-unchanged.
+at most max|value| / 512 and 1/4 of the 10th-percentile |value|. The rule is chosen at
+equal bytes: in a file of a given size it leaves room for about 20 % more coefficients
+than the finer rule of files written before 2026-12-07 (1/4096, 1/8), which renders
+better (``docs/file-format.md``). Values already on a grid, down to that finer rule's (a
+file read back), are written back unchanged.
 """
 
 from __future__ import annotations
@@ -78,8 +79,14 @@ _LZMA_READ = [{"id": lzma.FILTER_LZMA2, "dict_size": 1 << 20}]
 _VARINT_MAX = 5
 #: Quantisation (version 2): step <= max|value| / 2^_STEP_BITS and <= the 10th-percentile
 #: |value| / _STEP_REF_DIV; |q| <= 2^_Q_BITS, so that float32(q step) / step rounds to q
-#: (a file read back is recognised: :func:`step_exponent`).
-_STEP_BITS, _STEP_REF_DIV, _Q_BITS = 12, 8, 22
+#: (a file read back is recognised: :func:`step_exponent`). The rule is chosen at equal
+#: bytes (docs/file-format.md, "Quantisation and its bound"): a coarser step leaves room
+#: for more coefficients, which gain more than the step loses.
+_STEP_BITS, _STEP_REF_DIV, _Q_BITS = 8, 2, 22
+#: The finest rule a writer has used (files written before 2026-12-07: 1/4096 of the
+#: largest, 1/8 of the 10th percentile): values on a grid down to it are written back
+#: on that grid, so reading any file and writing it again gives the same values.
+_STEP_FINEST = (12, 8)
 #: 2^(r/4), r = 0..3 (the steps are 2^(k/4) = 2^(k >> 2) times one of these).
 _QUARTERS = (1.0, 1.189207115002721, 1.4142135623730951, 1.681792830507429)
 #: Step exponents: i16 in the file; the writer keeps 2^(k/4) a normal float32.
@@ -220,25 +227,33 @@ def step(k: int) -> float:
 
 def step_exponent(values: np.ndarray) -> int:
     """The quantisation step exponent k (step 2^(k/4)) of one channel's ``values``, as the
-    writer chooses it (module doc): the largest k with step <= max|v| / 4096 and <= the
-    10th-percentile |v| / 8, but step >= max|v| 2^-22 (|q| <= 2^22). Values already on
-    the grid of k - 1, k or k + 1 (a file read back) keep it, so they are written back
-    unchanged. ``values`` are read as float32, as a model holds them."""
+    writer chooses it (module doc): the largest k with step <= max|v| / 256 and <= the
+    10th-percentile |v| / 2, but step >= max|v| 2^-22 (|q| <= 2^22). Values already on a
+    grid between k + 1 and the finest rule's (``_STEP_FINEST``: a file read back, written
+    by this writer or an earlier one) keep the coarsest such grid, so they are written
+    back unchanged. ``values`` are read as float32, as a model holds them."""
     v = np.asarray(values, np.float32).astype(np.float64)
     a = np.abs(v)
     top = float(a.max()) if a.size else 0.0
     if top == 0.0:
         return 0
     ref = float(np.sort(a)[(a.size - 1) // 10])
-    want = min(top / 2.0**_STEP_BITS, ref / _STEP_REF_DIV)
-    k = math.floor(4 * math.log2(want)) if want > 0 else _K_MIN
-    k = min(max(k, 4 * (math.frexp(top)[1] - _Q_BITS), _K_MIN), _K_MAX)
-    for cand in (c for c in (k + 1, k, k - 1) if _K_MIN <= c <= _K_MAX):
+    k = _rule_exponent(top, ref, _STEP_BITS, _STEP_REF_DIV)
+    finest = min(_rule_exponent(top, ref, *_STEP_FINEST), k) - 1
+    for cand in range(min(k + 1, _K_MAX), max(finest, _K_MIN) - 1, -1):
         q = np.rint(v / step(cand))
         if np.abs(q).max() <= 2.0**(_Q_BITS + 1) and np.array_equal(
                 (q * step(cand)).astype(np.float32), v):
             return cand
     return k
+
+
+def _rule_exponent(top: float, ref: float, bits: int, div: int) -> int:
+    """The largest k with 2^(k/4) <= top / 2^bits and <= ref / div, clamped to |q| <=
+    2^22 and to the exponents a file holds: the step rule of :func:`step_exponent`."""
+    want = min(top / 2.0**bits, ref / div)
+    k = math.floor(4 * math.log2(want)) if want > 0 else _K_MIN
+    return min(max(k, 4 * (math.frexp(top)[1] - _Q_BITS), _K_MIN), _K_MAX)
 
 
 def _payload(model: SparseBRDF) -> tuple[list[int], bytes]:
