@@ -12,7 +12,9 @@ loaded first).
 
 ``--whole``: times the commands a user runs, each a new process (imports, loading the
 material from the tabulation cache, encoding, writing the file): ``sparse-brdf encode SRC
--o OUT`` (262 per channel) and ``sparse-brdf encode SRC -o OUT --bytes 6300``. The
+-o OUT`` (the default size: at most 1,700 bytes; 262 per channel before 2026-12-07,
+as a ``--code`` checkout of then runs it) and ``sparse-brdf encode SRC -o OUT --bytes
+6300``. The
 package is compiled to bytecode first, as an installed package is. With
 ``--also "ARGS"`` each command also runs with ARGS appended (e.g. the lobe pair,
 ``--transform lobe``), interleaved with the plain one. With
@@ -43,7 +45,7 @@ from sparse_brdf import Ensemble, encode, get_corpus
 from sparse_brdf.paths import shared_data_dir
 
 #: The whole commands timed by ``--whole``: name -> extra arguments of ``encode``.
-COMMANDS = {"encode (262 per channel)": [], "encode --bytes 6300": ["--bytes", "6300"]}
+COMMANDS = {"encode (the default size)": [], "encode --bytes 6300": ["--bytes", "6300"]}
 
 
 def _materials(args) -> tuple[str, list]:
@@ -176,7 +178,7 @@ def main() -> None:
                    "bench's sparse model specs), applied to every timed encode (in-process)")
     p.add_argument("--repeats", type=int, default=3, help="timings per material (median)")
     p.add_argument("--whole", action="store_true",
-                   help="time whole `sparse-brdf encode` commands (262 per channel and "
+                   help="time whole `sparse-brdf encode` commands (the default size and "
                         "--bytes 6300), each a new process")
     p.add_argument("--code", help="with --whole: another checkout to time interleaved "
                                   "with this one, and to compare files with")

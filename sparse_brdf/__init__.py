@@ -6,10 +6,10 @@ decode/render -> evaluate.
 
 >>> import sparse_brdf as sb
 >>> brdf = sb.load_brdf("mitsuba:au-ggx-0.25")          # (90, 90, 180, 3) linear RGB
->>> model = sb.encode(brdf, n_coeffs=262)                # shipped ensemble
->>> paper = sb.encode(brdf, **sb.PAPER_OPTIONS)          # the paper's encoder
->>> sb.save_sbrdf("gold.sbrdf", model)                   # about 1.6 kB (version 2)
->>> small = sb.encode_to_bytes(brdf, n_bytes=1000)       # a file of at most 1000 bytes
+>>> model = sb.encode(brdf)                             # shipped ensemble, default size
+>>> sb.save_sbrdf("gold.sbrdf", model)                   # at most 1,700 bytes (version 2)
+>>> paper = sb.encode(brdf, n_coeffs=262, **sb.PAPER_OPTIONS)  # the paper's model
+>>> small = sb.encode(brdf, n_bytes=1000)                # a file of at most 1000 bytes
 >>> summary = sb.encode_batch("materials/", "coded/")    # a folder: .sbrdf files, summary
 >>> rec = model.decode(sb.Ensemble.default())            # back to a BRDF
 >>> net = sb.train_nbrdf(brdf, time_budget=120)          # a Neural-BRDF network (675 floats)
@@ -28,7 +28,13 @@ from .coding.encode import encode
 from .coding.ensemble import Ensemble
 from .coding.fileformat import decode_file, load_sbrdf, save_sbrdf
 from .coding.interpolate import interpolate
-from .coding.spec import DEFAULT_N_COEFFS, ENCODE_OPTIONS, PAPER_OPTIONS, EncodeSpec
+from .coding.spec import (
+    DEFAULT_N_BYTES,
+    DEFAULT_N_COEFFS,
+    ENCODE_OPTIONS,
+    PAPER_OPTIONS,
+    EncodeSpec,
+)
 from .compared.neural import NeuralFit, train_nbrdf
 from .compared.protocol import ComparedModel, CompressedBRDF
 from .errors import BRDFFileError, EnsembleMismatchError, InvalidBRDFError, SparseBRDFError
@@ -55,7 +61,7 @@ __version__ = "0.1.0"
 
 __all__ = [
     "BRDF", "BRDFFileError", "ComparedModel", "CompressedBRDF", "Corpus",
-    "DEFAULT_N_COEFFS", "ENCODE_OPTIONS", "EncodeSpec", "Ensemble",
+    "DEFAULT_N_BYTES", "DEFAULT_N_COEFFS", "ENCODE_OPTIONS", "EncodeSpec", "Ensemble",
     "EnsembleMismatchError", "FlipResult", "PAPER_OPTIONS",
     "InvalidBRDFError", "Material", "NeuralFit", "SNRForms", "Samples", "SparseBRDF",
     "SparseBRDFError", "TRANSFORMS", "cosine_weighted_snr", "decode_file", "encode",

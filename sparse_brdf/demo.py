@@ -4,16 +4,16 @@ Runs on the embedded default: the shipped ensemble, the shipped scenes and the s
 measured MERL materials shipped with the package (built-in corpus ``merl-demo``, all in
 the test split: the ensemble never saw them). Into ``demo_out/`` (or ``--out``):
 
-1. encode every measured material at the default budget (``DEFAULT_N_COEFFS``
-   coefficients per channel, the paper's) with the default encoder (render-proxy
+1. encode every measured material at the default size (``.sbrdf`` files of at most
+   ``DEFAULT_N_BYTES`` bytes) with the default encoder (the lobe pair, render-proxy
    transform choice, free invalid bins, opponent colour basis), write its ``.sbrdf``,
    decode and measure it in BRDF space;
-2. bench them (``configs/demo.toml``): the sparse model at 128-1024 coefficients, the
-   paper's encoder at 262 and the baselines, rendered against the tabulated reference
-   with the same seed and sampling in the CC0 studio sphere and in the paper's scene
-   (when the Grace Cathedral map is in ``../shared/data``), every SNR in both forms
-   (whole-image, the paper's; object-only, the strict one) beside the noise floor; the
-   speed and size charts;
+2. bench them (``configs/demo.toml``): the sparse model at the default size and at 128
+   and 1024 coefficients per channel, the paper's encoder at 262 and the baselines,
+   rendered against the tabulated reference with the same seed and sampling in the CC0
+   studio sphere and in the paper's scene (when the Grace Cathedral map is in
+   ``../shared/data``), every SNR in both forms (whole-image, the paper's; object-only,
+   the strict one) beside the noise floor; the speed and size charts;
 3. the analytic corpus (built-in Mitsuba BSDFs, ``configs/demo_analytic.toml``): the
    same comparison where the separable naive model is nearly exact, said plainly.
 
@@ -36,11 +36,14 @@ from .benchmark.report import noise_floor_means, scenes_of, summary_table
 from .coding.encode import encode
 from .coding.ensemble import Ensemble
 from .coding.fileformat import save_sbrdf
-from .coding.spec import DEFAULT_N_COEFFS
+from .coding.spec import DEFAULT_N_BYTES
 from .fileio import atomic_path, atomic_write
 from .metrics import OBJECT_ONLY, WHOLE_IMAGE, cosine_weighted_snr, rae
 from .sources.corpora import get_corpus
 from .transforms import TRANSFORMS
+
+#: The bench's name of the default model (the spec ``sparse``: the default size).
+DEFAULT = f"sparse-b{DEFAULT_N_BYTES}"
 
 
 def _figure(rows, examples, path: Path) -> None:
@@ -57,7 +60,7 @@ def _figure(rows, examples, path: Path) -> None:
            color=["C0" if r["transform"] == TRANSFORMS[0] else "C1" for r in rows])
     ax.set_xticks(range(len(rows)), names, rotation=60, ha="right", fontsize=7)
     ax.set_ylabel("cosine-weighted SNR (dB)")
-    ax.set_title(f"Unseen materials at {DEFAULT_N_COEFFS} coefficients per channel "
+    ax.set_title(f"Unseen materials, files of at most {DEFAULT_N_BYTES} bytes "
                  f"(blue: {TRANSFORMS[0]}, orange: {TRANSFORMS[1]})")
     for row, (name, ref, rec) in enumerate(examples, start=1):
         k = ref.shape[2] // 2  # phi_d = 90 degrees
@@ -82,13 +85,13 @@ def _figure(rows, examples, path: Path) -> None:
 
 def encode_materials(out: Path, corpus: str, ens: Ensemble, figure: str | None = None
                      ) -> list[dict]:
-    """Encode a corpus's test materials at the default budget; one row per material."""
+    """Encode a corpus's test materials at the default size; one row per material."""
     rows, examples = [], []
     for m in get_corpus(corpus).split("test"):
         t0 = time.perf_counter()
         brdf = m.load()
         t1 = time.perf_counter()
-        model = encode(brdf, ens, DEFAULT_N_COEFFS)
+        model = encode(brdf, ens)
         t2 = time.perf_counter()
         path = save_sbrdf(out / f"{m.corpus}-{m.name}.sbrdf", model)
         rec = model.decode(ens, valid=brdf.valid)
@@ -175,22 +178,23 @@ def main(argv: list[str] | None = None) -> int:
     print("== 2. render them: sparse model and baselines against the tabulated reference "
           "(configs/demo.toml)")
     bench = run_bench("demo", out / "bench")
-    models = ["sparse-128", "sparse-262", "sparse-262-paper", "sparse-1024", "naive", "cpd-1"]
+    models = [DEFAULT, "sparse-128", "sparse-262-paper", "sparse-1024", "naive", "cpd-1"]
     table = render_table(bench, models)
     _print(table)
     md = ["# sparse-brdf demo", "",
-          f"Ensemble `{ens.id}` ({ens.n_dicts} dictionaries); {DEFAULT_N_COEFFS} coefficients "
-          "per channel unless a model name says otherwise; every material unseen in training. "
-          "`sparse-N` is today's encoder, `sparse-262-paper` the paper's (docs/results.md, "
-          "\"Accuracy at equal coefficients\").",
+          f"Ensemble `{ens.id}` ({ens.n_dicts} dictionaries); every material unseen in "
+          f"training. `{DEFAULT}` is today's encoder at the default size (files of at most "
+          f"{DEFAULT_N_BYTES} bytes), `sparse-N` the same at N coefficients per channel, "
+          "`sparse-262-paper` the paper's encoder (docs/results.md, \"Accuracy at equal "
+          "coefficients\").",
           "", "Rendering SNR in two forms: *object-only* (the pixels whose camera rays hit the "
           "sphere; the strict form) and *whole-image* (every pixel, the visible background "
           "included: the form the paper reports). Model and reference share seed and "
           "sampling, so the Monte Carlo noise cancels (the noise floor row is two reference "
           "renders with different seeds).", "",
           "## Measured materials (shipped: six MERL test materials)", "", *table, "",
-          f"Per material, sparse model at {DEFAULT_N_COEFFS} coefficients (dB):", "",
-          *per_material(bench, f"sparse-{DEFAULT_N_COEFFS}"), "",
+          f"Per material, sparse model at the default size, {DEFAULT} (dB):", "",
+          *per_material(bench, DEFAULT), "",
           "BRDF space:", "",
           "| material | transform | RAE | cos-weighted SNR (dB) | bytes | encode (s) |",
           "|---|---|---|---|---|---|",
@@ -205,7 +209,7 @@ def main(argv: list[str] | None = None) -> int:
         print("== 3. the analytic corpus (built-in Mitsuba BSDFs), where the naive model is "
               "nearly exact (configs/demo_analytic.toml)")
         analytic = run_bench("demo_analytic", out / "bench_analytic")
-        table2 = render_table(analytic, ["sparse-262", "sparse-262-paper", "sparse-1024",
+        table2 = render_table(analytic, [DEFAULT, "sparse-262-paper", "sparse-1024",
                                          "naive", "pca-40"])
         _print(table2)
         md += ["## Analytic materials (built-in Mitsuba BSDFs): where the baselines are close",

@@ -123,7 +123,7 @@ def test_encode_and_encode_to_bytes_check_once(ens, brdf, calls):
 @pytest.mark.parametrize("n_bytes", [None, 400])
 def test_encode_file_checks_once(ens, brdf, tmp_path, calls, n_bytes):
     src = write_merl(tmp_path / "m.binary", brdf)
-    encode_file(src, tmp_path / "m.sbrdf", ens[1], 20, n_bytes)
+    encode_file(src, tmp_path / "m.sbrdf", ens[1], None if n_bytes else 20, n_bytes)
     _once(calls)
     assert calls["check_new_output"] == 1 and calls["check_output"] == 1
 

@@ -379,9 +379,10 @@ def test_unusual_materials_encode_and_decode(capsys, tmp_path, ens_file, rgb, pa
     back = read_merl(dec)
     assert np.all(np.isfinite(back.values))
     for c, value in enumerate(rgb):
-        if value == 0:  # exact in the rgb basis; float32 rounding of the opponent mix
+        if value == 0:  # exact in the rgb basis; the opponent mix's quantisation (half
+            # a step, at most 1/512 of a channel's largest value; measured 1.4e-4 of max)
             assert np.abs(back.values[..., c]).max() <= (0 if paper
-                                                         else 1e-5 * max(rgb) + 1e-30)
+                                                         else 2e-3 * max(rgb) + 1e-30)
 
 
 def test_file_without_coefficients_decodes(capsys, tmp_path, sbrdf, ens_file):

@@ -23,7 +23,8 @@ from sparse_brdf.coding import budget
 from sparse_brdf.coding import fileformat as ff
 from sparse_brdf.coding.budget import encode_to_bytes, fit_bytes, truncate
 from sparse_brdf.coding.coefficients import SparseBRDF
-from sparse_brdf.coding.encode import encode, encode_with
+from sparse_brdf.coding.counted import encode_at
+from sparse_brdf.coding.encode import encode
 from sparse_brdf.coding.ensemble import Ensemble
 from sparse_brdf.coding.fileformat import (
     VERSION,
@@ -37,9 +38,9 @@ from sparse_brdf.coding.fileformat import (
     step_exponent,
     to_bytes,
 )
-from sparse_brdf.coding.spec import EncodeSpec
-from sparse_brdf.compared.specs import make_model
-from sparse_brdf.errors import BRDFFileError, EnsembleMismatchError
+from sparse_brdf.coding.spec import DEFAULT_N_BYTES, EncodeSpec
+from sparse_brdf.compared.specs import make_model, parse_spec
+from sparse_brdf.errors import BRDFFileError, EnsembleMismatchError, UsageError
 from sparse_brdf.sources.load import load_brdf
 from sparse_brdf.sources.merl import write_merl
 from sparse_brdf.transforms import fit_base_lobe, forward, from_basis
@@ -342,19 +343,19 @@ class _Steer:
         return truncate(model, self.keep)
 
 
-def test_encode_with_codes_the_revised_count_and_refits_the_trim(small_ensemble):
+def test_encode_at_codes_the_revised_count_and_refits_the_trim(small_ensemble):
     """The fill's later rounds use the count ``recount`` returns, the last fit's support
     is trimmed and its values fitted again; ``size=None`` is ``encode``."""
     brdf = load_brdf("mitsuba:plastic-red-ggx-0.3", shape=SMALL)
     steer = _Steer(7, 15)
-    m = encode_with(brdf, EncodeSpec.build(small_ensemble, 40), steer)
+    m = encode_at(brdf, EncodeSpec.build(small_ensemble, 40), steer)
     stats = m.stats["transforms"][m.transform]
     # per transform: a recount after the first fit (3 x 40, joint budget) and the second
     # (3 x 7), then the trim of the third fit's 21
     assert sorted(steer.seen) == sorted([("recount", 120), ("recount", 21), ("trim", 21)] * 2)
     assert int(m.n_coeffs.sum()) == 15 and stats["recount"] == [7, 7]
     assert stats["fill"]["fits"] == 4  # three rounds and the refit of the trimmed support
-    cut = truncate(encode_with(brdf, EncodeSpec.build(small_ensemble, 40,
+    cut = truncate(encode_at(brdf, EncodeSpec.build(small_ensemble, 40,
                                                       transform=m.transform),
                                _Steer(7, 21)), 15)  # the same support, not refitted
     assert all(np.array_equal(np.sort(a), np.sort(b))
@@ -367,12 +368,12 @@ def test_encode_with_codes_the_revised_count_and_refits_the_trim(small_ensemble)
 
     assert valid_residual(m) < valid_residual(cut)  # the refit lowers it
     plain = encode(brdf, small_ensemble, 40)
-    same = encode_with(brdf, EncodeSpec.build(small_ensemble, 40), None)
+    same = encode_at(brdf, EncodeSpec.build(small_ensemble, 40), None)
     for a, b in zip(plain.locations + plain.values, same.locations + same.values,
                     strict=True):
         np.testing.assert_array_equal(a, b)
     steer = _Steer(7, 15)
-    m0 = encode_with(brdf, EncodeSpec.build(small_ensemble, 40, fill="missing"), steer)
+    m0 = encode_at(brdf, EncodeSpec.build(small_ensemble, 40, fill="missing"), steer)
     assert not steer.seen and int(m0.n_coeffs.sum()) == 120  # no fill rounds: not steered
 
 
@@ -419,6 +420,39 @@ def test_cli_encode_bytes(tmp_path, capsys, small_ensemble):
                  str(ens)]) == 2
     err = capsys.readouterr().err
     assert "--bytes 40" in err and err.count("\n") == 1
+
+
+def test_the_default_size_is_a_byte_budget(tmp_path, capsys, small_ensemble):
+    """Without a size, every way to encode gives a file of at most DEFAULT_N_BYTES (the
+    library, the command, a batch, the bench's ``sparse``); a count is a count, both at
+    once are refused, and ``--paper`` keeps the paper's 262 per channel."""
+    brdf = load_brdf("mitsuba:cu-ggx-0.35", shape=SMALL)
+    m = encode(brdf, small_ensemble)
+    assert DEFAULT_N_BYTES - 60 < len(to_bytes(m)) <= DEFAULT_N_BYTES == 1700
+    assert m.stats["byte_budget"]["budget"] == DEFAULT_N_BYTES
+    assert "byte_budget" not in encode(brdf, small_ensemble, 30).stats
+    assert len(to_bytes(encode(brdf, small_ensemble, n_bytes=600))) <= 600
+    with pytest.raises(UsageError, match="n_coeffs or a byte budget n_bytes, not both"):
+        encode(brdf, small_ensemble, 30, n_bytes=600)
+    ens = small_ensemble.save(tmp_path / "ens.npz")
+    src = write_merl(tmp_path / "src.binary", brdf)
+    assert main(["encode", str(src), "-o", str(tmp_path / "a.sbrdf"), "--ensemble",
+                 str(ens)]) == 0
+    assert DEFAULT_N_BYTES - 60 < (tmp_path / "a.sbrdf").stat().st_size <= DEFAULT_N_BYTES
+    assert main(["encode", str(src), "-o", str(tmp_path / "p.sbrdf"), "--ensemble",
+                 str(ens), "--paper"]) == 0
+    assert load_sbrdf(tmp_path / "p.sbrdf", small_ensemble).n_coeffs.tolist() == [262] * 3
+    folder = tmp_path / "in"
+    folder.mkdir()
+    write_merl(folder / "src.binary", brdf)
+    assert main(["encode", str(folder), "-o", str(tmp_path / "out"), "--ensemble",
+                 str(ens), "--bytes", "900", "--workers", "1"]) == 0
+    (coded,) = (tmp_path / "out").glob("*.sbrdf")
+    assert 800 < coded.stat().st_size <= 900
+    capsys.readouterr()
+    assert make_model("sparse", small_ensemble).name == f"sparse-b{DEFAULT_N_BYTES}"
+    assert make_model("sparse:262", small_ensemble).name == "sparse-262"
+    assert parse_spec("sparse::paper").kwargs["n_coeffs"] == 262
 
 
 def test_bench_specs_with_byte_budgets(small_ensemble):

@@ -20,7 +20,7 @@ from sparse_brdf.errors import ConfigError, UsageError
 
 GOOD = {
     "sparse:262": ("sparse", "sparse-262"),
-    "sparse": ("sparse", "sparse-262"),
+    "sparse": ("sparse", "sparse-b1700"),  # the default size
     "sparse:32:log-plus": ("sparse", "sparse-32-log-plus"),
     "sparse:262:paper": ("sparse", "sparse-262-paper"),
     "sparse:262:auto:fill=missing": ("sparse", "sparse-262-fill=missing"),

@@ -30,7 +30,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..brdf import BRDF
-from ..coding.budget import encode_to_bytes_with, fit_bytes
+from ..coding.budget import fit_bytes
 from ..coding.coefficients import SparseBRDF
 from ..coding.encode import encode_with
 from ..coding.ensemble import Ensemble
@@ -305,8 +305,8 @@ def encode_samples(samples: Samples, ensemble: Ensemble | str | None = None,
         For the default prior when the training corpus is not on this machine.
     """
     check_choice("transform", transform, PARAMETERS["transform"])
-    spec = EncodeSpec.build(ensemble, n_coeffs, n_bytes, transform=transform,
-                            basis=ENCODE_OPTIONS["basis"])
+    spec = EncodeSpec.build(ensemble, None if n_bytes is not None else n_coeffs, n_bytes,
+                            transform=transform, basis=ENCODE_OPTIONS["basis"])
     ens, n = spec.ensemble, spec.n_coeffs
     check("folds", folds, PARAMETERS["folds"])
     check("candidates", candidates, PARAMETERS["candidates"])
@@ -386,8 +386,7 @@ def _pca_fallback(model: SparseBRDF, samples: Samples, spec: EncodeSpec, folds: 
         return model
     table = BRDF(pca.reconstruct(), np.array(basis.mask_[..., 0]), name=samples.name)
     full = replace(spec, transform="auto", transforms=ens.transforms)
-    alt = (encode_to_bytes_with(table, full) if spec.n_bytes is not None
-           else encode_with(table, full))
+    alt = encode_with(table, full)
     alt.stats = {**model.stats, "fallback": {"model": "pca", "n_coeffs": pca.info["n_coeffs"],
                                              "cv_cosine_error": pca_error,
                                              "sparse_cv_cosine_error": own}}

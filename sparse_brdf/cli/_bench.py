@@ -127,8 +127,9 @@ def add_bench_commands(sub) -> None:
                         "seeds, 1 unless it sets it)")
     b.add_argument("--model", action="append", metavar="SPEC",
                    help="compare this model instead of the config's models (repeat it for "
-                        "several): a built-in spec (sparse:262, naive, pca:40, tabulated, "
-                        "...) or module:Class[:KEY=VALUE,...], a class of your own imported "
+                        "several): a built-in spec (sparse, the default size; sparse:262, "
+                        "naive, pca:40, ...) or module:Class[:KEY=VALUE,...], a class of "
+                        "your own imported "
                         "from the Python path or the current directory "
                         "(docs/bench-guide.md; default: the config's models)")
     b.add_argument("--keep-work", action="store_true",

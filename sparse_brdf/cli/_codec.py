@@ -11,17 +11,15 @@ import time
 
 from ..batch import encode_batch, is_batch
 from ..coding import budget as budget_module
-from ..coding.budget import encode_to_bytes
 from ..coding.encode import encode
 from ..coding.fileformat import decode_file
 from ..coding.interpolate import PARAMETERS as INTERPOLATE
 from ..coding.interpolate import blend_files, interpolate
-from ..coding.spec import DEFAULT_FILL_ITERS, PAPER_OPTIONS
+from ..coding.spec import DEFAULT_FILL_ITERS, DEFAULT_N_BYTES, DEFAULT_N_COEFFS, PAPER_OPTIONS
 from ..coords import GRID_BINS
 from ..errors import (
     BRDFFileError,
     InvalidBRDFError,
-    UsageError,
 )
 from ..parallel import executor
 from ..sources.merl import write_merl
@@ -47,15 +45,15 @@ def cmd_encode(args: argparse.Namespace) -> int:
                "selector": args.selector, "fill": args.fill, "basis": args.basis}
     if args.paper:
         options.update(PAPER_OPTIONS)
+        if args.coeffs is None and args.bytes is None:  # the paper's size: a count
+            args.coeffs = DEFAULT_N_COEFFS
     if args.symmetrize is not None:
         options["symmetrize"] = args.symmetrize
     if is_batch(args.source):  # encode_batch checks its output folder and options, once
-        if args.bytes is not None:
-            raise UsageError("--bytes: byte budgets encode one material at a time (not a "
-                             "batch yet); give --coeffs for a batch")
         with executor(args.workers, args.scheduler) as ex:
             summary = encode_batch(args.source, args.output, args.ensemble,
-                                   {"n_coeffs": args.coeffs, **options}, ex)
+                                   {"n_coeffs": args.coeffs, "n_bytes": args.bytes,
+                                    **options}, ex)
         _note_capped(args, summary["grid"])
         return _report_batch(args, summary)
     # encode_file checks the output and the options, once, before any work
@@ -94,7 +92,7 @@ def _note_capped(args: argparse.Namespace, shape: tuple[int, ...]) -> None:
     """``--coeffs`` is a maximum: the library caps it at a channel's entries. Say so on
     stderr when the user gave a number beyond the grid; the default stays silent."""
     most = math.prod(shape)
-    if args.coeffs_given and args.coeffs > most:
+    if args.coeffs_given and args.coeffs is not None and args.coeffs > most:
         print(f"sparse-brdf: note: --coeffs {args.coeffs}: a channel of the "
               f"{'x'.join(map(str, shape))} grid holds {most} coefficients; encoded at "
               f"most {most}", file=sys.stderr)
@@ -147,12 +145,15 @@ def add_encode(sub) -> None:
                            "coefficients shared over the three coded channels where they "
                            "lower the error most, so one channel may hold more than N (e.g. "
                            "262 may give [475, 161, 150]); with --budget channel (--paper) at "
-                           "most N per channel. Capped to a channel's entries on a small grid")
+                           "most N per channel. Capped to a channel's entries on a small grid "
+                           f"(default: --bytes {DEFAULT_N_BYTES}; with --paper {DEFAULT_N_COEFFS}, "
+                           "the paper's)")
     size.add_argument("--bytes", type=typed(budget_module.PARAMETERS["n_bytes"]),
-                      default=default_of(encode_to_bytes, "n_bytes"), metavar="N",
+                      default=None, metavar="N",
                       help="byte budget instead: the .sbrdf file holds at most N bytes "
                            "(header included), the coefficients kept the largest over the "
-                           "channels (docs/file-format.md, Byte budgets; default: --coeffs)")
+                           "channels (docs/file-format.md, Byte budgets; default: "
+                           f"{DEFAULT_N_BYTES}, unless --coeffs or --paper)")
     e.add_argument("--max-error", type=typed(ENCODE["max_error"]),
                    default=default_of(encode, "max_error"),
                    help="stop adding coefficients once the relative squared residual in the "

@@ -23,7 +23,6 @@ from ..acquisition.files import read_samples, write_samples
 from ..acquisition.measurements import Samples
 from ..acquisition.planning import plan
 from ..acquisition.recovery import encode_samples
-from ..coding.budget import encode_to_bytes_with
 from ..coding.coefficients import SparseBRDF
 from ..coding.encode import encode_with
 from ..coding.ensemble import Ensemble
@@ -37,7 +36,7 @@ from ..sources.load import load_brdf
 
 def encode_file(source: str | os.PathLike, output: str | os.PathLike,
                 ensemble: Ensemble | str | os.PathLike | None = None,
-                n_coeffs: int = DEFAULT_N_COEFFS, n_bytes: int | None = None,
+                n_coeffs: int | None = None, n_bytes: int | None = None,
                 symmetrize: bool | None = None, **options) -> tuple[Path, SparseBRDF]:
     """Encode one material ``source`` (any BRDF source, ``sources.load``) into the
     ``.sbrdf`` file ``output`` (written atomically).
@@ -52,11 +51,11 @@ def encode_file(source: str | os.PathLike, output: str | os.PathLike,
     ensemble : Ensemble, path or id, optional
         Resolved once (:meth:`~sparse_brdf.coding.spec.EncodeSpec.build`; default: the
         shipped one).
-    n_coeffs : int
+    n_coeffs : int, optional
         Coefficients per channel, at most (capped at the ensemble's grid).
     n_bytes : int, optional
         A byte budget for the whole file (``coding.budget.encode_to_bytes``) instead of
-        ``n_coeffs``.
+        ``n_coeffs``; without either, the default size (``coding.spec.DEFAULT_N_BYTES``).
     symmetrize : bool, optional
         As :func:`~sparse_brdf.sources.load.load_brdf` (None: a network is symmetrised).
     **options
@@ -72,8 +71,7 @@ def encode_file(source: str | os.PathLike, output: str | os.PathLike,
         ensemble, Ensemble) else ensemble])
     spec = EncodeSpec.build(ensemble, n_coeffs, n_bytes, **options)
     brdf = load_brdf(source, symmetrize=symmetrize)
-    model = (encode_to_bytes_with(brdf, spec) if spec.n_bytes is not None
-             else encode_with(brdf, spec))
+    model = encode_with(brdf, spec)
     return save_sbrdf(out, model), model
 
 

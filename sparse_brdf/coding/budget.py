@@ -7,7 +7,7 @@ dictionaries being orthonormal, removes s^2 of squared error in the coded domain
 coefficients kept are the largest |s| over the three channels (:func:`fit_bytes`).
 
 How (``docs/file-format.md``, "Byte budgets"): one encoding
-(:func:`~sparse_brdf.coding.encode.encode_with`), whose dictionary search and first
+(:func:`~sparse_brdf.coding.counted.encode_at`), whose dictionary search and first
 least-squares fit use a coefficient count estimated from the budget (``first_count``).
 Between the fill's fits, the file of the current fit is measured and the next round is
 coded at the count that would fill the budget, aimed ``OVERSHOOT`` above it; after the
@@ -31,7 +31,7 @@ from ..brdf import BRDF
 from ..errors import UsageError
 from ..transforms import has_lobe
 from .coefficients import SparseBRDF
-from .encode import choose_transform, encode_with
+from .counted import choose_transform, encode_at
 from .ensemble import Ensemble
 from .fileformat import VERSION, as_stored, check_version, min_file_size, to_bytes
 from .spec import N_BYTES, EncodeSpec
@@ -59,7 +59,7 @@ MAX_TRIM = 0.0
 #: How far above the budget the count of the fill's next round is aimed: the file of a
 #: round's fit is measured, and the next round's values (hence their compressed size)
 #: differ by a few per cent, so the count aims a little high and the last fit is trimmed
-#: to the budget and fitted again (:func:`~sparse_brdf.coding.encode.encode_with`).
+#: to the budget and fitted again (:func:`~sparse_brdf.coding.counted.encode_at`).
 OVERSHOOT = 0.05
 #: The share of the budget (beyond the file's fixed part) the last fit is trimmed below
 #: the budget, so that its refit's new values still fit and the result is not trimmed
@@ -226,7 +226,7 @@ def encode_to_bytes_with(brdf: BRDF, spec: EncodeSpec) -> SparseBRDF:
     n = _clip(math.ceil(first_count(n_bytes - floor, version) / 3), atoms)
     joint = spec.joint
     size = _ByteSize(n_bytes, version, floor, atoms, joint) if RECOUNT else None
-    model = encode_with(brdf, dataclasses.replace(spec, n_coeffs=n), size)
+    model = encode_at(brdf, dataclasses.replace(spec, n_coeffs=n), size)
     if "recount" in model.stats["transforms"][model.transform]:  # one encoding did it
         return _finish(brdf, ens, model, _fit_bytes(model, n_bytes, version), n_bytes,
                        version, 1)
@@ -235,7 +235,7 @@ def encode_to_bytes_with(brdf: BRDF, spec: EncodeSpec) -> SparseBRDF:
     passes[n] = (model, _fit_bytes(model, n_bytes, version))
     n, trimmed = _next_count(*passes[n], n, n_bytes, floor, version, atoms, False, joint)
     while len(passes) < MAX_PASSES and n not in passes:
-        model = encode_with(brdf, dataclasses.replace(spec, n_coeffs=n))
+        model = encode_at(brdf, dataclasses.replace(spec, n_coeffs=n))
         passes[n] = (model, _fit_bytes(model, n_bytes, version))
         n, trimmed = _next_count(*passes[n], n, n_bytes, floor, version, atoms, trimmed,
                                  joint)

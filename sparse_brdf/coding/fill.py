@@ -26,7 +26,7 @@ from .projection import (
 
 
 class SizeControl(Protocol):
-    """What :func:`~sparse_brdf.coding.encode.encode_with` asks while the fill runs, of
+    """What :func:`~sparse_brdf.coding.counted.encode_at` asks while the fill runs, of
     one transform's model (its support and fitted values)."""
 
     def recount(self, model: SparseBRDF) -> int:
@@ -53,7 +53,7 @@ def fill_invalid(brdf: BRDF, ens: Ensemble, transforms: tuple[str, ...],
     for the three channels, so filling the coded channels is filling the transformed
     R, G, B (the basis is a per-bin 3 x 3 mix), and the channels' least squares
     problems are independent: the fits of every transform and channel run side by side.
-    ``size`` (:func:`~sparse_brdf.coding.encode.encode_with`) revises each transform's
+    ``size`` (:func:`~sparse_brdf.coding.counted.encode_at`) revises each transform's
     count between fits (a revised support is never taken as settled) and trims the last
     fit's support.
     """

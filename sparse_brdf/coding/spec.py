@@ -31,7 +31,12 @@ from ..transforms import (
 from .ensemble import Ensemble, resolve_ensemble
 from .fileformat import VERSION, check_version
 
+#: The paper's coefficient count per channel: the size of an encoding asked for by count
+#: without one (``n_coeffs``), and of the paper's model (``--paper``).
 DEFAULT_N_COEFFS = 262
+#: The default size of an encoding: a ``.sbrdf`` file (version 2) of at most this many
+#: bytes, when neither a count nor a byte budget is given (``docs/results.md``, section 0).
+DEFAULT_N_BYTES = 1700
 
 #: How ``encode(transform="auto")`` picks the transform (``docs/method.md``, "Encoding").
 SELECTORS: tuple[str, str] = ("gamma-mse", "render")
@@ -125,7 +130,7 @@ class EncodeSpec:
 
     @classmethod
     def build(cls, ensemble: Ensemble | str | os.PathLike | None = None,
-              n_coeffs: int = DEFAULT_N_COEFFS, n_bytes: int | None = None, *,
+              n_coeffs: int | None = None, n_bytes: int | None = None, *,
               max_error: float | None = None, transform: str = "auto",
               version: int = VERSION, **options) -> EncodeSpec:
         """Resolve and check an encoding request, once.
@@ -135,11 +140,14 @@ class EncodeSpec:
         ensemble : Ensemble, path, id or None
             Resolved by :func:`encoder_ensemble` (None: the shipped default, or for the
             paper's options the ensemble trained for the paper's transforms).
-        n_coeffs : int
-            At least 1; capped at a channel's entries on the ensemble's grid.
+        n_coeffs : int, optional
+            At least 1; capped at a channel's entries on the ensemble's grid. Not with
+            ``n_bytes``.
         n_bytes : int, optional
             A byte budget (at least 1; whether a material's file fits a coefficient in it
             is checked per material, :func:`~sparse_brdf.coding.budget.check_budget`).
+            Without either, ``DEFAULT_N_BYTES`` (then ``n_coeffs`` holds
+            ``DEFAULT_N_COEFFS``, the count the byte budget's search starts from).
         max_error : float, optional
             In [0, 1).
         transform : str
@@ -163,8 +171,14 @@ class EncodeSpec:
         EnsembleMismatchError, MissingFileError
             For an ensemble that cannot be resolved.
         """
+        if n_coeffs is not None and n_bytes is not None:
+            raise UsageError("give a coefficient count n_coeffs or a byte budget n_bytes, "
+                             "not both")
+        if n_coeffs is None and n_bytes is None:
+            n_bytes = DEFAULT_N_BYTES
         ens = encoder_ensemble(ensemble, options)
-        n = min(check("n_coeffs", n_coeffs, PARAMETERS["n_coeffs"]), int(np.prod(ens.shape)))
+        n = min(check("n_coeffs", DEFAULT_N_COEFFS if n_coeffs is None else n_coeffs,
+                      PARAMETERS["n_coeffs"]), int(np.prod(ens.shape)))
         if max_error is not None:
             check("max_error", max_error, PARAMETERS["max_error"])
         o = check_options(**options)
@@ -240,6 +254,6 @@ def check_options(**options) -> dict:
     return o
 
 
-__all__ = ["BUDGETS", "DEFAULT_FILL_ITERS", "DEFAULT_N_COEFFS", "ENCODE_OPTIONS", "FILLS",
-           "EncodeSpec", "PAPER_OPTIONS", "PARAMETERS", "SELECTORS", "auto_transforms",
-           "check_options", "encoder_ensemble"]
+__all__ = ["BUDGETS", "DEFAULT_FILL_ITERS", "DEFAULT_N_BYTES", "DEFAULT_N_COEFFS",
+           "ENCODE_OPTIONS", "FILLS", "EncodeSpec", "PAPER_OPTIONS", "PARAMETERS", "SELECTORS",
+           "auto_transforms", "check_options", "encoder_ensemble"]

@@ -3,8 +3,9 @@
 A spec is ``KIND`` or ``KIND:ARGS``; each kind of :data:`KINDS` states its own grammar:
 
 - ``sparse:N[:TRANSFORM][:OPTIONS]`` the paper's model
-  (:class:`~sparse_brdf.compared.sparse_model.SparseModel`). N: coefficients per channel
-  (default 262), or ``bN``: at most N bytes per ``.sbrdf`` file, header included. TRANSFORM:
+  (:class:`~sparse_brdf.compared.sparse_model.SparseModel`). N: coefficients per channel,
+  or ``bN``: at most N bytes per ``.sbrdf`` file, header included (default: the default
+  size, ``b1700``; 262 for the paper's encoder). TRANSFORM:
   auto (the default), log-plus or log-plus-cosine, and may be left out before the options.
   OPTIONS: ``paper`` (the paper's encoder, ``PAPER_OPTIONS``) and/or ``KEY=VALUE`` pairs
   separated by commas, the keyword options of :func:`~sparse_brdf.coding.encode.encode`
@@ -41,7 +42,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from ..coding.fileformat import VERSION, VERSIONS
-from ..coding.spec import DEFAULT_N_COEFFS, PAPER_OPTIONS
+from ..coding.spec import DEFAULT_N_BYTES, DEFAULT_N_COEFFS, PAPER_OPTIONS
 from ..errors import UsageError
 from ..params import check_choice
 from ._outside import load_outside_model, parse_value
@@ -137,6 +138,8 @@ def _parse_sparse(arg: str) -> dict:
     if version not in tuple(map(str, VERSIONS)):
         raise UsageError(f"version must be one of {', '.join(map(str, VERSIONS))}, "
                          f"got {version!r}")
+    if not n and n_bytes is None and options != PAPER_OPTIONS:  # the default size
+        n_bytes = DEFAULT_N_BYTES
     return {"n_coeffs": _integer(n, "N") if n else DEFAULT_N_COEFFS, "transform": transform,
             "n_bytes": n_bytes, "version": int(version), **options}
 
