@@ -14,6 +14,10 @@ Options beyond the paper (``encode(selector=, fill=, basis=, budget=)``), all on
 default: the transform chosen by the render-proxy error; every invalid bin a free value
 (hard thresholding pursuit on the valid bins); the channels coded in an opponent colour
 basis with a joint budget of 3 ``n_coeffs``. ``PAPER_OPTIONS`` gives the paper's encoder.
+
+The size: a count (``n_coeffs``, the paper's) or a byte budget (``n_bytes``,
+:mod:`~sparse_brdf.coding.budget`); by default files of at most ``DEFAULT_N_BYTES`` =
+1,700 bytes. The encoding at a count is :mod:`~sparse_brdf.coding.counted`'s.
 """
 
 from __future__ import annotations
@@ -150,7 +154,7 @@ def encode(
     EnsembleMismatchError
         If the BRDF's grid is not the ensemble's.
     UsageError
-        For an option out of its range or choices.
+        For an option out of its range or choices, or both ``n_coeffs`` and ``n_bytes``.
 
     See Also
     --------
