@@ -40,7 +40,7 @@ from .coding.spec import DEFAULT_N_BYTES
 from .fileio import atomic_path, atomic_write
 from .metrics import OBJECT_ONLY, WHOLE_IMAGE, cosine_weighted_snr, rae
 from .sources.corpora import get_corpus
-from .transforms import TRANSFORMS
+from .transforms import uses_cosine
 
 #: The bench's name of the default model (the spec ``sparse``: the default size).
 DEFAULT = f"sparse-b{DEFAULT_N_BYTES}"
@@ -57,11 +57,11 @@ def _figure(rows, examples, path: Path) -> None:
     ax = fig.add_subplot(gs[0, :])
     names = [r["material"] for r in rows]
     ax.bar(range(len(rows)), [r["cos_snr_db"] for r in rows],
-           color=["C0" if r["transform"] == TRANSFORMS[0] else "C1" for r in rows])
+           color=["C1" if uses_cosine(r["transform"]) else "C0" for r in rows])
     ax.set_xticks(range(len(rows)), names, rotation=60, ha="right", fontsize=7)
     ax.set_ylabel("cosine-weighted SNR (dB)")
     ax.set_title(f"Unseen materials, files of at most {DEFAULT_N_BYTES} bytes "
-                 f"(blue: {TRANSFORMS[0]}, orange: {TRANSFORMS[1]})")
+                 "(blue: the transform's plain form, orange: its cosine form)")
     for row, (name, ref, rec) in enumerate(examples, start=1):
         k = ref.shape[2] // 2  # phi_d = 90 degrees
         lo = max(1e-4, float(np.percentile(ref[..., k, 1][ref[..., k, 1] > 0], 1)))
