@@ -102,6 +102,55 @@ def test_one_light_table_runs(monkeypatch, capsys):
     assert "sparse-262" in capsys.readouterr().out
 
 
+def test_error_concentration_runs(monkeypatch, capsys, tmp_path):
+    """A bench folder of one cell whose error sits in one pixel of 64, under a lit
+    object ten stops brighter at its peak than at its median: the cell is reported
+    concentrated (share 1.00) and judged over about ten stops; a folder without
+    results.json is refused with exit status 2."""
+    import json
+
+    import numpy as np
+
+    from sparse_brdf.evaluation.images import write_exr
+
+    work = tmp_path / "work" / "s"
+    work.mkdir(parents=True)
+    ref = np.full((8, 8, 3), 1e-3, np.float32)
+    ref[0, 0] = 1.0  # the highlight: 2^10 above the median
+    img = ref.copy()
+    img[4, 4] += 0.5  # all the error in one pixel
+    write_exr(work / "c__m__reference.exr", ref)
+    write_exr(work / "c__m__x.exr", img)
+    np.save(work / "object_mask.npy", np.ones((8, 8), bool))
+    cell = {"status": "finished", "material": "c/m", "model": "x",
+            "renders": {"s": {"flip": 0.3, "snr_whole": 30.0}}}
+    (tmp_path / "results.json").write_text(json.dumps({"cells": {"c/m|x": cell}}))
+    assert run("error_concentration", monkeypatch, str(tmp_path), "--top", "1") == 0
+    out = capsys.readouterr().out
+    assert "more than 50% of the squared error in 1," in out
+    assert "| c/m | x | s | 1.00 | 10.0 | 0.300 | 30.0 |" in out
+    assert run("error_concentration", monkeypatch, str(tmp_path / "none")) == 2
+
+
+def test_error_concentration_top_share():
+    """The top pixels' share of the squared error, summed over colour channels."""
+    spec = importlib.util.spec_from_file_location("ec", BENCH / "error_concentration.py")
+    import numpy as np
+    sys.path.insert(0, str(BENCH))
+    try:
+        mod = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(mod)
+    finally:
+        sys.path.remove(str(BENCH))
+    ref = np.zeros((1, 5, 3))
+    img = ref.copy()
+    img[0, 0, 0], img[0, 1:, 1] = 2.0, 1.0  # squared errors 4, 1, 1, 1, 1
+    assert mod.top_share(ref, img, 1) == 0.5
+    assert mod.top_share(ref, img, 3) == 0.75
+    assert mod.top_share(ref, img, 99) == 1.0
+    assert np.isnan(mod.top_share(ref, ref, 1))
+
+
 def test_front_chart_runs(monkeypatch, tmp_path):
     run("front_chart", monkeypatch, str(STANDARD), "--out", str(tmp_path / "front.png"))
     assert (tmp_path / "front.png").stat().st_size > 0
