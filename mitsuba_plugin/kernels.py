@@ -14,6 +14,7 @@ per BSDF call on plain Python floats use the scalar helpers :func:`point_weight`
 from __future__ import annotations
 
 import math
+import struct
 import threading
 
 import drjit as dr
@@ -25,10 +26,11 @@ from sparse_brdf.decoders.buffers import (
     read_rgb2spec_table,
     uint_buffer,
 )
-from sparse_brdf.transforms import COS_CLIP, LOBE_KNEE, LOBE_POWER
+from sparse_brdf.transforms import COS_CLIP, LOBE_KNEE, LOBE_POWER, floor_value
 
 _W_LO, _W_HI = COS_CLIP
 _LOG_KNEE = math.log(LOBE_KNEE)
+_F32 = struct.Struct("<f")  # a double rounded to float32, as the kernels hold it
 
 
 class VariantNamespace:
@@ -159,15 +161,19 @@ def expm1(x):
     return dr.select(dr.abs(x) < 0.1, p * x, dr.exp(x) - 1.0)
 
 
-def point_rho(x0: float, x1: float, x2: float, scale: float) -> tuple:
+def point_rho(x0: float, x1: float, x2: float, scale: float, floor: float = 0.0) -> tuple:
     """The inverse transform of one point in a scalar variant: ``max(expm1(X) scale, 0)``
-    per channel for ``scale = valid / w > 0`` (Python floats, 1/sr). ``math.expm1`` in
-    double precision; where it would overflow a double, X is capped at 700 (the value is
-    then inf once stored as float32, as the kernel's is past 88.7)."""
+    per channel for ``scale = valid / w > 0`` (Python floats, 1/sr), 0 below ``floor``
+    (a floor transform's value, :func:`sparse_brdf.transforms.floor_value`; 0: none).
+    ``math.expm1`` in double precision; where it would overflow a double, X is capped at
+    700 (the value is then inf once stored as float32, as the kernel's is past 88.7)."""
     try:  # unrolled: this runs once per BSDF call
         r0, r1, r2 = math.expm1(x0) * scale, math.expm1(x1) * scale, math.expm1(x2) * scale
     except OverflowError:
         r0, r1, r2 = (math.expm1(min(x, 700.0)) * scale for x in (x0, x1, x2))
+    if floor > 0.0:  # the kernels compare float32 values: so does this
+        f32 = _F32.pack
+        return tuple(r if _F32.unpack(f32(r))[0] >= floor else 0.0 for r in (r0, r1, r2))
     return (r0 if r0 > 0.0 else 0.0, r1 if r1 > 0.0 else 0.0, r2 if r2 > 0.0 else 0.0)
 
 
@@ -189,22 +195,25 @@ def point_rho_from_cos(x0: float, x1: float, x2: float, c: float, use_cos: bool,
 
 
 def point_rho_lobe(ops: Ops, shape: Shape, xs, c: float, use_cos: bool, s: float, lobe,
-                   i: int) -> tuple:
+                   i: int, floor: float = 0.0) -> tuple:
     """:func:`point_rho_from_cos` for a lobe transform's material in a scalar variant:
     the bin's weight, the lobe's x (:func:`lobe_x`, the lobe at theta_h row ``i``), the
-    inverse transform; 0 where the bin is invalid (c <= 0)."""
+    inverse transform (0 below ``floor``, as :func:`point_rho`); 0 where the bin is
+    invalid (c <= 0)."""
     if not c > 0.0:
         return (0.0, 0.0, 0.0)
     w = (point_weight(c) if use_cos else 1.0) * s
     xs = lobe_x(ops, xs, w, lobe_d(ops, shape, i, lobe[0]), lobe)
-    return point_rho(xs[0], xs[1], xs[2], 1.0 / w)
+    return point_rho(xs[0], xs[1], xs[2], 1.0 / w, floor)
 
 
-def rho_from_x(ops: Ops, xs, valid, w) -> list | tuple:
+def rho_from_x(ops: Ops, xs, valid, w, floor=None) -> list | tuple:
     """The inverse transform of the transformed values ``xs`` (R, G, B: its first three
     items) at a bin (or point) of validity ``valid`` (1 or 0, or interpolated) and weight
     ``w``: ``max((exp(X) - 1) valid / w, 0)`` per channel (1/sr), 0 where ``valid / w``
-    is 0. Returns three values (Floats, or Python floats in scalar variants, from
+    is 0, and 0 below ``floor`` (a floor transform's value,
+    :func:`sparse_brdf.transforms.floor_value`, a Float or a Python float; None: none).
+    Returns three values (Floats, or Python floats in scalar variants, from
     :func:`point_rho`).
 
     A select, not only the product: an invalid bin gives 0 even where the model's X
@@ -214,9 +223,22 @@ def rho_from_x(ops: Ops, xs, valid, w) -> list | tuple:
         scale = valid / w
         if not scale > 0.0:
             return (0.0, 0.0, 0.0)
-        return point_rho(xs[0], xs[1], xs[2], scale)
+        return point_rho(xs[0], xs[1], xs[2], scale, 0.0 if floor is None else float(floor))
     scale = valid * dr.rcp(w)
-    return [dr.select(scale > 0.0, dr.maximum(expm1(x) * scale, 0.0), 0.0) for x in xs[:3]]
+    rho = [dr.select(scale > 0.0, dr.maximum(expm1(x) * scale, 0.0), 0.0) for x in xs[:3]]
+    if floor is None:  # a Python branch: materials without a floor trace no select
+        return rho
+    return [dr.select(r < floor, 0.0, r) for r in rho]
+
+
+def lobe_inputs(ops: Ops, model) -> tuple:
+    """A sparse model's (base lobe, floor) as kernel inputs: a lobe transform's 7
+    numbers and a floor transform's value f L (1/sr, :func:`sparse_brdf.transforms.
+    floor_value`) as opaque scalars (Python floats in scalar variants); None for a model
+    without them (or with floor 0), so that its kernels trace neither."""
+    lobe = None if model.lobe is None else tuple(ops.f(v) for v in model.lobe)
+    floor = ops.f(floor_value(model.floor, model.gain)) if model.floor > 0.0 else None
+    return lobe, floor
 
 
 def lobe_d(ops: Ops, shape: Shape, i, alpha):

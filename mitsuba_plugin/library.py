@@ -181,6 +181,7 @@ class SparseLibrary(GlossyBSDF):
         del tables, packed  # (the scalar variants keep them as their buffers)
         self._scaled = bool((header.f[:, 1] != 1.0).any())
         self._lobed = bool((header.f[:, 13] > 0.5).any())  # a lobe transform's material
+        self._floored = bool((header.f[:, 21] > 0.0).any())  # a floor transform's material
         self.n_grouped = sum(chosen)
         self.memory_bytes = (header.n_pairs * (4 * n1 + 4) + header.nbytes + (
             0 if blocks is None else sum(ops.nbytes(b) for b in self._grouped)))
@@ -247,7 +248,8 @@ class SparseLibrary(GlossyBSDF):
             lx = lobe_x(ops, xs, w, lobe_d_at(ops, sh, bins, lin, lobe[0]), lobe)
             on = ops.gather(hf, idx * HEADER_F + 13, active) > 0.5
             xs = [dr.select(on, a, b) for a, b in zip(lx, xs, strict=True)]
-        return self._m.Color3f(*rho_from_x(ops, xs, valid, w))
+        floor = ops.gather(hf, idx * HEADER_F + 21, active) if self._floored else None
+        return self._m.Color3f(*rho_from_x(ops, xs, valid, w, floor))
 
     def bind(self, indices: dict) -> None:
         """Read the materials of the shapes ``indices`` ({shape registry id: index},
@@ -275,7 +277,7 @@ def _point_rho(lib, idx: int, wi, wo, active: bool):
     if not active:
         return lib._zero3
     ops, sh = lib._ops, lib._shape
-    use_cos, scale = (float(v) for v in lib._header.f[idx, :2])
+    use_cos, scale, floor = (float(v) for v in lib._header.f[idx, (0, 1, 21)])
     lobe = ([float(v) for v in lib._header.f[idx, 14:21]]
             if lib._header.f[idx, 13] > 0.5 else None)
     coords = angle_coords(ops, sh, wi, wo)
@@ -285,13 +287,13 @@ def _point_rho(lib, idx: int, wi, wo, active: bool):
         xs, w = lib._lookup.point_linear(idx, lin), w * scale
         if lobe is not None:
             xs = lobe_x(ops, xs, w, lobe_d_at(ops, sh, None, lin, lobe[0]), lobe)
-        return lib._m.Color3f(*rho_from_x(ops, xs, valid, w))
+        return lib._m.Color3f(*rho_from_x(ops, xs, valid, w, floor))
     bins = nearest_bins(ops, sh, coords)
     xs = lib._lookup.point(idx, *bins)
     c = cos_terms(ops, sh, *bins)
     if lobe is not None:
         return lib._m.Color3f(*point_rho_lobe(ops, sh, xs, c, use_cos > 0.5, scale, lobe,
-                                              bins[0]))
+                                              bins[0], floor))
     return lib._m.Color3f(*point_rho_from_cos(*xs, c, use_cos > 0.5, scale))
 
 

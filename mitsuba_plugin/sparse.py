@@ -33,6 +33,7 @@ from .kernels import (
     interp_weight,
     linear_bins,
     lobe_d_at,
+    lobe_inputs,
     lobe_x,
     mix_colour,
     nearest_bins,
@@ -141,8 +142,7 @@ class SparseBSDF(GlossyBSDF):
         self._use_cos = ops.f(1.0 if self._cos_on else 0.0)
         # the weight's constant factor s (a Python float: s = 1 traces no multiply)
         self._scale = material_scale(model.transform, model.gain)
-        # a lobe transform's base lobe as opaque scalars (None: other kernels unchanged)
-        self._lobe = None if model.lobe is None else tuple(ops.f(v) for v in model.lobe)
+        self._lobe, self._floor = lobe_inputs(ops, model)  # None, None: kernels unchanged
         self._grad = False
         budget = p["memory_budget"]
         #: The decoder data (built now, or once the scene's budget decides: budget.py).
@@ -254,7 +254,7 @@ class SparseBSDF(GlossyBSDF):
             w = w * self._scale
         if self._lobe is not None:  # a Python branch: only lobe materials trace it
             xs = lobe_x(ops, xs, w, lobe_d_at(ops, sh, bins, lin, self._lobe[0]), self._lobe)
-        return self._m.Color3f(*rho_from_x(ops, xs, valid, w))
+        return self._m.Color3f(*rho_from_x(ops, xs, valid, w, self._floor))
 
     def to_string(self):
         return (f"{type(self).__name__}[filename={self.filename!r}, transform={self.transform}, "
@@ -282,7 +282,7 @@ class ScalarRho:
         self.buffers, self.interpolate = bsdf.buffers, bsdf.interpolate
         self._ops, self._shape, self._m, self._zero3 = bsdf._ops, bsdf._shape, bsdf._m, bsdf._zero3
         self._use_cos, self._cos_on, self._scale = bsdf._use_cos, bsdf._cos_on, bsdf._scale
-        self._lobe = bsdf._lobe
+        self._lobe, self._floor = bsdf._lobe, bsdf._floor
 
     def __call__(self, wi, wo, active):
         """The material's value at (wi, wo): a Color3f."""
@@ -301,7 +301,7 @@ class ScalarRho:
             if self._lobe is not None:
                 xs = lobe_x(ops, xs, w, lobe_d_at(ops, sh, None, lin, self._lobe[0]),
                             self._lobe)
-            return self._m.Color3f(*rho_from_x(ops, xs, valid, w))
+            return self._m.Color3f(*rho_from_x(ops, xs, valid, w, self._floor))
         bins = nearest_bins(ops, sh, coords)
         if not active:
             return self._zero3
@@ -311,6 +311,7 @@ class ScalarRho:
             (x0, x1, x2), c = buf.lookup.point(*bins), cos_terms(ops, sh, *bins)
         if self._lobe is not None:
             return self._m.Color3f(*point_rho_lobe(ops, sh, (x0, x1, x2), c, self._cos_on,
-                                                   self._scale, self._lobe, bins[0]))
+                                                   self._scale, self._lobe, bins[0],
+                                                   self._floor or 0.0))
         return self._m.Color3f(*point_rho_from_cos(x0, x1, x2, c, self._cos_on,
                                                    self._scale))

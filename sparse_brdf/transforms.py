@@ -16,17 +16,23 @@ Non-parametric BRDF Model", eq. 1 and 2) and their relative-precision twins
 - ``log-lobe-cosine``:     the same with W holding c,
   with W = K [c] / L, K = :data:`LOBE_KNEE`, G = :data:`LOBE_POWER` and b the material's
   base lobe (:func:`fit_base_lobe`: b = kd + ks D(theta_h; alpha), GGX, per channel),
-  stored in its file with L. ln(1 + x) is linear for x much below 1, so the
-  paper's transforms code dim values (rho << 1/sr) with absolute precision: a coding
-  error that is small beside a highlight is a large relative error where the material is
-  dim, and a hue shift where one colour channel is dim. With s the logarithm reaches down
-  to rho = 1/s, so errors are relative over the values materials have. The level
-transforms put that knee at a fixed fraction of each material's own level instead of at
-one value for all, so that a bright material's dim lobe and a dim material's highlight are
-coded alike. The lobe transforms code each material relative to a lobe fitted to it: the
-lobe carries the narrow bright peak that dictionaries code least compactly, the ratio
-keeps coding errors relative down to L / K, and m weighs them toward where the lobe is
-bright, where light reflected from an environment is.
+  stored in its file with L;
+- ``log-lobe-floor``, ``log-lobe-floor-cosine``: the lobe pair, whose inverse gives 0
+  where rho < f L, f the material's floor (one of :data:`FLOORS`, stored in its file).
+  Measured tables hold exact zeros (a fit's output clamped at 0) where a mirror-like
+  material reflects nothing; a log-domain code cannot reach 0, and under one light its
+  small positive errors there show across the 18-28 stops HDR-FLIP judges.
+
+ln(1 + x) is linear for x much below 1, so the paper's transforms code dim values (rho <<
+1/sr) with absolute precision: a coding error that is small beside a highlight is a large
+relative error where the material is dim, and a hue shift where one colour channel is dim.
+With s the logarithm reaches down to rho = 1/s, so errors are relative over the values
+materials have. The level transforms put that knee at a fixed fraction of each material's
+own level instead of at one value for all, so that a bright material's dim lobe and a dim
+material's highlight are coded alike. The lobe transforms code each material relative to a
+lobe fitted to it: the lobe carries the narrow bright peak that dictionaries code least
+compactly, the ratio keeps coding errors relative down to L / K, and m weighs them toward
+where the lobe is bright, where light reflected from an environment is.
 
 Every transform is t = ln(rho w + 1) with a weight w (:func:`weight`), declared once as
 data (:data:`TRANSFORM_SPECS`: its scale, whether the cosine weighs it and whether a
@@ -62,6 +68,9 @@ LOBE_POWER = 0.35
 LOBE_ALPHAS = tuple(float(a) for a in np.geomspace(0.003, 0.6, 30))
 #: Numbers of a base lobe, in its file's order: alpha, kd (R, G, B), ks (R, G, B).
 LOBE_SIZE = 7
+#: The floors f a floor transform's material can have (float16-exact): its inverse gives 0
+#: where rho < f L. Chosen per material by the encoder (``coding.floor``).
+FLOORS = tuple(float(np.float16(f)) for f in (0.0, 1e-4, 3e-4, 1e-3, 3e-3, 1e-2, 3e-2, 0.1))
 #: The smallest level L (1/sr) a material is given: a black material keeps a finite gain.
 LEVEL_FLOOR = 1e-4
 #: Luminance weights of linear R, G, B (Rec. 709) for a material's level.
@@ -84,6 +93,7 @@ class TransformSpec:
     cosine: bool  # weighted by the clipped cos_i cos_o of the bin
     per_material: bool = False  # weighted by the material's gain 1/L (sr)
     lobe: bool = False  # coded relative to the material's base lobe (its file holds it)
+    floor: bool = False  # values below the material's floor f L decode as 0 (file holds f)
 
 
 #: Every transform, in file-id order (a transform's index is its id in a ``.sbrdf``
@@ -97,6 +107,8 @@ TRANSFORM_SPECS: tuple[TransformSpec, ...] = (
     TransformSpec("log-level-cosine", LEVEL_KNEE, True, True),
     TransformSpec("log-lobe", LOBE_KNEE, False, True, True),
     TransformSpec("log-lobe-cosine", LOBE_KNEE, True, True, True),
+    TransformSpec("log-lobe-floor", LOBE_KNEE, False, True, True, True),
+    TransformSpec("log-lobe-floor-cosine", LOBE_KNEE, True, True, True, True),
 )
 _SPECS = {t.name: t for t in TRANSFORM_SPECS}
 #: The transforms (declared choices of every ``transform`` parameter; ``encode`` adds
@@ -104,8 +116,10 @@ _SPECS = {t.name: t for t in TRANSFORM_SPECS}
 TRANSFORMS: tuple[str, ...] = tuple(_SPECS)
 #: The paper's two transforms: those of the ensembles trained before the relative ones.
 PAPER_TRANSFORMS: tuple[str, str] = ("log-plus", "log-plus-cosine")
-#: The lobe pair: what ``encode(transform="lobe")`` chooses between, over any ensemble.
-LOBE_TRANSFORMS: tuple[str, str] = ("log-lobe", "log-lobe-cosine")
+#: The lobe pair: what ``encode(transform="lobe")`` chooses between, over any ensemble
+#: (with a floor since 2026-12-08; ``log-lobe`` and ``log-lobe-cosine`` are the pair
+#: without one, as files written before hold).
+LOBE_TRANSFORMS: tuple[str, str] = ("log-lobe-floor", "log-lobe-floor-cosine")
 
 
 def transform_spec(name: str) -> TransformSpec:
@@ -193,6 +207,39 @@ def check_transform(name: str) -> str:
 
 
 # ---------------------------------------------------------------------- the base lobe
+
+
+def has_floor(name: str) -> bool:
+    """Whether transform ``name``'s inverse gives 0 below the material's floor."""
+    return transform_spec(name).floor
+
+
+def check_floor(name: str, floor: float) -> float:
+    """``floor`` as a float if transform ``name`` can have it: finite, in [0, 1) and
+    float16-exact for a floor transform, 0 for the others. A ValueError otherwise."""
+    f = float(floor)
+    if not has_floor(name):
+        if f != 0.0:
+            raise ValueError(f"transform {name!r} has no floor, got {floor!r}")
+        return 0.0
+    if not (0.0 <= f < 1.0) or float(np.float16(f)) != f:
+        raise ValueError(f"transform {name!r}: a floor is a float16 value in [0, 1), "
+                         f"got {floor!r}")
+    return f
+
+
+def floor_value(floor: float, gain: float) -> float:
+    """The linear value (1/sr) below which a material of floor ``floor`` and gain ``gain``
+    (1/L) decodes as 0: f L, rounded to float32 once, as every decoder compares it."""
+    return float(np.float32(floor / gain))
+
+
+def apply_floor(rho: np.ndarray, floor: float, gain: float) -> np.ndarray:
+    """``rho`` (float32, any shape) with every value below :func:`floor_value` set to 0,
+    in place; unchanged for ``floor`` 0."""
+    if floor > 0.0:
+        rho[rho < np.float32(floor_value(floor, gain))] = 0.0
+    return rho
 
 
 def ggx(theta_h, alpha):
@@ -415,7 +462,8 @@ def forward(rho: np.ndarray, name: str, valid: np.ndarray | None = None,
     return t
 
 
-def inverse(t: np.ndarray, name: str, gain: float = 1.0, lobe=None) -> np.ndarray:
+def inverse(t: np.ndarray, name: str, gain: float = 1.0, lobe=None,
+            floor: float = 0.0) -> np.ndarray:
     """Inverse of :func:`forward`: transformed values back to linear BRDF values.
 
     Parameters
@@ -429,6 +477,9 @@ def inverse(t: np.ndarray, name: str, gain: float = 1.0, lobe=None) -> np.ndarra
         The material's gain 1/L (sr) for the level and lobe transforms; 1 for the others.
     lobe : sequence of 7 floats, optional
         The material's base lobe for the lobe transforms (:func:`check_lobe`).
+    floor : float
+        The material's floor f for the floor transforms (:func:`check_floor`): values
+        below f L decode as 0; 0 for the others.
 
     Returns
     -------
@@ -443,26 +494,27 @@ def inverse(t: np.ndarray, name: str, gain: float = 1.0, lobe=None) -> np.ndarra
     """
     t = np.asarray(t)
     w = weight(name, t.shape[-3:], gain)
-    lobe = check_lobe(name, lobe)
+    lobe, floor = check_lobe(name, lobe), check_floor(name, floor)
     if lobe is not None:
         t = from_lobe(t, w, lobe_rows(lobe, t.shape[-3:])[:, :, None, None])
-    return _inverse(t, w)
+    return apply_floor(_inverse(t, w), floor, gain)
 
 
 def inverse_at_bins(
     t: np.ndarray, name: str, bins: tuple[np.ndarray, ...], shape: tuple[int, int, int],
-    gain: float = 1.0, lobe=None,
+    gain: float = 1.0, lobe=None, floor: float = 0.0,
 ) -> np.ndarray:
     """Inverse transform of values ``t`` (..., N) that belong to the bins ``(i, j, k)``
-    (index arrays of shape (N,)), for a material of gain ``gain`` and base lobe ``lobe``
-    (:func:`inverse`); the lobe transforms take one material's R, G, B, ``t`` (3, N)."""
+    (index arrays of shape (N,)), for a material of gain ``gain``, base lobe ``lobe``
+    and floor ``floor`` (:func:`inverse`); the lobe transforms take one material's R, G,
+    B, ``t`` (3, N)."""
     w = weight(name, shape, gain)
     w = w[bins] if isinstance(w, np.ndarray) else w
     t = np.asarray(t)
-    lobe = check_lobe(name, lobe)
+    lobe, floor = check_lobe(name, lobe), check_floor(name, floor)
     if lobe is not None:
         t = from_lobe(t, w, lobe_rows(lobe, shape)[:, bins[0]])
-    return _inverse(t, w)
+    return apply_floor(_inverse(t, w), floor, gain)
 
 
 #: Largest linear value an inverse gives: float32's largest. A model's overshoot beyond

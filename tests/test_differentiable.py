@@ -13,6 +13,7 @@ from sparse_brdf.coding.fileformat import load_sbrdf, save_sbrdf
 from sparse_brdf.errors import PluginError
 from sparse_brdf.mitsuba_env import set_variant
 from sparse_brdf.paths import SCENES_DIR
+from sparse_brdf.transforms import FLOORS
 
 mi = pytest.importorskip("mitsuba")
 dr = pytest.importorskip("drjit")
@@ -46,6 +47,15 @@ def lobe_mat(tmp_path_factory):
     """The same material coded in a lobe transform (its own lobe in the file)."""
     return make_exact_material(tmp_path_factory.mktemp("ad-lobe"), n_coeffs=200,
                                transform="log-lobe-cosine")
+
+
+@pytest.fixture(scope="module")
+def floor_mat(tmp_path_factory):
+    """The same material coded in a floor transform, at the encoder's highest floor (0 on
+    0.1 % of the bins; a floor that zeroes many bins moves a finite difference by the
+    jumps of the values that cross it, which a gradient leaves out)."""
+    return make_exact_material(tmp_path_factory.mktemp("ad-floor"), n_coeffs=200,
+                               transform="log-lobe-floor-cosine", floor=FLOORS[-1])
 
 
 @pytest.fixture
@@ -148,7 +158,7 @@ def _fd(sc, params, key, j, base, w, seed):
 @pytest.mark.parametrize(("integrator", "decoder", "material"),
                          [("direct", "grouped", "mat"), ("prb", "grouped", "mat"),
                           ("prb", "strict", "mat"), ("prb", "grouped", "level_mat"),
-                          ("prb", "strict", "lobe_mat")])
+                          ("prb", "strict", "lobe_mat"), ("prb", "grouped", "floor_mat")])
 @pytest.mark.render
 @pytest.mark.numerics
 def test_gradients_match_finite_differences(request, llvm, integrator, decoder, material):
@@ -156,13 +166,15 @@ def test_gradients_match_finite_differences(request, llvm, integrator, decoder, 
     largest gradient in each channel, and the forward-mode derivative along one of them,
     agree with central differences of renders with the gradient pass's seed (cosine
     sampling: the sample paths do not move with the values, as in fit-images); in the
-    paper's transform, in a level transform (through the material's gain) and in a lobe
-    transform (through the lobe's x)."""
+    paper's transform, in a level transform (through the material's gain), in a lobe
+    transform (through the lobe's x) and in a floor transform (through its select)."""
     mat = request.getfixturevalue(material)
     if material == "level_mat":
         assert load_sbrdf(mat["sbrdf"], Ensemble.load(mat["ensemble"])).gain != 1.0
     if material == "lobe_mat":
         assert load_sbrdf(mat["sbrdf"], Ensemble.load(mat["ensemble"])).lobe[0] > 0
+    if material == "floor_mat":
+        assert load_sbrdf(mat["sbrdf"], Ensemble.load(mat["ensemble"])).floor == FLOORS[-1]
     sc = scene(_bsdf(mat, decoder=decoder, sampling="cosine"), integrator)
     params = mi.traverse(sc)
     keys = [f"s.bsdf.{k}" for k in KEYS]

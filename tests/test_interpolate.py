@@ -14,6 +14,7 @@ from sparse_brdf.coding.fileformat import load_sbrdf, save_sbrdf
 from sparse_brdf.coding.interpolate import interpolate
 from sparse_brdf.coding.spec import PAPER_OPTIONS
 from sparse_brdf.sources.load import load_brdf
+from sparse_brdf.transforms import FLOORS
 
 encode = functools.partial(_encode, **PAPER_OPTIONS)
 
@@ -157,3 +158,21 @@ def test_lobe_transforms_blend_their_lobes(small_ensemble):
     energy = [np.sum(v, axis=0) for v in (*ends, mid.decode(small_ensemble).values[valid])]
     assert np.all(energy[2] > 0.5 * np.minimum(energy[0], energy[1]))
     assert np.all(energy[2] < 2.0 * np.maximum(energy[0], energy[1]))
+
+
+def test_floor_transforms_blend_their_floors(small_ensemble):
+    """In a floor transform each end keeps its own floor and the blend between them has
+    the floors' linear blend (float16), with which it decodes."""
+    a, b = (dataclasses.replace(
+        _encode(load_brdf(f"mitsuba:{n}", shape=SMALL), small_ensemble, 64,
+                transform="log-lobe-floor"), floor=f)
+        for n, f in (("au-ggx-0.25", FLOORS[2]), ("plastic-blue-ggx-0.2", 0.75)))
+    assert interpolate(a, b, 0.0, small_ensemble).floor == FLOORS[2]
+    assert interpolate(a, b, 1.0, small_ensemble).floor == 0.75
+    mid = interpolate(a, b, 0.5, small_ensemble)
+    assert mid.floor == float(np.float16(0.5 * (FLOORS[2] + 0.75)))
+    dec = mid.decode(small_ensemble).values
+    plain = dataclasses.replace(mid, floor=0.0).decode(small_ensemble).values
+    cut = np.float32(mid.floor / mid.gain)
+    assert ((plain > 0) & (plain < cut)).any()
+    np.testing.assert_array_equal(dec, np.where(plain < cut, 0.0, plain))

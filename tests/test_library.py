@@ -24,7 +24,7 @@ from sparse_brdf.decoders.scene import ensemble_rows
 from sparse_brdf.errors import PluginError
 from sparse_brdf.metrics import render_snr
 from sparse_brdf.mitsuba_env import set_variant
-from sparse_brdf.transforms import has_lobe, per_material
+from sparse_brdf.transforms import has_floor, has_lobe, per_material
 
 mi = pytest.importorskip("mitsuba")
 dr = pytest.importorskip("drjit")
@@ -48,20 +48,21 @@ def _ensemble(seed: int = 3) -> Ensemble:
 def library(tmp_path_factory):
     """50 distinct materials on the small grid over one random ensemble: both colour
     bases and every kind of transform weight (plain, cosine; scale 1 and 300, the level
-    transforms' own gains, and the lobe transforms' lobes)."""
+    transforms' own gains, the lobe transforms' lobes, the floor transforms' floors)."""
     folder = tmp_path_factory.mktemp("library")
     ens = _ensemble()
     models = random_models(ens, N_MATERIALS, 60)
     kinds = [("log-relative", "rgb"), ("log-relative-cosine", "opponent"),
              ("log-plus", "opponent"), ("log-plus-cosine", "rgb"),
              ("log-level", "rgb"), ("log-level-cosine", "opponent"),
-             ("log-lobe", "opponent"), ("log-lobe-cosine", "rgb")]
+             ("log-lobe", "opponent"), ("log-lobe-cosine", "rgb"),
+             ("log-lobe-floor", "rgb"), ("log-lobe-floor-cosine", "opponent")]
     k = len(kinds)
     models = [SparseBRDF(kinds[i % k][0], m.shape, m.ensemble_id, m.dict_index,
                          m.locations, m.values, name=m.name, basis=kinds[i % k][1],
                          gain=0.25 * (1 + i % 5) if per_material(kinds[i % k][0]) else 1.0,
                          lobe=(LOBE[0] * (1 + i % 3), *LOBE[1:]) if has_lobe(kinds[i % k][0])
-                         else None)
+                         else None, floor=0.5 if has_floor(kinds[i % k][0]) else 0.0)
               for i, m in enumerate(models)]
     files = [str(save_sbrdf(folder / f"m{i}.sbrdf", m)) for i, m in enumerate(models)]
     return {"ensemble": str(ens.save(folder / "ens.npz")), "ens": ens, "files": files,

@@ -48,6 +48,7 @@ from sparse_brdf.transforms import (
     cosine_weight,
     forward,
     from_basis,
+    has_floor,
     has_lobe,
     inverse,
     inverse_at_bins,
@@ -81,11 +82,12 @@ def _model(ens_id: str, basis: str = "rgb", transform: str = "log-plus-cosine",
 
 # ---------------------------------------------------------------------- transforms
 def test_transform_names_weights_and_scales():
-    assert [uses_cosine(n) for n in TRANSFORMS] == [False, True] * 4
+    assert [uses_cosine(n) for n in TRANSFORMS] == [False, True] * 5
     assert [scale(n) for n in TRANSFORMS] == [1.0, 1.0, RELATIVE_SCALE, RELATIVE_SCALE,
-                                              LEVEL_KNEE, LEVEL_KNEE, LOBE_KNEE, LOBE_KNEE]
-    assert [per_material(n) for n in TRANSFORMS] == [False] * 4 + [True] * 4
-    assert [has_lobe(n) for n in TRANSFORMS] == [False] * 6 + [True] * 2
+                                              LEVEL_KNEE, LEVEL_KNEE] + [LOBE_KNEE] * 4
+    assert [per_material(n) for n in TRANSFORMS] == [False] * 4 + [True] * 6
+    assert [has_lobe(n) for n in TRANSFORMS] == [False] * 6 + [True] * 4
+    assert [has_floor(n) for n in TRANSFORMS] == [False] * 8 + [True] * 2
     assert weight("log-level", TINY, 0.5) == LEVEL_KNEE * 0.5
     assert weight("log-plus", TINY) == 1.0
     assert weight("log-relative", TINY) == RELATIVE_SCALE
@@ -942,7 +944,7 @@ def test_describe_a_file(tmp_path):
     assert ff.describe(p1) == {
         "version": 1, "codec": None, "bytes": 57 + 1 + 8 * 4, "ensemble": PAPER_ENSEMBLE_ID,
         "ensemble_shipped": True, "grid": [4, 5, 6], "transform": "log-relative-cosine",
-        "gain": 1.0, "lobe": None, "basis": "opponent",
+        "gain": 1.0, "lobe": None, "floor": 0.0, "basis": "opponent",
         "channels": ["luminance", "red-green", "yellow-blue"],
         "coefficients": [3, 0, 1], "coefficients_total": 4, "dictionaries": [3, 1, 2]}
     d2 = ff.describe(p2)

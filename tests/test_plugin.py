@@ -89,10 +89,11 @@ def llvm():
 
 
 def make_exact_material(folder, name: str = "plastic-red-ggx-0.3", n_coeffs: int = 400,
-                        transform: str = "auto"):
+                        transform: str = "auto", floor: float | None = None):
     """A glossy material on the small grid, its own HOSVD ensemble (K=1), its sparse code
-    (the paper's encoder; ``transform``: the one to code in, "auto" the paper's choice)
-    and the model's full decode as a MERL file (the exact tabulated twin of the model).
+    (the paper's encoder; ``transform``: the one to code in, "auto" the paper's choice;
+    ``floor``: a floor transform's floor instead of the encoder's) and the model's full
+    decode as a MERL file (the exact tabulated twin of the model).
 
     Returns a dict of paths: ensemble, sbrdf, binary (decoded model), original (binary).
     """
@@ -107,6 +108,8 @@ def make_exact_material(folder, name: str = "plastic-red-ggx-0.3", n_coeffs: int
     ens = Ensemble(*(f[None] for f in hosvd_factors(grams)), taus=np.zeros(1))
     # n_coeffs in each R, G, B channel
     model = encode(brdf, ens, n_coeffs, transform=transform, **PAPER_OPTIONS)
+    if floor is not None:
+        model = dataclasses.replace(model, floor=floor)
     sbrdf = save_sbrdf(folder / f"{name}.sbrdf", model)
     model = load_sbrdf(sbrdf, ens)  # the values as the file holds them (quantised)
     paths = {"ensemble": str(ens.save(folder / "ens.npz")), "sbrdf": str(sbrdf),

@@ -43,7 +43,7 @@ from sparse_brdf.compared.specs import make_model, parse_spec
 from sparse_brdf.errors import BRDFFileError, EnsembleMismatchError, UsageError
 from sparse_brdf.sources.load import load_brdf
 from sparse_brdf.sources.merl import write_merl
-from sparse_brdf.transforms import fit_base_lobe, forward, from_basis
+from sparse_brdf.transforms import FLOORS, LOBE_TRANSFORMS, fit_base_lobe, forward, from_basis
 
 FUZZ = settings(max_examples=150, deadline=None, database=None)
 HEAD2 = struct.Struct("<8sHBB3H16s3H3IBB3hII")  # docs/file-format.md, version 2
@@ -695,17 +695,50 @@ def test_lobe_transform_files_hold_the_gain_and_the_lobe(ens, version):
         dataclasses.replace(m, lobe=None)
 
 
+@pytest.mark.parametrize("version", [1, 2])
+def test_floor_transform_files_hold_the_floor(ens, version):
+    """A floor transform's file holds the floor (a float16 after the lobe, 2 bytes more
+    than the lobe transform's); it reads back exactly and decodes with it: values below
+    f L are 0, the others those of the same model without a floor. A floor out of range
+    is refused naming the file; a lobe transform's file (written before floors) decodes
+    as it did."""
+    base = _model(ens.id)
+    lobed = dataclasses.replace(base, transform="log-lobe", gain=0.3125, lobe=LOBE)
+    m = dataclasses.replace(lobed, transform="log-lobe-floor", floor=FLOORS[5])
+    data = to_bytes(m, version)
+    assert len(data) == len(to_bytes(lobed, version)) + 2
+    assert min_file_size(5, version, "log-lobe-floor") == min_file_size(5, version) + 20
+    r = from_bytes(data)
+    assert (r.transform, r.gain, r.lobe, r.floor) == ("log-lobe-floor", 0.3125, LOBE,
+                                                      FLOORS[5])
+    plain = as_stored(lobed, version).decode(ens).values
+    got = r.decode(ens).values
+    cut = np.float32(FLOORS[5] / 0.3125)
+    assert (plain > 0).all(axis=-1).mean() > 0.5 and ((plain > 0) & (plain < cut)).any()
+    np.testing.assert_array_equal(got, np.where(plain < cut, 0.0, plain))
+    assert from_bytes(to_bytes(lobed, version)).floor == 0.0  # no floor in a lobe file
+    off = (53 if version == 1 else 68) + len(m.name.encode()) + 4 + 14
+    assert struct.unpack_from("<e", data, off) == (FLOORS[5],)
+    for bad in (float("nan"), -1.0, 1.0):
+        body = data[:off] + struct.pack("<e", bad) + data[off + 2:-4]
+        with pytest.raises(BRDFFileError, match="random-rgb.sbrdf: .*floor"):
+            from_bytes(body + struct.pack("<I", zlib.crc32(body)), "random-rgb.sbrdf")
+    with pytest.raises(ValueError, match="has no floor"):
+        dataclasses.replace(lobed, floor=0.1)
+
+
 def test_encode_to_bytes_in_the_lobe_pair(small_ensemble):
     """``transform="lobe"`` encodes in whichever of the pair the selector prefers, to a
     byte budget that counts the lobe; a budget below its floor names the lobe."""
     brdf = load_brdf("mitsuba:plastic-red-ggx-0.3", shape=SMALL)
     plain = min_file_size(len(brdf.name.encode()))
-    with pytest.raises(ValueError, match=f"--bytes {plain + 10}: .* takes {plain + 18} "
-                                         "bytes .*lobe transform's gain and base lobe"):
+    with pytest.raises(ValueError, match=f"--bytes {plain + 10}: .* takes {plain + 20} "
+                                         "bytes .*lobe transform's gain, base lobe and floor"):
         encode_to_bytes(brdf, small_ensemble, plain + 10, transform="lobe")
     m = encode_to_bytes(brdf, small_ensemble, 600, transform="lobe")
-    assert m.transform in ("log-lobe", "log-lobe-cosine") and len(to_bytes(m)) <= 600
-    assert set(m.stats["transforms"]) == {"log-lobe", "log-lobe-cosine"}
+    assert m.transform in LOBE_TRANSFORMS and len(to_bytes(m)) <= 600
+    assert set(m.stats["transforms"]) == set(LOBE_TRANSFORMS)
+    assert m.floor in FLOORS and m.stats["floor"] == m.floor
     assert m.lobe == fit_base_lobe(brdf.channel_first(), brdf.valid)
     # a GGX material is its own lobe's family: the lobe pair codes it closely
     dec = m.decode(small_ensemble).values[brdf.valid]

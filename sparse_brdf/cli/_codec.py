@@ -161,8 +161,9 @@ def add_encode(sub) -> None:
                         "budget decides)")
     e.add_argument("--transform", default=default_of(encode, "transform"),
                    choices=ENCODE["transform"],
-                   help="auto: the one --selector prefers of log-lobe(-cosine), each "
-                        "material coded relative to a GGX lobe fitted to it (over an "
+                   help="auto: the one --selector prefers of log-lobe-floor(-cosine), "
+                        "each material coded relative to a GGX lobe fitted to it and decoded "
+                        "as 0 below a floor the encoder chooses (over an "
                         "ensemble trained for the paper's transforms: those); lobe: the "
                         "lobe pair over any ensemble; or one transform (docs/method.md, "
                         "Transforms)")

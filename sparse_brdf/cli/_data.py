@@ -12,7 +12,7 @@ from ..errors import one_line
 from ..sources.corpora import get_corpus, list_corpora
 from ..sources.load import load_brdf
 from ..sources.merl import write_merl
-from ..transforms import per_material
+from ..transforms import has_floor, per_material
 from ._options import MERL, add_source_help, add_symmetrize, check_outputs
 
 
@@ -74,13 +74,15 @@ def _print_held(held: dict) -> None:
 
 def _level(held: dict) -> str:
     """``; material level L = ... /sr`` for a file with a per-material gain 1/L (and its
-    base lobe, for a lobe transform), else ""."""
+    base lobe, for a lobe transform, and its floor, for a floor transform), else ""."""
     if not per_material(held["transform"]):
         return ""
     lobe = held.get("lobe")
     more = "" if lobe is None else (
         f"; base lobe alpha {lobe['alpha']:.4g}, kd {', '.join(f'{v:.4g}' for v in lobe['kd'])}"
         f", ks {', '.join(f'{v:.4g}' for v in lobe['ks'])} /sr")
+    if has_floor(held["transform"]):
+        more += f"; floor {held['floor']:.4g} L (values below decode as 0)"
     return f"; material level {1.0 / held['gain']:.4g} /sr{more}"
 
 

@@ -29,7 +29,7 @@ import numpy as np
 
 from ..brdf import BRDF
 from ..errors import UsageError
-from ..transforms import has_lobe
+from ..transforms import has_floor, has_lobe
 from .coefficients import SparseBRDF
 from .counted import choose_transform, encode_at
 from .ensemble import Ensemble
@@ -113,8 +113,8 @@ def _fit_bytes(model: SparseBRDF, n_bytes: int, version: int) -> SparseBRDF:
     if whole <= n_bytes:
         return as_stored(model, version)
     # bracket the count near the proportional estimate, then bisect within the bracket
-    floor = min_file_size(len(model.name.encode("utf-8")[:255]), version, model.transform)
-    guess = min(max(total * (n_bytes - floor) // max(whole - floor, 1), 0), total - 1)
+    fixed = min_file_size(len(model.name.encode("utf-8")[:255]), version, model.transform)
+    guess = min(max(total * (n_bytes - fixed) // max(whole - fixed, 1), 0), total - 1)
     step = max(total // 64, 1)
     lo, hi = guess, total
     if size(guess) <= n_bytes:
@@ -147,24 +147,27 @@ def check_budget(name: str, n_bytes: int, version: int = VERSION,
     named ``name`` can hold a coefficient in ``n_bytes`` under each of ``transforms``
     (none given: a transform without a gain; the message names ``--bytes``)."""
     check_version(version)
-    _check_floor(name, n_bytes, version, transforms)
+    _check_fixed(name, n_bytes, version, transforms)
 
 
-def _check_floor(name: str, n_bytes: int, version: int,
+def _check_fixed(name: str, n_bytes: int, version: int,
                  transforms: tuple[str, ...] = ()) -> int:
-    """:func:`check_budget` for a checked version; the floor checked against."""
+    """:func:`check_budget` for a checked version; returns the file's fixed part (its
+    bytes before the first coefficient), the size checked against."""
     plain = min_file_size(len(name.encode("utf-8")[:255]), version)
-    floor = max([plain, *(min_file_size(len(name.encode("utf-8")[:255]), version, t)
+    fixed = max([plain, *(min_file_size(len(name.encode("utf-8")[:255]), version, t)
                           for t in transforms)])
-    if not isinstance(n_bytes, (int, np.integer)) or n_bytes <= floor:
+    if not isinstance(n_bytes, (int, np.integer)) or n_bytes <= fixed:
         lobe = any(has_lobe(t) for t in transforms)
+        floor = any(has_floor(t) for t in transforms)
         what = "header, name and checksum" + (
-            "" if floor <= plain else ", and the lobe transform's gain and base lobe"
+            "" if fixed <= plain else ", and the lobe transform's gain, base lobe and floor"
+            if floor else ", and the lobe transform's gain and base lobe"
             if lobe else ", and the level transform's gain")
         raise UsageError(f"--bytes {n_bytes}: a version-{version} .sbrdf file of {name!r} "
-                         f"takes {floor} bytes before its first coefficient ({what}); give "
-                         f"more than {floor}")
-    return floor
+                         f"takes {fixed} bytes before its first coefficient ({what}); give "
+                         f"more than {fixed}")
+    return fixed
 
 
 def encode_to_bytes(brdf: BRDF, ensemble: Ensemble | None = None, n_bytes: int | None = None,
@@ -221,11 +224,11 @@ def encode_to_bytes_with(brdf: BRDF, spec: EncodeSpec) -> SparseBRDF:
     material's file holds a coefficient in the budget is checked (its name's bytes count).
     """
     n_bytes, version, ens = spec.n_bytes, spec.version, spec.ensemble
-    floor = _check_floor(brdf.name, n_bytes, version, tuple(spec.transforms))
+    fixed = _check_fixed(brdf.name, n_bytes, version, tuple(spec.transforms))
     atoms = int(np.prod(ens.shape))
-    n = _clip(math.ceil(first_count(n_bytes - floor, version) / 3), atoms)
+    n = _clip(math.ceil(first_count(n_bytes - fixed, version) / 3), atoms)
     joint = spec.joint
-    size = _ByteSize(n_bytes, version, floor, atoms, joint) if RECOUNT else None
+    size = _ByteSize(n_bytes, version, fixed, atoms, joint) if RECOUNT else None
     model = encode_at(brdf, dataclasses.replace(spec, n_coeffs=n), size)
     if "recount" in model.stats["transforms"][model.transform]:  # one encoding did it
         return _finish(brdf, ens, model, _fit_bytes(model, n_bytes, version), n_bytes,
@@ -233,11 +236,11 @@ def encode_to_bytes_with(brdf: BRDF, spec: EncodeSpec) -> SparseBRDF:
     # no fill rounds to recount in: encode again at the count that fitted (or larger)
     passes: dict[int, tuple[SparseBRDF, SparseBRDF]] = {}  # count -> (encoded, fitted)
     passes[n] = (model, _fit_bytes(model, n_bytes, version))
-    n, trimmed = _next_count(*passes[n], n, n_bytes, floor, version, atoms, False, joint)
+    n, trimmed = _next_count(*passes[n], n, n_bytes, fixed, version, atoms, False, joint)
     while len(passes) < MAX_PASSES and n not in passes:
         model = encode_at(brdf, dataclasses.replace(spec, n_coeffs=n))
         passes[n] = (model, _fit_bytes(model, n_bytes, version))
-        n, trimmed = _next_count(*passes[n], n, n_bytes, floor, version, atoms, trimmed,
+        n, trimmed = _next_count(*passes[n], n, n_bytes, fixed, version, atoms, trimmed,
                                  joint)
     # the pass at the count the search settled on (else the last)
     model, fit = passes.get(n, list(passes.values())[-1])
@@ -253,14 +256,14 @@ class _ByteSize:
 
     n_bytes: int
     version: int
-    floor: int
+    fixed: int
     atoms: int
     joint: bool
 
     def recount(self, model: SparseBRDF) -> int:
         counts = model.n_coeffs
         size = len(to_bytes(model, self.version))
-        scale = (1 + OVERSHOOT) * (self.n_bytes - self.floor) / max(size - self.floor, 1)
+        scale = (1 + OVERSHOOT) * (self.n_bytes - self.fixed) / max(size - self.fixed, 1)
         total = int(counts.sum()) if self.joint else int(counts.max())
         return _clip(math.ceil(scale * total / (3 if self.joint else 1)), self.atoms)
 
@@ -268,9 +271,9 @@ class _ByteSize:
         # REFIT_SLACK below the budget: the refit that follows moves the values, and with
         # them the compressed size, by a few bytes (version 1's size is the count's alone)
         slack = (0 if self.version == 1
-                 else max(4, math.ceil(REFIT_SLACK * (self.n_bytes - self.floor))))
+                 else max(4, math.ceil(REFIT_SLACK * (self.n_bytes - self.fixed))))
         total = int(model.n_coeffs.sum())
-        keep = int(_fit_bytes(model, max(self.n_bytes - slack, self.floor + 1),
+        keep = int(_fit_bytes(model, max(self.n_bytes - slack, self.fixed + 1),
                               self.version).n_coeffs.sum())
         return truncate(model, keep) if keep < total else model
 
@@ -289,7 +292,7 @@ def _clip(n: int, atoms: int) -> int:
     return int(min(max(n, 1), atoms))
 
 
-def _next_count(model: SparseBRDF, fit: SparseBRDF, n: int, n_bytes: int, floor: int,
+def _next_count(model: SparseBRDF, fit: SparseBRDF, n: int, n_bytes: int, fixed: int,
                 version: int, atoms: int, trimmed: bool, joint: bool) -> tuple[int, bool]:
     """The encoder's next count and whether a pass was trimmed: ``n`` (done) once an
     encoding was trimmed by at most ``MAX_TRIM`` (or a second time), the count that
@@ -304,8 +307,8 @@ def _next_count(model: SparseBRDF, fit: SparseBRDF, n: int, n_bytes: int, floor:
     if trimmed or not capped or total == 0:  # done, or the encoder stopped by itself
         return n, trimmed
     size = len(to_bytes(model, version))
-    per = max((size - floor) / total, 0.5)
-    return _clip(math.ceil(1.2 * (n_bytes - floor) / per / 3), atoms), False
+    per = max((size - fixed) / total, 0.5)
+    return _clip(math.ceil(1.2 * (n_bytes - fixed) / per / 3), atoms), False
 
 
 def _finish(brdf: BRDF, ens: Ensemble, model: SparseBRDF, fit: SparseBRDF, n_bytes: int,

@@ -12,6 +12,7 @@ from ..errors import EnsembleMismatchError, InvalidBRDFError, short
 from ..parallel import parallel_map
 from ..transforms import (
     check_basis,
+    check_floor,
     check_gain,
     check_lobe,
     check_transform,
@@ -66,6 +67,10 @@ class SparseBRDF:
     lobe : tuple of 7 floats or None
         The material's base lobe for the lobe transforms (alpha, kd and ks per channel,
         ``transforms.fit_base_lobe``, stored in the file as float16); None for the others.
+    floor : float
+        The material's floor f for the floor transforms: decoded values below f L
+        (1/sr) are 0 (one of ``transforms.FLOORS``, chosen by the encoder, stored in the
+        file as float16); 0 for the others.
 
     Raises
     ------
@@ -87,12 +92,14 @@ class SparseBRDF:
     basis: str = "rgb"
     gain: float = 1.0
     lobe: tuple[float, ...] | None = None
+    floor: float = 0.0
 
     def __post_init__(self) -> None:
         check_transform(self.transform)
         check_basis(self.basis)
         self.gain = check_gain(self.transform, self.gain)
         self.lobe = check_lobe(self.transform, self.lobe)
+        self.floor = check_floor(self.transform, self.floor)
         self.shape = tuple(int(n) for n in self.shape)  # type: ignore[assignment]
         self.dict_index = np.asarray(self.dict_index, np.int64).reshape(3)
         self.locations = [np.asarray(a, np.int64).reshape(-1) for a in self.locations]
@@ -238,7 +245,8 @@ class SparseBRDF:
         EnsembleMismatchError
             As :meth:`check_ensemble`.
         """
-        rho = inverse(self.transformed(ensemble), self.transform, self.gain, self.lobe)
+        rho = inverse(self.transformed(ensemble), self.transform, self.gain, self.lobe,
+                      self.floor)
         mask = geometric_valid(self.shape) if valid is None else valid
         return BRDF(np.moveaxis(rho, 0, -1), mask, name=self.name, source="sparse")
 
@@ -286,7 +294,8 @@ class SparseBRDF:
                 g = u1[bins[0][sl]][:, a] * u2[bins[1][sl]][:, b] * u3[bins[2][sl]][:, k]
                 out[sl, c] = g @ s
         out = from_basis(out.T, self.basis)  # (3, N)
-        rho = inverse_at_bins(out, self.transform, bins, self.shape, self.gain, self.lobe).T
+        rho = inverse_at_bins(out, self.transform, bins, self.shape, self.gain, self.lobe,
+                              self.floor).T
         keep = above & geometric_valid(self.shape)[bins]  # as decode() and the plugins
         return np.where(keep[:, None], rho, 0.0).astype(np.float32)
 

@@ -17,10 +17,11 @@ from ..coords import geometric_valid
 from ..errors import EnsembleMismatchError
 from ..metrics import gamma_mse, make_render_proxy, mse, rae, render_proxy_error
 from ..parallel import parallel_map
-from ..transforms import inverse
+from ..transforms import has_floor, inverse
 from .coefficients import SparseBRDF
 from .ensemble import Ensemble
 from .fill import SizeControl, fill_invalid
+from .floor import choose_floor
 from .projection import CodingOptions, coded_channels, materials_of, search_many
 from .spec import EncodeSpec
 
@@ -39,7 +40,9 @@ def choose_transform(brdf: BRDF, models: dict[str, SparseBRDF], ens: Ensemble,
     """The model that ``selector`` prefers (:func:`pick_transform`'s rule; ``selector`` as
     an :class:`~sparse_brdf.coding.spec.EncodeSpec` resolved it); ``stats`` gets every
     model's value of the selector's error, and the chosen model's errors in full
-    (gamma-mapped MSE, MSE, RAE, render-proxy error on valid bins)."""
+    (gamma-mapped MSE, MSE, RAE, render-proxy error on valid bins). A floor transform's
+    model then gets its floor (:func:`~sparse_brdf.coding.floor.choose_floor`; the
+    errors are those of its decode without one)."""
     key = SELECTOR_KEYS[selector]
     valid = brdf.valid
     ref_full = brdf.channel_first()
@@ -51,7 +54,7 @@ def choose_transform(brdf: BRDF, models: dict[str, SparseBRDF], ens: Ensemble,
     def errors(name: str, keys: tuple[str, ...]) -> dict:  # numpy only (no BLAS)
         if name not in full:
             m = models[name]
-            full[name] = inverse(m.transformed(ens), name, m.gain, m.lobe)
+            full[name] = inverse(m.transformed(ens), name, m.gain, m.lobe)  # no floor
         if keys != ("render_proxy",) and name not in flat:
             flat[name] = full[name][:, valid]
         metric = {"gamma_mse": lambda: gamma_mse(ref, flat[name]),
@@ -75,6 +78,9 @@ def choose_transform(brdf: BRDF, models: dict[str, SparseBRDF], ens: Ensemble,
              for t in names}
     model = models[chosen]
     model.stats = {"transforms": stats, "chosen": chosen, "selector": selector}
+    if has_floor(chosen):
+        model.floor = choose_floor(ref, flat[chosen], model.gain)
+        model.stats["floor"] = model.floor
     return model
 
 

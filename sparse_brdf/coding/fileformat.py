@@ -40,7 +40,7 @@ from ..brdf import BRDF
 from ..errors import BRDFFileError, EnsembleMismatchError, UsageError
 from ..fileio import atomic_write, require_file
 from ..params import check_choice
-from ..transforms import LOBE_SIZE, TRANSFORMS, has_lobe, per_material
+from ..transforms import LOBE_SIZE, TRANSFORMS, has_floor, has_lobe, per_material
 from .coefficients import SparseBRDF
 from .ensemble import Ensemble, resolve_ensemble, shipped_ids
 
@@ -64,6 +64,7 @@ _HEAD = struct.Struct("<8sHBB3H16s3H3IB")  # version 1; also the first 53 bytes 
 _HEAD2 = struct.Struct("<8sHBB3H16s3H3IBB3hII")
 _GAIN = struct.Struct("<f")  # a level or lobe transform's gain 1/L (sr), after the name
 _LOBE = struct.Struct(f"<{LOBE_SIZE}e")  # a lobe transform's base lobe, after the gain
+_FLOOR = struct.Struct("<e")  # a floor transform's floor f, after the lobe
 _RECORD = np.dtype([("loc", "<u4"), ("val", "<f4")])
 #: Bytes per stored coefficient in a version-1 file (u32 location + f32 value).
 RECORD_BYTES = _RECORD.itemsize
@@ -115,10 +116,12 @@ def min_file_size(name_len: int = 0, version: int = VERSION,
 
 def _material_bytes(transform: str | None) -> int:
     """The bytes after the name: 4 (the f32 gain) for a level transform, 18 (the gain
-    and the base lobe's 7 float16) for a lobe transform, else 0."""
+    and the base lobe's 7 float16) for a lobe transform, 20 (and the floor, float16)
+    for a floor transform, else 0."""
     if transform is None or not per_material(transform):
         return 0
-    return _GAIN.size + (_LOBE.size if has_lobe(transform) else 0)
+    return (_GAIN.size + (_LOBE.size if has_lobe(transform) else 0)
+            + (_FLOOR.size if has_floor(transform) else 0))
 
 
 def to_bytes(model: SparseBRDF, version: int = VERSION) -> bytes:
@@ -135,6 +138,8 @@ def to_bytes(model: SparseBRDF, version: int = VERSION) -> bytes:
     gain = _GAIN.pack(model.gain) if per_material(model.transform) else b""
     if model.lobe is not None:
         gain += _LOBE.pack(*model.lobe)
+    if has_floor(model.transform):
+        gain += _FLOOR.pack(model.floor)
     if version == 1:
         parts = [_HEAD.pack(*common), name, gain]
         for loc, val in zip(model.locations, model.values, strict=True):
@@ -188,13 +193,16 @@ def from_bytes(data: bytes, source: str = "<bytes>") -> SparseBRDF:
     off = head.size
     name = data[off: off + name_len].decode("utf-8", errors="replace")
     off += name_len
-    gain, lobe = 1.0, None
+    gain, lobe, floor = 1.0, None, 0.0
     if per_material(transform):
         (gain,) = _GAIN.unpack_from(data, off)
         off += _GAIN.size
     if has_lobe(transform):
         lobe = _LOBE.unpack_from(data, off)
         off += _LOBE.size
+    if has_floor(transform):
+        (floor,) = _FLOOR.unpack_from(data, off)
+        off += _FLOOR.size
     if version == 1:
         locs, vals = _records(data, off, counts)
     else:
@@ -203,7 +211,7 @@ def from_bytes(data: bytes, source: str = "<bytes>") -> SparseBRDF:
         return SparseBRDF(transform, (n1, n2, n3), ens_id.hex(), [d0, d1, d2],
                           locs, vals, name=name,
                           basis="opponent" if flags & FLAG_OPPONENT else "rgb", gain=gain,
-                          lobe=lobe)
+                          lobe=lobe, floor=floor)
     except ValueError as exc:
         raise BRDFFileError(f"{source}: {exc}") from exc
 
@@ -471,7 +479,8 @@ def describe(path: str | os.PathLike) -> dict:
         (whether this install ships it), ``grid`` ([n1, n2, n3]), ``transform`` (one for
         every channel) and ``gain`` (the material's gain 1/L, sr, of a level transform;
         1 for the others), ``lobe`` (a lobe transform's base lobe: ``alpha``, ``kd``
-        and ``ks``, these per channel; None for the others), ``basis`` (the colour
+        and ``ks``, these per channel; None for the others), ``floor`` (a floor
+        transform's floor f: values below f L decode as 0; 0 for the others), ``basis`` (the colour
         basis) and ``channels`` (its coded channels), then per channel
         ``coefficients`` and ``dictionaries`` (the index of the ensemble's dictionary
         each channel uses), and ``coefficients_total``.
@@ -492,7 +501,7 @@ def describe(path: str | os.PathLike) -> dict:
             "grid": list(model.shape), "transform": model.transform, "gain": model.gain,
             "lobe": None if model.lobe is None else {
                 "alpha": model.lobe[0], "kd": list(model.lobe[1:4]), "ks": list(model.lobe[4:7])},
-            "basis": model.basis,
+            "floor": model.floor, "basis": model.basis,
             "channels": list(CHANNELS[model.basis]),
             "coefficients": [int(n) for n in model.n_coeffs],
             "coefficients_total": int(model.n_coeffs.sum()),

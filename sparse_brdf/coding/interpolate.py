@@ -172,7 +172,16 @@ def _blend(a: SparseBRDF, b: SparseBRDF, alpha: float, ens: Ensemble,
     # blend's gain is the gains' geometric blend (1 for the other transforms)
     gain = float(np.float32(a.gain ** (1.0 - alpha) * b.gain ** alpha))
     return SparseBRDF(a.transform, a.shape, a.ensemble_id, a.dict_index.copy(), locs, vals,
-                      name=name[:255], basis=a.basis, gain=gain, lobe=_blend_lobe(a, b, alpha))
+                      name=name[:255], basis=a.basis, gain=gain, lobe=_blend_lobe(a, b, alpha),
+                      floor=_blend_floor(a, b, alpha))
+
+
+def _blend_floor(a: SparseBRDF, b: SparseBRDF, alpha: float) -> float:
+    """The blend's floor (0 for the transforms without one): the floors' linear blend,
+    as float16; each end's own at alpha 0 and 1."""
+    if alpha in (0.0, 1.0):
+        return a.floor if alpha == 0.0 else b.floor
+    return float(np.float16((1.0 - alpha) * a.floor + alpha * b.floor))
 
 
 def _blend_lobe(a: SparseBRDF, b: SparseBRDF, alpha: float) -> tuple[float, ...] | None:

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..transforms import material_scale, uses_cosine
+from ..transforms import floor_value, material_scale, uses_cosine
 from .buffers import colour_mix
 from .layouts import PACK_BITS, PACKET, channel_terms, grouped_channels, grouped_layout
 from .lookups import GroupedLookup
@@ -43,8 +43,10 @@ HEADER_U = 22
 #: Per material, the float header: cosine weight (1 or 0), the weight's scale, the
 #: colour basis's M^T (9 floats, row-major; the identity for "rgb"), the sampling
 #: lobe's exponent and probability, then whether the material has a base lobe (a lobe
-#: transform: 1, else 0) and the base lobe (alpha, kd R, G, B, ks R, G, B; 0 without).
-HEADER_F = 21
+#: transform: 1, else 0) and the base lobe (alpha, kd R, G, B, ks R, G, B; 0 without),
+#: then the value below which the material decodes as 0 (a floor transform's f L, 1/sr;
+#: 0 without).
+HEADER_F = 22
 
 
 @dataclass(frozen=True)
@@ -157,6 +159,7 @@ def pair_header(models, shared: SharedRows, lobes=None, grouped=None) -> PairHea
         f[m, 11:13] = (1.0, 0.0) if lobes is None else lobes[m]
         if model.lobe is not None:
             f[m, 13], f[m, 14:21] = 1.0, model.lobe
+        f[m, 21] = floor_value(model.floor, model.gain)
     return PairHeader(u, f)
 
 

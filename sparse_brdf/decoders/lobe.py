@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..coords import bin_angles
-from ..transforms import from_lobe, lobe_rows
+from ..transforms import floor_value, from_lobe, lobe_rows
 from .buffers import bin_weight, mix_channels
 from .layouts import channel_terms
 
@@ -81,6 +81,8 @@ def sparse_profile(model, ensemble, n_d: int = 3) -> np.ndarray:
         xs = from_lobe(xs, w, lobe_rows(model.lobe, model.shape)[:, None, :, None])
     with np.errstate(over="ignore"):  # fit_lobe treats a non-finite profile
         rho = np.maximum(np.expm1(xs) / w, 0.0)  # (3, len(js), n1, n3)
+    if model.floor > 0.0:  # a floor transform: 0 below its floor, as the decoders compare
+        rho[rho.astype(np.float32) < np.float32(floor_value(model.floor, model.gain))] = 0.0
     return rho.mean(axis=3).sum(axis=(0, 1)) / (3 * js.size)
 
 
