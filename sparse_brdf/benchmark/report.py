@@ -243,8 +243,8 @@ def transform_table(results: dict, scene: str, form: str = "snr_object") -> tupl
         agree["gamma"] += by_gamma == best
         agree["plain"] += by_plain == best
         agree["n"] += 1
-        lines.append(f"| {key} | {snrs[first]:.1f} | {snrs[second]:.1f} | {best} | {by_gamma} "
-                     f"| {by_plain} |")
+        lines.append(f"| {key} | {snrs[first]:.1f} ({first}) | {snrs[second]:.1f} ({second}) "
+                     f"| {best} | {by_gamma} | {by_plain} |")
     return lines, agree
 
 
@@ -448,8 +448,8 @@ def _transform_sections(results: dict, scene: str) -> list[str]:
                    f"Gamma-mapped MSE picked the render-SNR-better transform for "
                    f"{agree['gamma']} of {agree['n']} materials; plain MSE for "
                    f"{agree['plain']}.", "",
-                   "| material | " + " | ".join(f"SNR {t}" for t in TRANSFORMS)
-                   + " | better | gamma-MSE picks | MSE picks |", "|---|---|---|---|---|---|",
+                   "| material | SNR, first | SNR, second | better | gamma-MSE picks "
+                   "| MSE picks |", "|---|---|---|---|---|---|",
                    *lines]
     return md
 
