@@ -53,8 +53,9 @@ def test_errors_are_one_line_and_name_the_file(tmp_path, capsys):
 
 
 def test_encode_in_the_lobe_pair_and_info(tmp_path, capsys):
-    """``encode --transform lobe`` writes a file in one of the lobe pair, 18 bytes of
-    gain and lobe beside the coefficients; ``info`` states the lobe, in text and JSON."""
+    """``encode --transform lobe`` writes a file in one of the lobe pair (their floor
+    form), 20 bytes of gain, lobe and floor beside the coefficients; ``info`` states the
+    lobe and the floor, in text and JSON."""
     from sparse_brdf.coding.fileformat import load_sbrdf
     from sparse_brdf.transforms import LOBE_TRANSFORMS
 
@@ -68,8 +69,11 @@ def test_encode_in_the_lobe_pair_and_info(tmp_path, capsys):
     info = json.loads(capsys.readouterr().out)
     assert info["lobe"] == {"alpha": model.lobe[0], "kd": list(model.lobe[1:4]),
                             "ks": list(model.lobe[4:])}
+    assert info["floor"] == model.floor
     assert main(["info", str(sb)]) == 0
-    assert f"base lobe alpha {model.lobe[0]:.4g}" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert f"base lobe alpha {model.lobe[0]:.4g}" in out
+    assert f"floor {model.floor:.4g} L (values below decode as 0)" in out
     # the transform's choices name the pair
     with pytest.raises(SystemExit) as exc:  # argparse's usage error
         main(["encode", "mitsuba:cu-ggx-0.12", "-o", str(tmp_path / "x.sbrdf"),

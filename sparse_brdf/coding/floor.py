@@ -2,7 +2,7 @@
 
 Measured tables hold exact zeros where a mirror-like or black material reflects nothing
 (a fit's output clamped at 0). A log-domain code cannot reach 0: its small errors there
-decode as small positive values, which HDR-FLIP under one light sees across the 20-28
+decode as small positive values, which HDR-FLIP under one light sees across the 18-28
 stops it judges such a material over (``docs/method.md``, "Transforms"). The floor f (one
 of :data:`~sparse_brdf.transforms.FLOORS`) sets every decoded value below f L to 0, L the
 material's level; the encoder keeps the f whose decode is closest to the material in
