@@ -6,7 +6,9 @@ A spec is ``KIND`` or ``KIND:ARGS``; each kind of :data:`KINDS` states its own g
   (:class:`~sparse_brdf.compared.sparse_model.SparseModel`). N: coefficients per channel,
   or ``bN``: at most N bytes per ``.sbrdf`` file, header included (default: the default
   size, ``b1700``; 262 for the paper's encoder). TRANSFORM:
-  auto (the default), log-plus or log-plus-cosine, and may be left out before the options.
+  auto (the default), lobe (the floor pair, the selector's choice) or one of
+  :data:`~sparse_brdf.transforms.TRANSFORMS` (e.g.
+  ``log-plus``, ``log-lobe-floor``), and may be left out before the options.
   OPTIONS: ``paper`` (the paper's encoder, ``PAPER_OPTIONS``) and/or ``KEY=VALUE`` pairs
   separated by commas, the keyword options of :func:`~sparse_brdf.coding.encode.encode`
   (``selector``, ``fill``, ``fill_iters``, ``basis``, ``budget``) and ``version`` (the
