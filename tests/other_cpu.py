@@ -4,10 +4,15 @@ ones they pick on this machine (docs/testing.md, "Another CPU at home").
 ``make test-other-cpu`` runs ``env $(python tests/other_cpu.py) pytest -m numerics``.
 Each choice is one this CPU can run: numpy and OpenBLAS fall back to narrower kernels,
 and Dr.Jit compiles for AVX2 with half the vector width it would use here.
+
+``python tests/other_cpu.py --pinned`` prints the opposite: the kernels every x86-64 CPU
+with AVX2 and FMA runs alike (:func:`pinned_cpu`), under which the CI-sized bench's
+stored figures are computed and checked (docs/bench-guide.md).
 """
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from threadpoolctl import threadpool_info
@@ -41,5 +46,30 @@ def other_cpu() -> dict[str, str]:
     return env
 
 
+def pinned_cpu() -> dict[str, str] | None:
+    """The environment variables, {name: value}, that give every x86-64 CPU with AVX2 and
+    FMA the same kernels, so the same rounding: numpy's AVX2 kernels at most, OpenBLAS's
+    Haswell kernels, Dr.Jit compiled for Haswell at 8 lanes. None on a CPU without them
+    (another architecture, or an x86-64 CPU older than Haswell)."""
+    if not {"avx2", "fma"} <= cpu_flags():
+        return None
+    cpu, features, width = LLVM_TARGETS["haswell"]
+    return {"NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR",
+            "OPENBLAS_CORETYPE": "Haswell",
+            "SPARSE_BRDF_LLVM_TARGET": f"{cpu}:{features}:{width}"}
+
+
+def as_env_words(env: dict[str, str]) -> str:
+    """``env`` as ``NAME=VALUE`` words for ``env $(...)`` (spaces in values as commas,
+    which numpy and the LLVM target both read)."""
+    return " ".join(f"{k}={v.replace(' ', ',')}" for k, v in env.items())
+
+
 if __name__ == "__main__":
-    print(" ".join(f"{k}={v.replace(' ', ',')}" for k, v in other_cpu().items()))
+    if sys.argv[1:] == ["--pinned"]:
+        pinned = pinned_cpu()
+        if pinned is None:
+            sys.exit("other_cpu.py: this CPU has no AVX2 and FMA: no kernels to pin")
+        print(as_env_words(pinned))
+    else:
+        print(as_env_words(other_cpu()))

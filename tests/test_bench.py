@@ -1,11 +1,15 @@
 """The CI-sized bench (sparse_brdf/data/configs/ci.toml) end to end: cells, report, resume."""
 
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from other_cpu import pinned_cpu
 from sparse_brdf.benchmark.acquisition_bench import KIND as ACQUISITION
 from sparse_brdf.benchmark.acquisition_bench import (
     AcquisitionConfig,
@@ -23,6 +27,7 @@ from sparse_brdf.benchmark.bench_config import (
 from sparse_brdf.benchmark.charts import pareto
 from sparse_brdf.benchmark.compare import compare_results, format_worse
 from sparse_brdf.benchmark.provenance import environment_provenance
+from sparse_brdf.benchmark.results_file import read_results
 from sparse_brdf.coding.spec import ENCODE_OPTIONS
 from sparse_brdf.compared.specs import make_model
 from sparse_brdf.errors import MissingDataError
@@ -30,14 +35,15 @@ from sparse_brdf.evaluation.scenes import parse_scene_spec
 from sparse_brdf.fileio import parse_strict_json
 
 ROOT = Path(__file__).resolve().parent.parent
-#: The CI bench's results as the project last stored them (sparse-brdf bench ci, cut down
-#: by benchmark.compare.quality_of), and the gate's tolerances against them. Measured
-#: 2026-12-07: two runs here gave identical figures; a run under another CPU's kernels
-#: (NPY_DISABLE_CPU_FEATURES="X86_V4 AVX512_ICL" OPENBLAS_CORETYPE=SkylakeX
-#: SPARSE_BRDF_LLVM_TARGET=haswell) differed by at most 0.0076 dB of SNR and 7.4e-6 of
-#: HDR-FLIP; the tolerances are 13 and 135 times that.
+#: The CI bench's results as the project last stored them (sparse-brdf bench ci under the
+#: pinned kernels of other_cpu.pinned_cpu, cut down by benchmark.compare.quality_of), and
+#: the gate's tolerances against them. Under pinned kernels every x86-64 CPU with AVX2
+#: rounds alike: two runs gave identical figures. Without them a last bit can tip one
+#: of the encoder's choices: on an AVX-512 machine one cell moved by 0.49 dB of SNR
+#: (2026-12-08), so a CPU that cannot be pinned gets the wider tolerances.
 CI_BASELINE = ROOT / "tests" / "data" / "ci_bench_baseline.json"
 CI_WORSE_DB, CI_FLIP_RISE = 0.1, 0.001
+UNPINNED_WORSE_DB, UNPINNED_FLIP_RISE = 1.0, 0.01
 
 
 def test_pareto_front():
@@ -99,8 +105,14 @@ def test_unknown_model_and_setting(tmp_path):
 def test_ci_bench_report(tmp_path):
     cfg = BenchConfig.load("ci")
     cfg.out = str(tmp_path / "bench")
-    results = Bench(cfg, progress=False).run()
     out = Path(cfg.out)
+    # a fresh process, so that numpy, OpenBLAS and Dr.Jit start on the pinned kernels
+    pinned = pinned_cpu()
+    run = subprocess.run([sys.executable, "-m", "sparse_brdf.cli", "bench", "ci", "--out",
+                          str(out)], env={**os.environ, **(pinned or {})},
+                         capture_output=True, text=True, timeout=1800)
+    assert run.returncode == 0, run.stderr[-3000:]
+    results = read_results(out)
     cells = results["cells"]
     assert len(cells) == 2 * len(cfg.models)
     assert all(c["status"] == "finished" for c in cells.values()), cells
@@ -133,13 +145,15 @@ def test_ci_bench_report(tmp_path):
             assert r262["snr_object"] > r64["snr_object"] - 0.5
             assert r262["snr_whole"] >= r262["snr_object"] - 0.1
     # no figure worse than in the project's stored results of this config
-    found = compare_results(CI_BASELINE, out, CI_WORSE_DB, CI_FLIP_RISE)
+    worse_db, flip_rise = ((CI_WORSE_DB, CI_FLIP_RISE) if pinned else
+                           (UNPINNED_WORSE_DB, UNPINNED_FLIP_RISE))
+    found = compare_results(CI_BASELINE, out, worse_db, flip_rise)
     assert found["cells"] == len(cells), found
     assert found["worse"] == [], [format_worse(w) for w in found["worse"]]
     # and the gate is tight enough to see a model lose accuracy (64 against 262 coefficients)
     base = parse_strict_json(CI_BASELINE.read_text())["cells"]
     r64, r262 = (base[f"mitsuba/al-ggx-0.3|sparse-{n}"]["renders"]["sphere"] for n in (64, 262))
-    assert r262["snr_object"] - r64["snr_object"] > 10 * CI_WORSE_DB
+    assert r262["snr_object"] - r64["snr_object"] > 5 * worse_db
     # a re-run skips every finished cell
     before = parse_strict_json((out / "results.json").read_text())  # inf SNRs put back
     again = Bench(cfg, progress=False)

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import os
 import re
 import subprocess
 import sys
@@ -12,7 +13,7 @@ import numpy as np
 import pytest
 
 from conftest import cli_fails
-from other_cpu import other_cpu
+from other_cpu import other_cpu, pinned_cpu
 from sparse_brdf.errors import UsageError
 from sparse_brdf.mitsuba_env import LLVM_TARGET_ENV, LLVM_TARGETS, set_llvm_target
 
@@ -22,6 +23,7 @@ pytestmark = pytest.mark.numerics
 #: computed by Dr.Jit.
 CHILD = """
 import json
+import os
 import drjit as dr
 import numpy as np
 from sparse_brdf.mitsuba_env import llvm_target, set_variant
@@ -78,3 +80,26 @@ def test_the_other_cpu_differs_from_this_one_in_every_library():
     set_variant("llvm_ad_rgb")
     cpu, _, width = env[LLVM_TARGET_ENV].split(":")
     assert cpu == LLVM_TARGETS["haswell"][0] and int(width) < llvm_target()[1]
+
+
+def test_the_pinned_kernels_are_the_ones_a_fresh_process_runs():
+    """Under ``other_cpu.py --pinned`` numpy has no AVX-512 kernel, OpenBLAS runs its
+    Haswell kernels and Dr.Jit compiles for Haswell at 8 lanes, whatever this CPU is."""
+    env = pinned_cpu()
+    if env is None:
+        pytest.skip("this CPU has no AVX2 and FMA: no kernels to pin")
+    probe = ("import json; import numpy as np; from threadpoolctl import threadpool_info; "
+             "from sparse_brdf.mitsuba_env import llvm_target, set_variant; "
+             "set_variant('llvm_ad_rgb'); "
+             "from numpy._core._multiarray_umath import __cpu_dispatch__ as d, "
+             "__cpu_features__ as f; "
+             "print(json.dumps([[k for k in d if f[k]], "
+             "sorted({i.get('architecture') for i in threadpool_info() "
+             "if i.get('internal_api') == 'openblas'}), list(llvm_target())]))")
+    run = subprocess.run([sys.executable, "-c", probe], env={**os.environ, **env},
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    simd, blas, (cpu, width) = json.loads(run.stdout.splitlines()[-1])
+    assert simd and not [k for k in simd if k.startswith(("X86_V4", "AVX512"))], simd
+    assert blas in ([], ["Haswell"])
+    assert cpu == LLVM_TARGETS["haswell"][0] and width == 8
