@@ -103,3 +103,14 @@ def test_the_pinned_kernels_are_the_ones_a_fresh_process_runs():
     assert simd and not [k for k in simd if k.startswith(("X86_V4", "AVX512"))], simd
     assert blas in ([], ["Haswell"])
     assert cpu == LLVM_TARGETS["haswell"][0] and width == 8
+
+
+def test_only_a_cpu_with_avx2_and_fma_gets_pinned_kernels(monkeypatch):
+    import other_cpu
+
+    monkeypatch.setattr(other_cpu, "cpu_flags", lambda: {"sse2", "avx"})
+    assert other_cpu.pinned_cpu() is None  # the CI bench's gate then widens its tolerances
+    monkeypatch.setattr(other_cpu, "cpu_flags", lambda: {"sse2", "avx", "avx2", "fma"})
+    env = other_cpu.pinned_cpu()
+    assert env["OPENBLAS_CORETYPE"] == "Haswell"
+    assert env[LLVM_TARGET_ENV].startswith("haswell:") and env[LLVM_TARGET_ENV].endswith(":8")
