@@ -128,7 +128,7 @@ def test_the_page_in_headless_chromium(report, tmp_path):
     pixels = mimage.imread(shot)[..., :3]
     assert pixels.shape[:2] == (1600, 1000)
     assert pixels.std() > 0.05  # a page, not a blank frame
-    # the viewer's dark renders fill much of its 384 x 384 frame: 34,000 such pixels here,
+    # the viewer's dark renders fill much of its 384 x 384 frame: 55,000 such pixels here,
     # none on a page without it
     assert (pixels.max(-1) < 0.05).sum() > 20_000
     assert np.isfinite(pixels).all()
