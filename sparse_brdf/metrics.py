@@ -8,7 +8,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .coords import MERL_SHAPE, bin_solid_angle_hd, cos_io, cosine_product
+from .coords import MERL_SHAPE, bin_solid_angle_hd, cos_io, cosine_product, dirs_to_bins
 from .errors import ImageFileError
 
 GAMMA = 2.0
@@ -443,6 +443,78 @@ def render_proxy_error(ref: np.ndarray, rec: np.ndarray,
         d /= k["cell_omega"][..., None]
         w = k["cell_point"][..., None]
     return float(np.sum(d * d * w, dtype=np.float64))
+
+
+#: The albedo proxy's sampling: outgoing polar angles, and incident directions per
+#: outgoing one (polar x azimuth), all at cell midpoints.
+ALBEDO_SAMPLES = (24, 40, 80)
+
+
+@functools.lru_cache(maxsize=4)
+def make_albedo_proxy(shape: tuple[int, int, int] = MERL_SHAPE) -> dict[str, np.ndarray]:
+    """The kernel of :func:`albedo_proxy_error` on a grid (cached per shape; read-only).
+
+    For each of ``ALBEDO_SAMPLES[0]`` outgoing polar angles theta_o (midpoints of equal
+    steps over [0, pi/2], azimuth 0), a midpoint rule over the incident hemisphere
+    (``ALBEDO_SAMPLES[1]`` polar by ``ALBEDO_SAMPLES[2]`` azimuth cells): ``index`` (n_o,
+    n_w), the flat grid bin of each (w_i, w_o) pair; ``weight`` (n_w,), cos_i times the
+    cell's solid angle (sr); ``outgoing`` (n_o,), cos_o times theta_o's solid angle
+    2 pi sin(theta_o) d theta_o (sr), the share of a uniformly lit sphere's pixels that
+    see that theta_o.
+    """
+    n_o, n_t, n_p = ALBEDO_SAMPLES
+    step_o, step_t, step_p = np.pi / 2 / n_o, np.pi / 2 / n_t, 2 * np.pi / n_p
+    to = (np.arange(n_o) + 0.5) * step_o
+    ti = (np.arange(n_t) + 0.5) * step_t
+    pi = (np.arange(n_p) + 0.5) * step_p
+    st, ct = np.sin(ti)[:, None], np.cos(ti)[:, None]
+    wi = np.stack(np.broadcast_arrays(st * np.cos(pi), st * np.sin(pi), ct), -1).reshape(-1, 3)
+    weight = np.broadcast_to(ct * st * step_t * step_p, (n_t, n_p)).reshape(-1)
+    wo = np.stack([np.sin(to), np.zeros(n_o), np.cos(to)], -1)
+    bins = dirs_to_bins(wi[None, :, :], wo[:, None, :], tuple(shape))
+    out = {"index": np.ravel_multi_index(bins, tuple(shape)),
+           "weight": weight.astype(np.float64),
+           "outgoing": np.cos(to) * 2 * np.pi * np.sin(to) * step_o}
+    for a in out.values():
+        a.flags.writeable = False
+    return out
+
+
+def albedo_proxy_error(ref: np.ndarray, rec: np.ndarray,
+                       kernel: dict[str, np.ndarray] | None = None,
+                       valid: np.ndarray | None = None) -> float:
+    """A BRDF-space predictor of a rendering's squared error under uniform light
+    (``docs/method.md``, "Encoding"): per outgoing direction the error of the directional
+    albedo, the integral over w_i of (ref - rec) cos_i, squared, summed over theta_o with
+    cos_o times its solid angle. Errors of one sign over many bins add up here, as a
+    pixel under broad light adds them; :func:`render_proxy_error` sees each bin alone.
+
+    ``ref``/``rec``: linear BRDF values, channel-last (n1, n2, n3, C) or channel-first
+    (C, n1, n2, n3) (told apart as :func:`render_proxy_error` does), 0 on invalid bins, or
+    give ``valid`` (bool (n1, n2, n3)) to zero them here. ``kernel``:
+    :func:`make_albedo_proxy` of the grid (default: the cached one). Smaller is better;
+    float64 sums.
+    """
+    ref = np.asarray(ref)
+    rec = np.asarray(rec)
+    if ref.shape != rec.shape or ref.ndim != 4:
+        raise ValueError(f"expected two equal 4-D arrays, got {ref.shape} and {rec.shape}")
+    first = ref.shape[-1] > 4
+    shape = tuple(ref.shape[1:] if first else ref.shape[:3])
+    k = make_albedo_proxy(shape) if kernel is None else kernel
+    if int(k["index"].max()) >= int(np.prod(shape)):
+        raise ValueError(f"kernel does not match the arrays' grid {shape}")
+    idx = k["index"]
+
+    def at_samples(x: np.ndarray) -> np.ndarray:  # (C, n_o, n_w), only the sampled bins
+        x = x.reshape(x.shape[0], -1) if first else x.reshape(-1, x.shape[-1]).T
+        return np.asarray(x[:, idx], np.float64)
+
+    d = at_samples(ref) - at_samples(rec)
+    if valid is not None:
+        d *= np.asarray(valid, bool).reshape(-1)[idx]
+    albedo = d @ k["weight"]  # (C, n_o)
+    return float(np.sum(albedo * albedo * k["outgoing"], dtype=np.float64))
 
 
 def _masked(ref: np.ndarray, rec: np.ndarray, valid: np.ndarray | None):

@@ -1,4 +1,5 @@
-"""The encoder's options: the render-proxy transform selector, filling every invalid bin,
+"""The encoder's options: the render- and albedo-proxy transform selectors, filling every
+invalid bin,
 the opponent colour basis with a joint budget; their spec grammar and CLI flags. Each
 option is tested against the paper's encoder (``encode`` below defaults to
 ``PAPER_OPTIONS``; explicit keywords override it)."""
@@ -17,7 +18,13 @@ from sparse_brdf.coding.spec import ENCODE_OPTIONS, PAPER_OPTIONS, check_options
 from sparse_brdf.compared import baselines
 from sparse_brdf.compared.specs import make_model
 from sparse_brdf.coords import bin_solid_angle, geometric_valid
-from sparse_brdf.metrics import cosine_weighted_snr, make_render_proxy, render_proxy_error
+from sparse_brdf.metrics import (
+    albedo_proxy_error,
+    cosine_weighted_snr,
+    make_albedo_proxy,
+    make_render_proxy,
+    render_proxy_error,
+)
 from sparse_brdf.sources.load import load_brdf
 from sparse_brdf.sources.merl import write_merl
 from sparse_brdf.transforms import forward, inverse, to_basis
@@ -74,6 +81,55 @@ def test_render_selector_picks_the_smaller_proxy_error(small_ensemble):
         render_proxy_error(b.values, rec, valid=b.valid), rel=1e-4)
     with pytest.raises(ValueError, match="unknown selector"):
         encode(b, small_ensemble, 32, selector="psnr")
+
+
+def test_albedo_proxy_integrates_a_lambertian_table_to_its_albedo():
+    """A constant table rho = a / pi reflects a at every theta_o; the proxy of a zero
+    reconstruction is then sum_c a_c^2 times the integral of cos_o over the hemisphere
+    (pi), and an error of 10 % everywhere gives 1 % of it."""
+    a = np.array([0.8, 0.5, 0.1])
+    ref = np.broadcast_to(a / np.pi, (*SMALL, 3)).astype(np.float32)
+    k = make_albedo_proxy(SMALL)
+    assert make_albedo_proxy(SMALL) is k and not k["weight"].flags.writeable
+    albedo = np.moveaxis(ref, -1, 0).reshape(3, -1)[:, k["index"]] @ k["weight"]
+    assert albedo == pytest.approx(np.broadcast_to(a[:, None], albedo.shape), rel=2e-3)
+    zero = albedo_proxy_error(ref, np.zeros_like(ref), k)
+    assert zero == pytest.approx(np.pi * np.sum(a * a), rel=5e-3)
+    assert albedo_proxy_error(ref, 0.9 * ref, k) == pytest.approx(0.01 * zero, rel=1e-5)
+    assert albedo_proxy_error(ref, ref, k) == 0
+
+
+def test_albedo_proxy_adds_errors_of_one_sign_and_masks_invalid_bins():
+    rng = np.random.default_rng(1)
+    valid = geometric_valid(SMALL)
+    ref = (rng.random((*SMALL, 3)) * valid[..., None]).astype(np.float32)
+    noise = 0.05 * rng.standard_normal(ref.shape).astype(np.float32)
+    biased = albedo_proxy_error(ref, ref * 1.05, valid=valid)
+    random = albedo_proxy_error(ref, ref * (1 + noise), valid=valid)
+    # equal squared errors per bin; the render proxy sees them alike, this one does not
+    assert biased > 20 * random
+    garbage = np.where(valid[..., None], ref * 1.05, 1e6).astype(np.float32)
+    assert albedo_proxy_error(ref, garbage, valid=valid) == pytest.approx(biased, rel=1e-6)
+    first = albedo_proxy_error(np.moveaxis(ref, -1, 0), np.moveaxis(garbage, -1, 0),
+                               valid=valid)
+    assert first == pytest.approx(biased, rel=1e-6)
+    with pytest.raises(ValueError, match="equal 4-D"):
+        albedo_proxy_error(ref, ref[:-1])
+    with pytest.raises(ValueError, match="does not match"):
+        albedo_proxy_error(ref[:, :8], ref[:, :8], make_albedo_proxy(SMALL))
+
+
+def test_render_albedo_selector_picks_the_smaller_product(small_ensemble):
+    b = load_brdf("mitsuba:cu-ggx-0.12", shape=SMALL)
+    m = encode(b, small_ensemble, 32, selector="render-albedo")
+    st = m.stats["transforms"]
+    product = {t: st[t]["render_proxy"] * st[t]["albedo_proxy"] for t in st}
+    assert m.transform == min(product, key=product.get)
+    assert all(st[t]["render_albedo"] == product[t] for t in st)
+    assert m.stats["selector"] == "render-albedo"
+    rec = m.decode(small_ensemble, valid=b.valid).values
+    assert st[m.transform]["albedo_proxy"] == pytest.approx(
+        albedo_proxy_error(b.values, rec, valid=b.valid), rel=1e-4)
 
 
 # ------------------------------------------------------------------- invalid-bin fill
@@ -184,15 +240,16 @@ def test_sparse_spec_grammar_gives_unique_names(small_ensemble):
         "sparse:262:auto:fill=missing", "sparse:262:basis=rgb", "sparse:262:paper",
         "sparse:262:log-plus:selector=gamma-mse,fill=missing,basis=rgb",
         "sparse:262:fill=invalid,fill_iters=5", "sparse:262:basis=rgb,budget=joint",
-        "sparse:262:budget=channel")}
+        "sparse:262:budget=channel", "sparse:262:selector=render")}
     assert len(set(names.values())) == len(names)
     assert names["sparse:262"] == "sparse-262"
     assert names["sparse:262:log-plus:selector=gamma-mse,fill=missing,basis=rgb"] == \
         "sparse-262-log-plus-paper"
     assert names["sparse:262:basis=rgb,budget=joint"] == "sparse-262-basis=rgb-budget=joint"
+    assert names["sparse:262:selector=render"] == "sparse-262-selector=render"
     # an option at its default, or in another order, is the same model
-    assert make_model("sparse:262:fill=invalid,selector=render", small_ensemble).name == \
-        "sparse-262"
+    assert make_model("sparse:262:fill=invalid,selector=render-albedo",
+                      small_ensemble).name == "sparse-262"
     assert make_model("sparse:262:basis=rgb,fill=missing", small_ensemble).name == \
         make_model("sparse:262:fill=missing,basis=rgb,budget=channel", small_ensemble).name
     for bad in ("sparse:262:fill", "sparse:262:colour=rgb", "sparse:262:fill=all",
@@ -218,11 +275,11 @@ def test_cli_encode_flags(small_ensemble, tmp_path, capsys):
 
 
 def test_the_defaults_are_the_three_options(small_ensemble):
-    """Without options, ``encode`` is the render selector, invalid fill and opponent basis
-    with a joint budget; ``PAPER_OPTIONS`` gives the paper's encoder."""
+    """Without options, ``encode`` is the render-albedo selector, invalid fill and opponent
+    basis with a joint budget; ``PAPER_OPTIONS`` gives the paper's encoder."""
     b = load_brdf("mitsuba:cu-ggx-0.35", shape=SMALL)
     m = _encode(b, small_ensemble, 16)
-    assert m.stats["options"] == {"selector": "render", "fill": "invalid", "fill_iters": 3,
+    assert m.stats["options"] == {"selector": "render-albedo", "fill": "invalid", "fill_iters": 3,
                                   "basis": "opponent", "budget": "joint"}
     assert {k: ENCODE_OPTIONS[k] for k in PAPER_OPTIONS} != PAPER_OPTIONS
     p = _encode(b, small_ensemble, 16, **PAPER_OPTIONS)

@@ -94,8 +94,8 @@ def test_build_resolves_every_default(ens):
     assert spec.ensemble is ens[0] and spec.n_coeffs == int(np.prod(SMALL))  # capped
     assert (spec.budget, spec.fill_iters, spec.joint) == ("channel", 3, False)
     assert spec.transforms == ens[0].transforms and spec.transform == "auto"
-    assert spec.options == {"selector": "render", "fill": "missing", "fill_iters": 3,
-                            "basis": "rgb", "budget": "channel"}
+    assert spec.options == {"selector": "render-albedo", "fill": "missing",
+                            "fill_iters": 3, "basis": "rgb", "budget": "channel"}
     with pytest.raises(dataclasses.FrozenInstanceError):
         spec.n_coeffs = 3
     assert "EncodeSpec(" in repr(spec) and len(repr(spec)) < 300

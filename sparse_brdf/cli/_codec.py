@@ -169,8 +169,10 @@ def add_encode(sub) -> None:
                         "Transforms)")
     e.add_argument("--selector", default=default_of(encode, "selector"),
                    choices=ENCODE["selector"],
-                   help="how auto picks the transform: the smaller render-proxy error, or "
-                        "the smaller gamma-mapped MSE (the paper's)")
+                   help="how auto picks the transform: render-albedo, the smaller product "
+                        "of the errors predicted under point lights and under uniform "
+                        "light; render, the first alone; gamma-mse, the smaller "
+                        "gamma-mapped MSE (the paper's)")
     e.add_argument("--fill", default=default_of(encode, "fill"), choices=ENCODE["fill"],
                    help="bins filled from the model instead of fitted as zeros: every "
                         "invalid bin, or only unmeasured bins above the horizon")

@@ -15,7 +15,15 @@ import numpy as np
 from ..brdf import BRDF
 from ..coords import geometric_valid
 from ..errors import EnsembleMismatchError
-from ..metrics import gamma_mse, make_render_proxy, mse, rae, render_proxy_error
+from ..metrics import (
+    albedo_proxy_error,
+    gamma_mse,
+    make_albedo_proxy,
+    make_render_proxy,
+    mse,
+    rae,
+    render_proxy_error,
+)
 from ..parallel import parallel_map
 from ..transforms import has_floor, inverse
 from .coefficients import SparseBRDF
@@ -26,7 +34,11 @@ from .projection import CodingOptions, coded_channels, materials_of, search_many
 from .spec import EncodeSpec
 
 #: The ``stats["transforms"][t]`` entry each selector minimises.
-SELECTOR_KEYS = {"gamma-mse": "gamma_mse", "render": "render_proxy"}
+SELECTOR_KEYS = {"gamma-mse": "gamma_mse", "render": "render_proxy",
+                 "render-albedo": "render_albedo"}
+#: The entries of ``stats["transforms"][t]`` that need the whole decoded table, not
+#: only its valid bins.
+_TABLE_KEYS = ("render_proxy", "albedo_proxy", "render_albedo")
 def check_grid_matches(brdf: BRDF, ens: Ensemble) -> None:
     """:class:`EnsembleMismatchError` naming the BRDF's file (or name) unless its grid is
     the ensemble's."""
@@ -40,14 +52,16 @@ def choose_transform(brdf: BRDF, models: dict[str, SparseBRDF], ens: Ensemble,
     """The model that ``selector`` prefers (:func:`pick_transform`'s rule; ``selector`` as
     an :class:`~sparse_brdf.coding.spec.EncodeSpec` resolved it); ``stats`` gets every
     model's value of the selector's error, and the chosen model's errors in full
-    (gamma-mapped MSE, MSE, RAE, render-proxy error on valid bins). A floor transform's
-    model then gets its floor (:func:`~sparse_brdf.coding.floor.choose_floor`; the
-    errors are those of its decode without one)."""
+    (gamma-mapped MSE, MSE, RAE, render-proxy and albedo-proxy errors on valid bins). A
+    floor transform's model then gets its floor
+    (:func:`~sparse_brdf.coding.floor.choose_floor`; the errors are those of its decode
+    without one)."""
     key = SELECTOR_KEYS[selector]
     valid = brdf.valid
     ref_full = brdf.channel_first()
     ref = ref_full[:, valid]  # (3, n_valid): mask once, then flat metrics
     kernel = make_render_proxy(brdf.shape)
+    albedo_kernel = make_albedo_proxy(brdf.shape)
     full: dict[str, np.ndarray] = {}  # per model: its decode (3, n1, n2, n3)
     flat: dict[str, np.ndarray] = {}  # per model: its decode on the valid bins
 
@@ -55,19 +69,30 @@ def choose_transform(brdf: BRDF, models: dict[str, SparseBRDF], ens: Ensemble,
         if name not in full:
             m = models[name]
             full[name] = inverse(m.transformed(ens), name, m.gain, m.lobe)  # no floor
-        if keys != ("render_proxy",) and name not in flat:
+        if any(k not in _TABLE_KEYS for k in keys) and name not in flat:
             flat[name] = full[name][:, valid]
         metric = {"gamma_mse": lambda: gamma_mse(ref, flat[name]),
                   "mse": lambda: mse(ref, flat[name]), "rae": lambda: rae(ref, flat[name]),
                   "render_proxy": lambda: render_proxy_error(ref_full, full[name], kernel,
-                                                             valid)}
-        return {k: metric[k]() for k in keys}
+                                                             valid),
+                  "albedo_proxy": lambda: albedo_proxy_error(ref_full, full[name],
+                                                             albedo_kernel, valid)}
+        out = {}
+        for k in keys:
+            if k == "render_albedo":  # the product: the geometric mean's choice
+                for part in ("render_proxy", "albedo_proxy"):
+                    out.setdefault(part, metric[part]())
+                out[k] = out["render_proxy"] * out["albedo_proxy"]
+            else:
+                out.setdefault(k, metric[k]())
+        return out
 
     names = list(models)
     sel = dict(zip(names, parallel_map(lambda t: errors(t, (key,)), names, limit_blas=False),
                    strict=True))
     chosen = min(sel, key=lambda t: sel[t][key])  # pick_transform, the selector checked
-    rest = tuple(k for k in SELECTOR_KEYS.values() if k != key) + ("mse", "rae")
+    rest = tuple(k for k in ("gamma_mse", "render_proxy", "albedo_proxy", "mse", "rae")
+                 if k not in sel[chosen])
     if chosen not in flat:  # mask the chosen decode once, not per metric ("rest" has mse)
         flat[chosen] = full[chosen][:, valid]
     more = {}  # the chosen model's other errors, side by side

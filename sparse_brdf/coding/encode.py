@@ -11,9 +11,10 @@ index. The transform (the same for all channels) is the one whose reconstruction
 the smaller gamma-mapped MSE against the BRDF, unless forced.
 
 Options beyond the paper (``encode(selector=, fill=, basis=, budget=)``), all on by
-default: the transform chosen by the render-proxy error; every invalid bin a free value
-(hard thresholding pursuit on the valid bins); the channels coded in an opponent colour
-basis with a joint budget of 3 ``n_coeffs``. ``PAPER_OPTIONS`` gives the paper's encoder.
+default: the transform chosen by the render- and albedo-proxy errors; every invalid bin
+a free value (hard thresholding pursuit on the valid bins); the channels coded in an
+opponent colour basis with a joint budget of 3 ``n_coeffs``. ``PAPER_OPTIONS`` gives
+the paper's encoder.
 
 The size: a count (``n_coeffs``, the paper's) or a byte budget (``n_bytes``,
 :mod:`~sparse_brdf.coding.budget`); by default files of at most ``DEFAULT_N_BYTES`` =
@@ -35,7 +36,8 @@ from .spec import ENCODE_OPTIONS, SELECTORS, EncodeSpec, auto_transforms
 
 def pick_transform(stats: dict[str, dict], selector: str = "gamma-mse") -> str:
     """The transform rule (``docs/method.md``, "Encoding"): the smaller gamma-mapped MSE
-    (``selector="gamma-mse"``) or the smaller render-proxy error (``"render"``)."""
+    (``selector="gamma-mse"``), the smaller render-proxy error (``"render"``) or the
+    smaller product of the render- and albedo-proxy errors (``"render-albedo"``)."""
     key = SELECTOR_KEYS[check_choice("selector", selector, SELECTORS)]
     return min(stats, key=lambda t: stats[t][key])
 
@@ -111,9 +113,11 @@ def encode(
         Rounds of filling (see ``fill``); None: ``DEFAULT_FILL_ITERS[fill]`` (3 for
         either); 0 disables filling (the paper fits every invalid bin as zero).
     selector : str
-        How "auto" picks the transform (``SELECTORS``): ``"render"``, the smaller
-        :func:`~sparse_brdf.metrics.render_proxy_error` (the default), or
-        ``"gamma-mse"``, the smaller gamma-mapped MSE (the paper's).
+        How "auto" picks the transform (``SELECTORS``): ``"render-albedo"`` (the
+        default), the smaller product of :func:`~sparse_brdf.metrics.render_proxy_error`
+        (point lights) and :func:`~sparse_brdf.metrics.albedo_proxy_error` (uniform
+        light); ``"render"``, the smaller render-proxy error alone (the default until
+        2026-12-08); or ``"gamma-mse"``, the smaller gamma-mapped MSE (the paper's).
     fill : str
         Which bins are filled from the model instead of being fitted as zeros
         (``FILLS``). ``"missing"`` (the paper's, plus filling): unmeasured bins above

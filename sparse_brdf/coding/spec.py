@@ -39,7 +39,7 @@ DEFAULT_N_COEFFS = 262
 DEFAULT_N_BYTES = 1700
 
 #: How ``encode(transform="auto")`` picks the transform (``docs/method.md``, "Encoding").
-SELECTORS: tuple[str, str] = ("gamma-mse", "render")
+SELECTORS: tuple[str, ...] = ("gamma-mse", "render", "render-albedo")
 #: Which bins ``encode`` fills from the model instead of fitting them as zeros.
 FILLS: tuple[str, str] = ("missing", "invalid")
 #: Fill rounds when ``fill_iters`` is not given: full re-searches for "missing",
@@ -50,9 +50,10 @@ DEFAULT_FILL_ITERS = {"missing": 3, "invalid": 3}
 #: the three channels.
 BUDGETS: tuple[str, str] = ("channel", "joint")
 #: The keyword options of :func:`~sparse_brdf.encode` beyond the paper's, with their
-#: defaults: the render-proxy selector, free invalid bins and the opponent basis
-#: (docs/results.md, "Accuracy at equal coefficients", measures each).
-ENCODE_OPTIONS = {"selector": "render", "fill": "invalid", "fill_iters": None,
+#: defaults: the render- and albedo-proxy selector, free invalid bins and the opponent
+#: basis (docs/results.md, "Accuracy at equal coefficients", measures each; section 0 the
+#: selector).
+ENCODE_OPTIONS = {"selector": "render-albedo", "fill": "invalid", "fill_iters": None,
                   "basis": "opponent", "budget": None}
 #: The paper's encoder as options of :func:`~sparse_brdf.encode` (``sparse:N:paper`` in a
 #: bench).
