@@ -63,6 +63,13 @@ class GreyFit:
         return Evaluator()
 
 
+class BudgetedGrey(GreyLambert):
+    """A model with a byte budget of its own, named as the package's sparse model names
+    its budget: the bench's check of sparse budgets must leave it alone."""
+
+    n_bytes = 4
+
+
 class NotAModel:
     name = "not-a-model"
 '''
@@ -135,6 +142,20 @@ def test_outside_specs_in_a_config_pass_check(user_dir, capsys):
     assert "1 materials x 3 models" in out
     plan = check_config(BenchConfig.load(cfg))
     assert plan["models"] == ["grey-0.5", "naive", "quantised-6bit"]
+
+
+def test_an_outside_model_with_its_own_n_bytes_passes_check(user_dir, capsys):
+    """``n_bytes`` on an outside model is that model's business: the check of the sparse
+    model's byte budgets (a file's header must fit) does not apply to it."""
+    cfg = user_dir / "mine.toml"
+    cfg.write_text('corpora = ["mitsuba"]\nmax_materials = 1\nstability = false\n'
+                   'models = ["greymodels:BudgetedGrey:albedo=0.5", "sparse:b200"]\n'
+                   'scenes = ["sphere.xml"]\n')
+    assert main(["bench", str(cfg), "--check"]) == 0, capsys.readouterr().err
+    assert "1 materials x 2 models" in capsys.readouterr().out
+    cfg.write_text(cfg.read_text().replace("sparse:b200", "sparse:b60"))
+    assert main(["bench", str(cfg), "--check"]) == 2
+    assert "sparse-b60: 60 bytes hold no coefficient" in capsys.readouterr().err
 
 
 @pytest.mark.bench

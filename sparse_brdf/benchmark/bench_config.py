@@ -15,6 +15,7 @@ import tomllib
 
 from ..coding.ensemble import resolve_ensemble
 from ..coding.fileformat import min_file_size
+from ..compared.sparse_model import SparseModel
 from ..compared.specs import make_model, parse_spec
 from ..coords import GRID_BINS
 from ..errors import (
@@ -317,9 +318,11 @@ def check_config(cfg: BenchConfig) -> dict:
 
 def _check_byte_budgets(cfg: BenchConfig, models: list, mats: list) -> None:
     """:class:`ConfigError` for a model whose byte budget (``sparse-bN``) cannot hold one
-    coefficient in the file of some material (its header, name and checksum come first)."""
+    coefficient in the file of some material (its header, name and checksum come first).
+    Only the package's sparse model has such a budget: an outside model's own ``n_bytes``
+    attribute, if it has one, means what that model says."""
     for m in models:
-        if getattr(m, "n_bytes", None) is None or not mats:
+        if not isinstance(m, SparseModel) or m.n_bytes is None or not mats:
             continue
         floor = max(min_file_size(len(x.name.encode("utf-8")[:255]), m.version) for x in mats)
         if m.n_bytes <= floor:
