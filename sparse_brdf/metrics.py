@@ -404,9 +404,26 @@ def make_render_proxy(shape: tuple[int, int, int] = MERL_SHAPE,
            "cell_omega": np.repeat(np.add.reduceat(hd, starts, axis=0)[:, :, None], n3,
                                    axis=2),
            "cell_point": np.add.reduceat(point, starts, axis=0)}
-    for a in out.values():
+    return _read_only(out)
+
+
+def _read_only(kernel: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """``kernel`` with every array made read-only (a cached kernel is shared)."""
+    for a in kernel.values():
         a.flags.writeable = False
-    return out
+    return kernel
+
+
+def _two_tables(ref, rec) -> tuple[np.ndarray, np.ndarray, bool, tuple[int, int, int]]:
+    """A proxy's two tables as arrays, whether they are channel-first (told apart by the
+    last axis: phi_d, not at most 4 colour channels) and their grid; a ValueError unless
+    they are two equal 4-D arrays."""
+    ref = np.asarray(ref)
+    rec = np.asarray(rec)
+    if ref.shape != rec.shape or ref.ndim != 4:
+        raise ValueError(f"expected two equal 4-D arrays, got {ref.shape} and {rec.shape}")
+    first = ref.shape[-1] > 4
+    return ref, rec, first, tuple(ref.shape[1:] if first else ref.shape[:3])
 
 
 def render_proxy_error(ref: np.ndarray, rec: np.ndarray,
@@ -423,13 +440,8 @@ def render_proxy_error(ref: np.ndarray, rec: np.ndarray,
     :func:`make_render_proxy` of the grid (default: the cached one, 2-degree cells).
     Smaller is better; the sum is accumulated in float64.
     """
-    ref = np.asarray(ref)
-    rec = np.asarray(rec)
-    if ref.shape != rec.shape or ref.ndim != 4:
-        raise ValueError(f"expected two equal 4-D arrays, got {ref.shape} and {rec.shape}")
-    first = ref.shape[-1] > 4  # the last axis is phi_d, not colour: channel-first
-    shape = ref.shape[1:] if first else ref.shape[:3]
-    k = make_render_proxy(tuple(shape)) if kernel is None else kernel
+    ref, rec, first, shape = _two_tables(ref, rec)
+    k = make_render_proxy(shape) if kernel is None else kernel
     if k["omega"].shape != tuple(shape):
         raise ValueError(f"kernel grid {k['omega'].shape} does not match the arrays' {shape}")
     d = np.asarray(ref, np.float32) - np.asarray(rec, np.float32)
@@ -456,11 +468,11 @@ def make_albedo_proxy(shape: tuple[int, int, int] = MERL_SHAPE) -> dict[str, np.
 
     For each of ``ALBEDO_SAMPLES[0]`` outgoing polar angles theta_o (midpoints of equal
     steps over [0, pi/2], azimuth 0), a midpoint rule over the incident hemisphere
-    (``ALBEDO_SAMPLES[1]`` polar by ``ALBEDO_SAMPLES[2]`` azimuth cells): ``index`` (n_o,
-    n_w), the flat grid bin of each (w_i, w_o) pair; ``weight`` (n_w,), cos_i times the
-    cell's solid angle (sr); ``outgoing`` (n_o,), cos_o times theta_o's solid angle
-    2 pi sin(theta_o) d theta_o (sr), the share of a uniformly lit sphere's pixels that
-    see that theta_o.
+    (``ALBEDO_SAMPLES[1]`` polar by ``ALBEDO_SAMPLES[2]`` azimuth cells): ``grid`` (3,),
+    the grid's shape; ``index`` (n_o, n_w), the flat grid bin of each (w_i, w_o) pair;
+    ``weight`` (n_w,), cos_i times the cell's solid angle (sr); ``outgoing`` (n_o,), cos_o
+    times theta_o's solid angle 2 pi sin(theta_o) d theta_o (sr), the share of a
+    uniformly lit sphere's pixels that see that theta_o.
     """
     n_o, n_t, n_p = ALBEDO_SAMPLES
     step_o, step_t, step_p = np.pi / 2 / n_o, np.pi / 2 / n_t, 2 * np.pi / n_p
@@ -472,12 +484,10 @@ def make_albedo_proxy(shape: tuple[int, int, int] = MERL_SHAPE) -> dict[str, np.
     weight = np.broadcast_to(ct * st * step_t * step_p, (n_t, n_p)).reshape(-1)
     wo = np.stack([np.sin(to), np.zeros(n_o), np.cos(to)], -1)
     bins = dirs_to_bins(wi[None, :, :], wo[:, None, :], tuple(shape))
-    out = {"index": np.ravel_multi_index(bins, tuple(shape)),
-           "weight": weight.astype(np.float64),
-           "outgoing": np.cos(to) * 2 * np.pi * np.sin(to) * step_o}
-    for a in out.values():
-        a.flags.writeable = False
-    return out
+    return _read_only({"grid": np.array(shape, np.int64),
+                       "index": np.ravel_multi_index(bins, tuple(shape)),
+                       "weight": weight.astype(np.float64),
+                       "outgoing": np.cos(to) * 2 * np.pi * np.sin(to) * step_o})
 
 
 def albedo_proxy_error(ref: np.ndarray, rec: np.ndarray,
@@ -495,15 +505,10 @@ def albedo_proxy_error(ref: np.ndarray, rec: np.ndarray,
     :func:`make_albedo_proxy` of the grid (default: the cached one). Smaller is better;
     float64 sums.
     """
-    ref = np.asarray(ref)
-    rec = np.asarray(rec)
-    if ref.shape != rec.shape or ref.ndim != 4:
-        raise ValueError(f"expected two equal 4-D arrays, got {ref.shape} and {rec.shape}")
-    first = ref.shape[-1] > 4
-    shape = tuple(ref.shape[1:] if first else ref.shape[:3])
+    ref, rec, first, shape = _two_tables(ref, rec)
     k = make_albedo_proxy(shape) if kernel is None else kernel
-    if int(k["index"].max()) >= int(np.prod(shape)):
-        raise ValueError(f"kernel does not match the arrays' grid {shape}")
+    if tuple(k["grid"]) != shape:
+        raise ValueError(f"kernel grid {tuple(k['grid'])} does not match the arrays' {shape}")
     idx = k["index"]
 
     def at_samples(x: np.ndarray) -> np.ndarray:  # (C, n_o, n_w), only the sampled bins

@@ -117,6 +117,9 @@ def test_albedo_proxy_adds_errors_of_one_sign_and_masks_invalid_bins():
         albedo_proxy_error(ref, ref[:-1])
     with pytest.raises(ValueError, match="does not match"):
         albedo_proxy_error(ref[:, :8], ref[:, :8], make_albedo_proxy(SMALL))
+    coarser = (SMALL[0], SMALL[1], SMALL[2] // 2)  # its bins are all inside SMALL's
+    with pytest.raises(ValueError, match="does not match"):
+        albedo_proxy_error(ref, ref, make_albedo_proxy(coarser))
 
 
 def test_render_albedo_selector_picks_the_smaller_product(small_ensemble):
