@@ -575,6 +575,19 @@ def test_flipped_bytes_are_refused_or_read(data, draw):
     _read(_with_crc(bytes(buf)))
 
 
+def test_a_bad_file_whose_name_holds_a_line_break_is_refused_in_one_line():
+    """The material's name is the file's own bytes: a refusal that names it (a location
+    outside a grid the header shrank) stays one line, whatever the name holds."""
+    m = _model("ab" * 16)
+    m.name = "two\nlines\x07"
+    data = bytearray(to_bytes(m))
+    struct.pack_into("<H", data, 12, 1)  # n1 = 1: the model's locations fall outside
+    with pytest.raises(BRDFFileError, match="outside") as exc:
+        from_bytes(_with_crc(bytes(data)), "bad.sbrdf")
+    msg = str(exc.value)
+    assert msg.startswith("bad.sbrdf: two | lines\\x07: ") and "\n" not in msg, msg
+
+
 # header fields of version 2: (offset, struct format) of transform .. stored length
 FIELDS = [(10, "B"), (11, "B"), (12, "H"), (14, "H"), (16, "H"), (34, "H"), (40, "I"),
           (44, "I"), (48, "I"), (52, "B"), (53, "B"), (54, "h"), (56, "h"), (58, "h"),

@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from ..brdf import BRDF
-from ..errors import BRDFFileError, EnsembleMismatchError, UsageError
+from ..errors import BRDFFileError, EnsembleMismatchError, UsageError, one_line
 from ..fileio import atomic_write, require_file
 from ..params import check_choice
 from ..transforms import LOBE_SIZE, TRANSFORMS, has_floor, has_lobe, per_material
@@ -212,8 +212,8 @@ def from_bytes(data: bytes, source: str = "<bytes>") -> SparseBRDF:
                           locs, vals, name=name,
                           basis="opponent" if flags & FLAG_OPPONENT else "rgb", gain=gain,
                           lobe=lobe, floor=floor)
-    except ValueError as exc:
-        raise BRDFFileError(f"{source}: {exc}") from exc
+    except ValueError as exc:  # its message names the material: the file's own bytes
+        raise BRDFFileError(f"{source}: {one_line(exc)}") from exc
 
 
 def _records(data: bytes, off: int, counts) -> tuple[list, list]:
