@@ -588,6 +588,15 @@ def test_a_bad_file_whose_name_holds_a_line_break_is_refused_in_one_line():
     assert msg.startswith("bad.sbrdf: two | lines\\x07: ") and "\n" not in msg, msg
 
 
+def test_an_ensemble_mismatch_names_the_material_in_one_line(ens, tmp_path):
+    m = _model(ens.id)
+    m.name = "two\nlines"
+    p = save_sbrdf(tmp_path / "m.sbrdf", m)
+    other = Ensemble(*(u[:1] for u in (ens.u1, ens.u2, ens.u3)), taus=np.zeros(1))
+    with pytest.raises(EnsembleMismatchError, match=r"m\.sbrdf: two \| lines: encoded with"):
+        load_sbrdf(p, other)
+
+
 # header fields of version 2: (offset, struct format) of transform .. stored length
 FIELDS = [(10, "B"), (11, "B"), (12, "H"), (14, "H"), (16, "H"), (34, "H"), (40, "I"),
           (44, "I"), (48, "I"), (52, "B"), (53, "B"), (54, "h"), (56, "h"), (58, "h"),

@@ -453,8 +453,8 @@ def load_sbrdf(path: str | os.PathLike, ensemble: Ensemble | None = None) -> Spa
     if ensemble is not None:
         try:
             model.check_ensemble(ensemble)
-        except Exception as exc:
-            raise type(exc)(f"{path}: {exc}") from exc
+        except Exception as exc:  # its message names the material, read from the file
+            raise type(exc)(f"{path}: {one_line(exc)}") from exc
     return model
 
 
